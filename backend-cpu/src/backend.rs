@@ -1,0 +1,104 @@
+//! [`CpuBackend`]: the core step run over particles in parallel with rayon.
+
+use octoproxy_core::{step_particle, Backend, FormatError, Particle, ProxyView, StepParams};
+use rayon::prelude::*;
+
+/// What the CPU backend can report.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum CpuError {
+    /// The proxy did not validate.
+    #[error("invalid proxy: {0}")]
+    Format(#[from] FormatError),
+    /// Stepping before a proxy was uploaded.
+    #[error("no proxy uploaded")]
+    NoProxy,
+    /// Step parameters out of range.
+    #[error("invalid step parameters: {0}")]
+    Params(#[from] octoproxy_core::ParamError),
+    /// `download_particles` was given a slice of the wrong length.
+    #[error("expected room for {expected} particles, got {got}")]
+    LengthMismatch {
+        /// Particles held.
+        expected: usize,
+        /// Length given.
+        got: usize,
+    },
+}
+
+/// Steps particles on the CPU, in parallel over particles. Stepping allocates nothing.
+#[derive(Debug, Default)]
+pub struct CpuBackend {
+    proxy: Vec<u32>,
+    particles: Vec<Particle>,
+    use_lut: bool,
+    has_proxy: bool,
+}
+
+impl CpuBackend {
+    /// A backend with no proxy and no particles.
+    pub fn new() -> Self {
+        Self { use_lut: true, ..Self::default() }
+    }
+
+    /// Whether to enter through the lookup table (on by default; off only to measure it).
+    pub fn set_use_lut(&mut self, on: bool) {
+        self.use_lut = on;
+    }
+
+    /// The particles, in upload order.
+    pub fn particles(&self) -> &[Particle] {
+        &self.particles
+    }
+}
+
+impl Backend for CpuBackend {
+    type Error = CpuError;
+
+    fn name(&self) -> &str {
+        "cpu"
+    }
+
+    fn upload_proxy(&mut self, words: &[u32]) -> Result<(), CpuError> {
+        ProxyView::new(words)?;
+        self.proxy.clear();
+        self.proxy.extend_from_slice(words);
+        self.has_proxy = true;
+        Ok(())
+    }
+
+    fn upload_particles(&mut self, particles: &[Particle]) -> Result<(), CpuError> {
+        self.particles.clear();
+        self.particles.extend_from_slice(particles);
+        Ok(())
+    }
+
+    fn download_particles(&mut self, out: &mut [Particle]) -> Result<(), CpuError> {
+        if out.len() != self.particles.len() {
+            return Err(CpuError::LengthMismatch { expected: self.particles.len(), got: out.len() });
+        }
+        out.copy_from_slice(&self.particles);
+        Ok(())
+    }
+
+    fn particle_count(&self) -> usize {
+        self.particles.len()
+    }
+
+    fn step(&mut self, params: &StepParams, steps: u32) -> Result<(), CpuError> {
+        params.validate()?;
+        if !self.has_proxy {
+            return Err(CpuError::NoProxy);
+        }
+        // Validation is linear in the proxy: once per call, not per step.
+        let Self { proxy, particles, use_lut, .. } = self;
+        let view = ProxyView::new(proxy)?;
+        let view = if *use_lut { view } else { view.without_lut() };
+        for _ in 0..steps {
+            particles.par_iter_mut().with_min_len(1024).for_each(|p| {
+                step_particle(&view, p, params);
+            });
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,255 @@
+//! The flat tree (normals, triangle lists, neighbour queries) and its encoding into words.
+
+use glam::{DVec3, UVec3, Vec3};
+use octoproxy_core::format::{encode_normal, header, NodeRecord, FORMAT_VERSION, HEADER_WORDS, MAGIC, NODE_WORDS};
+use octoproxy_core::{lut_target, MAX_DEPTH};
+use rayon::prelude::*;
+
+use super::geom;
+use super::label::Labels;
+use super::{BuildParams, BuildReport, Grid, Node, Tri, TWO_SIDED_COHERENCE};
+
+/// No child: the octant is an empty leaf.
+pub(crate) const EMPTY: u32 = u32::MAX;
+
+pub(crate) struct Surface {
+    pub tris: Vec<u32>,
+    /// Unit representative normal (+z when the triangles cancel exactly).
+    pub normal: DVec3,
+    pub two_sided: bool,
+    /// Points on the leaf's triangles inside its box, with their triangle: the start points
+    /// of labelling segments.
+    pub anchors: Vec<(DVec3, u32)>,
+}
+
+pub(crate) enum Kind {
+    Internal { children: [u32; 8] },
+    Surface(Box<Surface>),
+}
+
+pub(crate) struct FlatNode {
+    pub depth: u32,
+    pub cell: UVec3,
+    pub kind: Kind,
+}
+
+impl FlatNode {
+    /// The closed box in finest-grid plane indices.
+    pub fn range(&self) -> (UVec3, UVec3) {
+        let s = MAX_DEPTH - self.depth;
+        (self.cell << s, (self.cell + 1) << s)
+    }
+}
+
+pub(crate) struct Flat {
+    pub nodes: Vec<FlatNode>,
+    /// Indices of the surface leaves.
+    pub surface: Vec<u32>,
+}
+
+impl Flat {
+    /// Flattens the pointer tree and computes each surface leaf's normal and anchors.
+    pub fn new(root: Node, tris: &[Tri], grid: &Grid) -> Flat {
+        let mut flat = Flat { nodes: Vec::new(), surface: Vec::new() };
+        flat.push(root, UVec3::ZERO, 0);
+        let surface_ids = flat.surface.clone();
+        let mut surfaces: Vec<(u32, Box<Surface>)> = Vec::with_capacity(surface_ids.len());
+        // Take the lists out, fill them in in parallel, put them back.
+        for &i in &surface_ids {
+            if let Kind::Surface(s) = &mut flat.nodes[i as usize].kind {
+                surfaces.push((i, std::mem::replace(s, Box::new(empty_surface()))));
+            }
+        }
+        surfaces.par_iter_mut().for_each(|(i, s)| {
+            let (lo, hi) = {
+                let n = &flat.nodes[*i as usize];
+                grid.cell_box(n.cell, n.depth)
+            };
+            finish_surface(s, tris, lo, hi);
+        });
+        for (i, s) in surfaces {
+            flat.nodes[i as usize].kind = Kind::Surface(s);
+        }
+        flat
+    }
+
+    fn push(&mut self, node: Node, cell: UVec3, depth: u32) -> u32 {
+        let id = self.nodes.len() as u32;
+        match node {
+            Node::Empty => EMPTY,
+            Node::Surface { tris } => {
+                self.nodes.push(FlatNode {
+                    depth,
+                    cell,
+                    kind: Kind::Surface(Box::new(Surface { tris, ..empty_surface() })),
+                });
+                self.surface.push(id);
+                id
+            }
+            Node::Internal { children } => {
+                self.nodes.push(FlatNode { depth, cell, kind: Kind::Internal { children: [EMPTY; 8] } });
+                let mut ids = [EMPTY; 8];
+                for (o, child) in children.into_iter().enumerate() {
+                    let o = o as u32;
+                    let c = cell * 2 + UVec3::new(o & 1, (o >> 1) & 1, (o >> 2) & 1);
+                    ids[o as usize] = self.push(child, c, depth + 1);
+                }
+                self.nodes[id as usize].kind = Kind::Internal { children: ids };
+                id
+            }
+        }
+    }
+
+    /// Calls `f(empty_id, lo, hi)` for every empty leaf whose closed box touches the closed
+    /// box `[qlo, qhi]` (finest-grid plane indices). `empty_id` is `parent * 8 + octant`.
+    pub fn for_each_touching_empty(&self, qlo: UVec3, qhi: UVec3, mut f: impl FnMut(u32, UVec3, UVec3)) {
+        let mut stack = [0u32; 8 * (MAX_DEPTH as usize + 1)];
+        let mut top = 1;
+        stack[0] = 0;
+        while top > 0 {
+            top -= 1;
+            let id = stack[top];
+            let node = &self.nodes[id as usize];
+            let Kind::Internal { children } = &node.kind else { continue };
+            let s = MAX_DEPTH - node.depth - 1;
+            for (o, &child) in children.iter().enumerate() {
+                let o = o as u32;
+                let c = node.cell * 2 + UVec3::new(o & 1, (o >> 1) & 1, (o >> 2) & 1);
+                let (lo, hi) = (c << s, (c + 1) << s);
+                if !(lo.cmple(qhi).all() && qlo.cmple(hi).all()) {
+                    continue;
+                }
+                if child == EMPTY {
+                    f(id * 8 + o, lo, hi);
+                } else if matches!(self.nodes[child as usize].kind, Kind::Internal { .. }) && top < stack.len() {
+                    stack[top] = child;
+                    top += 1;
+                }
+            }
+        }
+    }
+}
+
+fn empty_surface() -> Surface {
+    Surface { tris: Vec::new(), normal: DVec3::Z, two_sided: false, anchors: Vec::new() }
+}
+
+fn finish_surface(s: &mut Surface, tris: &[Tri], lo: DVec3, hi: DVec3) {
+    let mut clipped_sum = DVec3::ZERO;
+    let mut clipped_area = 0.0;
+    let mut full_sum = DVec3::ZERO;
+    let mut full_area = 0.0;
+    for &t in &s.tris {
+        let tri = &tris[t as usize];
+        let poly = geom::clip_triangle(&tri.v, lo, hi);
+        let (area, centroid) = poly.area_centroid();
+        if !poly.is_empty() {
+            s.anchors.push((centroid, t));
+        }
+        clipped_sum += tri.n * area;
+        clipped_area += area;
+        full_sum += tri.n * tri.area;
+        full_area += tri.area;
+    }
+    let (sum, area) = if clipped_area > 0.0 { (clipped_sum, clipped_area) } else { (full_sum, full_area) };
+    let len = sum.length();
+    s.two_sided = !(len > TWO_SIDED_COHERENCE * area);
+    s.normal = if len > 0.0 { sum / len } else { DVec3::Z };
+    if s.anchors.is_empty() {
+        // Numerically, no triangle reached inside: anchor at each centroid, clamped in.
+        for &t in &s.tris {
+            let c = (tris[t as usize].v[0] + tris[t as usize].v[1] + tris[t as usize].v[2]) / 3.0;
+            s.anchors.push((c.clamp(lo, hi), t));
+        }
+    }
+}
+
+/// Encodes the tree breadth first, then the lookup table; fills the report's sizes.
+pub(crate) fn encode(tree: &Flat, labels: &Labels, grid: &Grid, params: &BuildParams, report: &mut BuildReport) -> Vec<u32> {
+    // Breadth-first order of the nodes that get a record.
+    let mut order: Vec<u32> = vec![0];
+    let mut first_child: Vec<u32> = Vec::new();
+    let mut i = 0;
+    while i < order.len() {
+        let id = order[i];
+        if let Kind::Internal { children } = &tree.nodes[id as usize].kind {
+            first_child.push(order.len() as u32);
+            order.extend(children.iter().copied().filter(|&c| c != EMPTY));
+        } else {
+            first_child.push(0);
+        }
+        i += 1;
+    }
+    let mut tree_depth = 0;
+    let mut records: Vec<NodeRecord> = Vec::with_capacity(order.len());
+    for (k, &id) in order.iter().enumerate() {
+        let node = &tree.nodes[id as usize];
+        match &node.kind {
+            Kind::Internal { children } => {
+                tree_depth = tree_depth.max(node.depth + 1);
+                let mut child_mask = 0u8;
+                let mut internal_mask = 0u8;
+                let mut label_bits = 0u16;
+                for (o, &c) in children.iter().enumerate() {
+                    if c == EMPTY {
+                        label_bits |= (labels.get(id * 8 + o as u32).bits() as u16) << (2 * o);
+                    } else {
+                        child_mask |= 1 << o;
+                        if matches!(tree.nodes[c as usize].kind, Kind::Internal { .. }) {
+                            internal_mask |= 1 << o;
+                        }
+                    }
+                }
+                records.push(NodeRecord::internal(first_child[k], child_mask, internal_mask, label_bits));
+            }
+            Kind::Surface(s) => {
+                tree_depth = tree_depth.max(node.depth);
+                report.surface_leaves += 1;
+                report.two_sided_leaves += s.two_sided as usize;
+                let n = Vec3::new(s.normal.x as f32, s.normal.y as f32, s.normal.z as f32);
+                records.push(NodeRecord::surface(encode_normal(n), s.two_sided));
+            }
+        }
+    }
+    let lut_depth = params.lut_depth.min(tree_depth);
+    let lut: Vec<u32> = if lut_depth == 0 {
+        Vec::new()
+    } else {
+        let n = 1u32 << lut_depth;
+        (0..n * n * n)
+            .into_par_iter()
+            .map(|e| lut_target(&records, [e % n, (e / n) % n, e / (n * n)], lut_depth))
+            .collect()
+    };
+    let node_words = records.len() * NODE_WORDS;
+    let total = HEADER_WORDS + node_words + lut.len();
+    let mut words = vec![0u32; HEADER_WORDS];
+    words[header::MAGIC] = MAGIC;
+    words[header::VERSION] = FORMAT_VERSION;
+    words[header::HEADER_WORDS] = HEADER_WORDS as u32;
+    words[header::TOTAL_WORDS] = total as u32;
+    words[header::NODE_COUNT] = records.len() as u32;
+    words[header::NODES_OFFSET] = HEADER_WORDS as u32;
+    words[header::LUT_DEPTH] = lut_depth;
+    words[header::LUT_OFFSET] = (HEADER_WORDS + node_words) as u32;
+    words[header::TREE_DEPTH] = tree_depth;
+    words[header::DMIN] = params.dmin;
+    words[header::DMAX] = params.dmax;
+    words[header::EPSILON] = params.epsilon.to_bits();
+    for a in 0..3 {
+        words[header::ROOT_MIN + a] = grid.root_min[a].to_bits();
+    }
+    words[header::ROOT_SIZE] = grid.root_size.to_bits();
+    words.reserve(total - HEADER_WORDS);
+    words.extend_from_slice(bytemuck::cast_slice(&records));
+    words.extend_from_slice(&lut);
+    report.nodes = records.len();
+    report.tree_depth = tree_depth;
+    report.lut_depth = lut_depth;
+    report.node_bytes = node_words * 4;
+    report.lut_bytes = lut.len() * 4;
+    report.total_bytes = total * 4;
+    report.labelled_leaves = labels.labelled;
+    report.conflicting_labels = labels.conflicts;
+    words
+}

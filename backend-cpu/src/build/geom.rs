@@ -1,0 +1,240 @@
+//! Exact-enough f64 geometry for baking: triangle–box overlap by separating axes, clipping a
+//! triangle to a box, and segment–triangle intersection.
+
+use glam::DVec3;
+
+/// Whether the triangle `v` overlaps the closed box `[min, max]` (touching counts), by the
+/// separating axis theorem over the 13 axes of Akenine-Möller's test.
+pub fn triangle_overlaps_box(v: &[DVec3; 3], min: DVec3, max: DVec3) -> bool {
+    let c = (min + max) * 0.5;
+    let h = (max - min) * 0.5;
+    let v0 = v[0] - c;
+    let v1 = v[1] - c;
+    let v2 = v[2] - c;
+    // The three box face normals.
+    for a in 0..3 {
+        let lo = v0[a].min(v1[a]).min(v2[a]);
+        let hi = v0[a].max(v1[a]).max(v2[a]);
+        if lo > h[a] || hi < -h[a] {
+            return false;
+        }
+    }
+    let e = [v1 - v0, v2 - v1, v0 - v2];
+    // The triangle normal.
+    let n = e[0].cross(e[1]);
+    let r = h.x * n.x.abs() + h.y * n.y.abs() + h.z * n.z.abs();
+    let s = n.dot(v0);
+    if s > r || s < -r {
+        return false;
+    }
+    // The nine cross products of box axes and triangle edges.
+    let axes = [DVec3::X, DVec3::Y, DVec3::Z];
+    for ax in axes {
+        for ed in e {
+            let a = ax.cross(ed);
+            if a == DVec3::ZERO {
+                continue;
+            }
+            let p0 = a.dot(v0);
+            let p1 = a.dot(v1);
+            let p2 = a.dot(v2);
+            let r = h.x * a.x.abs() + h.y * a.y.abs() + h.z * a.z.abs();
+            let lo = p0.min(p1).min(p2);
+            let hi = p0.max(p1).max(p2);
+            if lo > r || hi < -r {
+                return false;
+            }
+        }
+    }
+    true
+}
+
+/// A convex polygon of at most 9 vertices (a triangle clipped by 6 planes).
+#[derive(Clone, Copy)]
+pub struct Poly {
+    pts: [DVec3; 12],
+    len: usize,
+}
+
+impl Poly {
+    /// Whether nothing is left.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    fn points(&self) -> &[DVec3] {
+        &self.pts[..self.len]
+    }
+
+    /// Area and area centroid (the centroid is the mean of the vertices when the area is 0).
+    pub fn area_centroid(&self) -> (f64, DVec3) {
+        let p = self.points();
+        if p.is_empty() {
+            return (0.0, DVec3::ZERO);
+        }
+        let mut area = 0.0;
+        let mut c = DVec3::ZERO;
+        for i in 1..p.len().saturating_sub(1) {
+            let a = (p[i] - p[0]).cross(p[i + 1] - p[0]).length() * 0.5;
+            area += a;
+            c += (p[0] + p[i] + p[i + 1]) * (a / 3.0);
+        }
+        if area > 0.0 {
+            (area, c / area)
+        } else {
+            (0.0, p.iter().copied().sum::<DVec3>() / p.len() as f64)
+        }
+    }
+}
+
+/// Clips a triangle to the closed box `[min, max]`.
+pub fn clip_triangle(v: &[DVec3; 3], min: DVec3, max: DVec3) -> Poly {
+    let mut poly = Poly { pts: [DVec3::ZERO; 12], len: 3 };
+    poly.pts[..3].copy_from_slice(v);
+    for a in 0..3 {
+        poly = clip_plane(&poly, a, min[a], 1.0);
+        poly = clip_plane(&poly, a, max[a], -1.0);
+        if poly.len == 0 {
+            break;
+        }
+    }
+    poly
+}
+
+/// Keeps the part of `poly` where `sign * (p[axis] - value) >= 0`.
+fn clip_plane(poly: &Poly, axis: usize, value: f64, sign: f64) -> Poly {
+    let mut out = Poly { pts: [DVec3::ZERO; 12], len: 0 };
+    let p = poly.points();
+    let n = p.len();
+    for i in 0..n {
+        let a = p[i];
+        let b = p[(i + 1) % n];
+        let da = sign * (a[axis] - value);
+        let db = sign * (b[axis] - value);
+        if da >= 0.0 && out.len < out.pts.len() {
+            out.pts[out.len] = a;
+            out.len += 1;
+        }
+        if (da >= 0.0) != (db >= 0.0) && out.len < out.pts.len() {
+            let t = da / (da - db);
+            let mut q = a + (b - a) * t;
+            q[axis] = value;
+            out.pts[out.len] = q;
+            out.len += 1;
+        }
+    }
+    out
+}
+
+/// Parameter `t` in `[0, 1]` at which the segment `a + t (b - a)` meets the triangle
+/// (edges included), by Möller–Trumbore; `None` when it misses or lies in its plane.
+pub fn segment_triangle(a: DVec3, b: DVec3, v: &[DVec3; 3]) -> Option<f64> {
+    let d = b - a;
+    let e1 = v[1] - v[0];
+    let e2 = v[2] - v[0];
+    let p = d.cross(e2);
+    let det = e1.dot(p);
+    let scale = e1.length() * d.length() * e2.length();
+    if det.abs() <= 1e-14 * scale || scale == 0.0 {
+        return None;
+    }
+    let inv = 1.0 / det;
+    let s = a - v[0];
+    let u = s.dot(p) * inv;
+    const TOL: f64 = 1e-12;
+    if !(-TOL..=1.0 + TOL).contains(&u) {
+        return None;
+    }
+    let q = s.cross(e1);
+    let w = d.dot(q) * inv;
+    if w < -TOL || u + w > 1.0 + TOL {
+        return None;
+    }
+    let t = e2.dot(q) * inv;
+    (-TOL..=1.0 + TOL).contains(&t).then_some(t.clamp(0.0, 1.0))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tri(a: [f64; 3], b: [f64; 3], c: [f64; 3]) -> [DVec3; 3] {
+        [DVec3::from(a), DVec3::from(b), DVec3::from(c)]
+    }
+
+    #[test]
+    fn overlap_cases() {
+        let (min, max) = (DVec3::ZERO, DVec3::ONE);
+        // Inside.
+        assert!(triangle_overlaps_box(&tri([0.2, 0.2, 0.5], [0.8, 0.2, 0.5], [0.5, 0.8, 0.5]), min, max));
+        // Far away.
+        assert!(!triangle_overlaps_box(&tri([2.0, 2.0, 2.0], [3.0, 2.0, 2.0], [2.0, 3.0, 2.0]), min, max));
+        // Big triangle through the box with all vertices outside.
+        assert!(triangle_overlaps_box(&tri([-5.0, -5.0, 0.5], [5.0, -5.0, 0.5], [0.0, 10.0, 0.5]), min, max));
+        // Touching a face exactly counts (closed box).
+        assert!(triangle_overlaps_box(&tri([1.0, 0.2, 0.2], [1.0, 0.8, 0.2], [1.0, 0.5, 0.8]), min, max));
+        // Near a corner but separated only by an edge-cross-product axis.
+        assert!(!triangle_overlaps_box(&tri([1.2, 0.0, -0.5], [1.2, 0.0, 1.5], [0.0, -1.2, 0.5]), min, max));
+        // Its plane misses the box although its projections on the box axes overlap it.
+        assert!(!triangle_overlaps_box(&tri([-5.0, -5.0, 2.0], [5.0, -5.0, 2.0], [0.0, 10.0, 2.0]), min, max));
+        // The plane x + y + z = 0.5 cuts the box corner; x + y + z = 4 passes beyond it.
+        assert!(triangle_overlaps_box(&tri([2.5, -1.0, -1.0], [-1.0, 2.5, -1.0], [-1.0, -1.0, 2.5]), min, max));
+        assert!(!triangle_overlaps_box(&tri([6.0, -1.0, -1.0], [-1.0, 6.0, -1.0], [-1.0, -1.0, 6.0]), min, max));
+    }
+
+    #[test]
+    fn overlap_agrees_with_sampling() {
+        // Random triangles: whenever a sampled point of the triangle lies in the box, the
+        // test must say they overlap (it may never miss a real overlap).
+        let mut s = 0x1234_5678_9abc_def0u64;
+        let mut r = || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            (s >> 11) as f64 / (1u64 << 53) as f64 * 3.0 - 1.0
+        };
+        let (min, max) = (DVec3::ZERO, DVec3::ONE);
+        for _ in 0..2000 {
+            let t = tri([r(), r(), r()], [r(), r(), r()], [r(), r(), r()]);
+            let mut inside = false;
+            for i in 0..=20 {
+                for j in 0..=(20 - i) {
+                    let (u, v) = (i as f64 / 20.0, j as f64 / 20.0);
+                    let p = t[0] + (t[1] - t[0]) * u + (t[2] - t[0]) * v;
+                    if p.cmpge(min).all() && p.cmple(max).all() {
+                        inside = true;
+                    }
+                }
+            }
+            if inside {
+                assert!(triangle_overlaps_box(&t, min, max));
+            }
+            // Clipping agrees: a triangle with no overlap clips to nothing of positive area.
+            if !triangle_overlaps_box(&t, min, max) {
+                assert_eq!(clip_triangle(&t, min, max).area_centroid().0, 0.0);
+            }
+        }
+    }
+
+    #[test]
+    fn clip_area() {
+        // A right triangle of area 2 clipped to the unit box leaves the unit square minus a
+        // corner: x + y <= 2 inside [0,1]^2 is the whole square.
+        let t = tri([0.0, 0.0, 0.5], [2.0, 0.0, 0.5], [0.0, 2.0, 0.5]);
+        let (area, c) = clip_triangle(&t, DVec3::ZERO, DVec3::ONE).area_centroid();
+        assert!((area - 1.0).abs() < 1e-12, "{area}");
+        assert!((c - DVec3::new(0.5, 0.5, 0.5)).length() < 1e-12);
+        let t = tri([0.0, 0.0, 0.5], [1.5, 0.0, 0.5], [0.0, 1.5, 0.5]);
+        let (area, _) = clip_triangle(&t, DVec3::ZERO, DVec3::ONE).area_centroid();
+        assert!((area - (1.0 - 0.125)).abs() < 1e-12, "{area}");
+    }
+
+    #[test]
+    fn segment_hits() {
+        let t = tri([0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]);
+        let hit = segment_triangle(DVec3::new(0.2, 0.2, 1.0), DVec3::new(0.2, 0.2, -1.0), &t).unwrap();
+        assert!((hit - 0.5).abs() < 1e-12);
+        assert!(segment_triangle(DVec3::new(2.0, 2.0, 1.0), DVec3::new(2.0, 2.0, -1.0), &t).is_none());
+        assert!(segment_triangle(DVec3::new(0.2, 0.2, 1.0), DVec3::new(0.2, 0.2, 0.5), &t).is_none());
+    }
+}

@@ -1,0 +1,172 @@
+//! Front/back labels of the empty leaves that touch the surface: the view-visible method of
+//! the paper's section 3.2, applied to every (surface leaf, touching empty leaf) pair.
+//!
+//! For a pair, `Pe` is the centre of the boundary the two closed boxes share (a face, an
+//! edge or a corner: every kind of contact is labelled, whatever the two leaves' sizes, so
+//! that a particle leaving the shell always lands in a labelled leaf). Segments run from
+//! `Pe` to up to [`SAMPLES`] points `Pb` on the surface leaf's triangles (the nearest ones);
+//! the triangle hit nearest `Pe` votes front when its normal faces `Pe`, back otherwise.
+//! The whole segment lies in the surface leaf's box, and every triangle that touches that
+//! box is in its list, so the nearest hit is exact.
+//!
+//! **Conflicts.** Two surfaces can see one empty leaf from different sides (thin gaps, holes,
+//! overlapping parts). Votes of triangles from closed components outrank votes from open
+//! ones: a leaf is labelled by the closed votes if it has any, else by the open ones. Within
+//! a rank the majority wins and a tie is labelled back. With the step's shell rule, a
+//! correctly labelled closed surface keeps particles on their side whatever the open
+//! surfaces near it vote.
+
+use glam::DVec3;
+use octoproxy_core::Label;
+use rayon::prelude::*;
+
+use super::encode::{Flat, Kind};
+use super::{geom, BuildProgress, Grid, Tri};
+
+/// Segments cast per (surface leaf, empty leaf) pair.
+pub(crate) const SAMPLES: usize = 3;
+
+pub(crate) struct Labels {
+    /// Label per `parent * 8 + octant`, as label bits.
+    bits: Vec<u8>,
+    pub labelled: usize,
+    pub conflicts: usize,
+}
+
+impl Labels {
+    pub fn get(&self, empty_id: u32) -> Label {
+        match self.bits.get(empty_id as usize) {
+            Some(1) => Label::Front,
+            Some(2) => Label::Back,
+            _ => Label::None,
+        }
+    }
+}
+
+#[derive(Clone, Copy)]
+struct Vote {
+    empty: u32,
+    front: bool,
+    closed: bool,
+}
+
+pub(crate) fn label(tree: &Flat, tris: &[Tri], grid: &Grid, progress: &dyn BuildProgress) -> Labels {
+    progress.begin("label", tree.surface.len() as u64);
+    let votes: Vec<Vote> = tree
+        .surface
+        .par_iter()
+        .flat_map_iter(|&leaf| {
+            let v = leaf_votes(tree, leaf, tris, grid);
+            progress.advance(1);
+            v
+        })
+        .collect();
+    // counts: closed front, closed back, open front, open back.
+    let mut counts = vec![[0u32; 4]; tree.nodes.len() * 8];
+    for v in &votes {
+        let k = (!v.closed as usize) * 2 + (!v.front as usize);
+        counts[v.empty as usize][k] += 1;
+    }
+    let mut labelled = 0;
+    let mut conflicts = 0;
+    let bits = counts
+        .iter()
+        .map(|c| {
+            let (front, back) = if c[0] + c[1] > 0 { (c[0], c[1]) } else { (c[2], c[3]) };
+            if front + back == 0 {
+                return 0u8;
+            }
+            labelled += 1;
+            if (c[0] + c[2] > 0) && (c[1] + c[3] > 0) {
+                conflicts += 1;
+            }
+            if front > back {
+                Label::Front.bits() as u8
+            } else {
+                Label::Back.bits() as u8
+            }
+        })
+        .collect();
+    Labels { bits, labelled, conflicts }
+}
+
+fn leaf_votes(tree: &Flat, leaf: u32, tris: &[Tri], grid: &Grid) -> Vec<Vote> {
+    let node = &tree.nodes[leaf as usize];
+    let Kind::Surface(surface) = &node.kind else { return Vec::new() };
+    let (lo, hi) = node.range();
+    let mut out = Vec::new();
+    tree.for_each_touching_empty(lo, hi, |empty, elo, ehi| {
+        // The shared closed region, in plane indices, then its centre in world space.
+        let slo = lo.max(elo);
+        let shi = hi.min(ehi);
+        let pe = DVec3::new(
+            (grid.plane(0, slo.x) + grid.plane(0, shi.x)) * 0.5,
+            (grid.plane(1, slo.y) + grid.plane(1, shi.y)) * 0.5,
+            (grid.plane(2, slo.z) + grid.plane(2, shi.z)) * 0.5,
+        );
+        // The nearest anchors.
+        let mut best: [(f64, usize); SAMPLES] = [(f64::INFINITY, usize::MAX); SAMPLES];
+        for (i, (p, _)) in surface.anchors.iter().enumerate() {
+            let d = (*p - pe).length_squared();
+            if d < best[SAMPLES - 1].0 {
+                best[SAMPLES - 1] = (d, i);
+                best.sort_by(|a, b| a.0.total_cmp(&b.0));
+            }
+        }
+        for &(_, i) in best.iter().filter(|b| b.1 != usize::MAX) {
+            let (pb, own) = surface.anchors[i];
+            if let Some((front, closed)) = view_visible(pe, pb, own, &surface.tris, tris) {
+                out.push(Vote { empty, front, closed });
+            }
+        }
+    });
+    out
+}
+
+/// The vote of one segment from `pe` to `pb` (a point on triangle `own`): the triangle hit
+/// nearest `pe` faces `pe` (front) or not (back). Hits within a hair of the nearest are
+/// summed, so a segment through an edge sees both triangles. `None` when undecided.
+fn view_visible(pe: DVec3, pb: DVec3, own: u32, list: &[u32], tris: &[Tri]) -> Option<(bool, bool)> {
+    let dir = pb - pe;
+    if dir.length_squared() == 0.0 {
+        return None;
+    }
+    let mut best_t = f64::INFINITY;
+    for &t in list {
+        if let Some(s) = geom::segment_triangle(pe, pb, &tris[t as usize].v) {
+            best_t = best_t.min(s);
+        }
+    }
+    if !best_t.is_finite() {
+        best_t = 1.0;
+    }
+    let mut n = DVec3::ZERO;
+    let mut closed = false;
+    let mut any = false;
+    for &t in list {
+        let hit = if t == own && best_t >= 1.0 - 1e-9 {
+            Some(1.0)
+        } else {
+            geom::segment_triangle(pe, pb, &tris[t as usize].v)
+        };
+        if let Some(s) = hit {
+            if s <= best_t + 1e-9 {
+                let tri = &tris[t as usize];
+                n += tri.n;
+                closed |= tri.closed;
+                any = true;
+            }
+        }
+    }
+    if !any {
+        let tri = &tris[own as usize];
+        n = tri.n;
+        closed = tri.closed;
+    }
+    // The segment runs from Pe to Pb: the surface faces Pe when its normal opposes `dir`.
+    let facing = -n.dot(dir);
+    if facing == 0.0 {
+        return None;
+    }
+    Some((facing > 0.0, closed))
+}

@@ -1,0 +1,519 @@
+//! Baking: triangles in memory → encoded proxy words.
+//!
+//! 1. **Gather** every mesh of the scene into one triangle soup, rejecting bad indices and
+//!    non-finite coordinates, skipping (and counting) zero-area triangles, and marking the
+//!    triangles of closed components (every edge shared by exactly two triangles, once in
+//!    each direction).
+//! 2. **Root cube**: the scene box, padded so that no surface leaf touches the root boundary
+//!    (particles coming from outside always meet a labelled empty leaf first), its size
+//!    rounded up to [`ROOT_SIZE_MANTISSA_BITS`] mantissa bits so that cell planes are exact.
+//! 3. **Subdivide** with an exact triangle–box test until a node is empty, reaches `dmax`, or
+//!    is deeper than `dmin` with normal variance below `epsilon` (equations (1)–(2) of the
+//!    paper, divided by the node's total triangle area so that `epsilon` means the same for a
+//!    mesh and its subdivision). A node touching the root boundary always subdivides.
+//! 4. **Normals**: the area-weighted normal of the triangles clipped to each surface leaf. If
+//!    they cancel (coherence below [`TWO_SIDED_COHERENCE`]), the leaf is two-sided.
+//! 5. **Label** every empty leaf that touches a surface leaf (faces, edges and corners, any
+//!    size) by the view-visible method: segments from points on the surface leaf's triangles
+//!    to the shared boundary; the hit nearest the boundary votes front or back. Votes from
+//!    closed components outrank votes from open ones; within a rank the majority wins and a
+//!    tie goes to back. See [`label`].
+//! 6. **Encode** breadth first, then fill the lookup table.
+
+mod encode;
+pub mod geom;
+mod label;
+
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+use glam::{DVec3, UVec3};
+use octoproxy_core::format::{quantize_root_size, ROOT_SIZE_MANTISSA_BITS};
+use octoproxy_core::{ulp, MAX_DEPTH, MAX_LUT_DEPTH};
+use rayon::prelude::*;
+
+
+/// Below this ratio of |Σ a n| to Σ a, a surface leaf's triangles face opposite ways and the
+/// leaf is two-sided (a knife edge sharper than about 35°, or both faces of a thin wall).
+pub const TWO_SIDED_COHERENCE: f64 = 0.3;
+
+const PROGRESS_DEPTH: u32 = 3;
+
+/// Default cap on the number of tree nodes a bake may create.
+pub const DEFAULT_MAX_NODES: u64 = 1 << 26;
+
+/// Build parameters.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BuildParams {
+    /// Depth below which nodes always subdivide.
+    pub dmin: u32,
+    /// Maximum depth.
+    pub dmax: u32,
+    /// Normal-variance tolerance (area-normalised; see the module documentation).
+    pub epsilon: f32,
+    /// Depth of the lookup table (clamped to the tree depth; 0 for none).
+    pub lut_depth: u32,
+    /// Give up with [`BuildError::TooManyNodes`] past this many nodes.
+    pub max_nodes: u64,
+}
+
+impl Default for BuildParams {
+    fn default() -> Self {
+        Self { dmin: 4, dmax: 8, epsilon: 0.01, lut_depth: 5, max_nodes: DEFAULT_MAX_NODES }
+    }
+}
+
+impl BuildParams {
+    /// Checks every field.
+    pub fn validate(&self) -> Result<(), BuildError> {
+        if self.dmax < 2 || self.dmax > MAX_DEPTH {
+            return Err(BuildError::BadParam(format!("dmax must be in 2..={MAX_DEPTH}, got {}", self.dmax)));
+        }
+        if self.dmin > self.dmax {
+            return Err(BuildError::BadParam(format!(
+                "dmin ({}) must not exceed dmax ({})",
+                self.dmin, self.dmax
+            )));
+        }
+        if !(self.epsilon >= 0.0) || !self.epsilon.is_finite() {
+            return Err(BuildError::BadParam(format!("epsilon must be a finite number >= 0, got {}", self.epsilon)));
+        }
+        if self.lut_depth > MAX_LUT_DEPTH {
+            return Err(BuildError::BadParam(format!(
+                "lut-depth must be in 0..={MAX_LUT_DEPTH}, got {}",
+                self.lut_depth
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// Why a bake failed.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum BuildError {
+    /// A parameter is out of range.
+    #[error("{0}")]
+    BadParam(String),
+    /// A triangle refers to a vertex that does not exist.
+    #[error("mesh {mesh}: triangle {triangle} uses vertex {index}, but the mesh has {vertices} vertices")]
+    IndexOutOfRange {
+        /// Which mesh of the scene.
+        mesh: usize,
+        /// Which triangle.
+        triangle: usize,
+        /// The bad index.
+        index: u32,
+        /// Number of vertices.
+        vertices: usize,
+    },
+    /// A vertex coordinate is NaN or infinite.
+    #[error("mesh {mesh}: vertex {vertex} has a NaN or infinite coordinate")]
+    NonFinite {
+        /// Which mesh of the scene.
+        mesh: usize,
+        /// Which vertex.
+        vertex: usize,
+    },
+    /// No triangle with a positive area.
+    #[error("the scene has no triangle with a positive area ({degenerate} degenerate triangles skipped)")]
+    Empty {
+        /// Triangles skipped for zero area.
+        degenerate: usize,
+    },
+    /// The scene is too far from the origin for its size: cells would collapse in `f32`.
+    #[error("the scene is too small for its distance from the origin at dmax {dmax} (cells of {cell} at coordinates up to {magnitude}); move it nearer the origin or lower dmax")]
+    Resolution {
+        /// dmax asked for.
+        dmax: u32,
+        /// Leaf size at dmax.
+        cell: f32,
+        /// Largest coordinate magnitude.
+        magnitude: f32,
+    },
+    /// The tree would be too large.
+    #[error("the proxy would need more than {max_nodes} nodes; lower dmax or raise epsilon")]
+    TooManyNodes {
+        /// The cap.
+        max_nodes: u64,
+    },
+}
+
+/// Receives progress while baking (all methods may be called from several threads).
+pub trait BuildProgress: Sync {
+    /// A stage starts, with `total` units of work.
+    fn begin(&self, _stage: &'static str, _total: u64) {}
+    /// `n` more units of the current stage are done.
+    fn advance(&self, _n: u64) {}
+}
+
+impl BuildProgress for () {}
+
+/// What a bake produced, for reports.
+#[derive(Clone, Debug, Default)]
+pub struct BuildReport {
+    /// Triangles given.
+    pub triangles_in: usize,
+    /// Zero-area triangles skipped.
+    pub degenerate_skipped: usize,
+    /// Triangles belonging to closed components.
+    pub closed_triangles: usize,
+    /// Node records.
+    pub nodes: usize,
+    /// Surface leaves.
+    pub surface_leaves: usize,
+    /// Of those, two-sided.
+    pub two_sided_leaves: usize,
+    /// Empty leaves given a label.
+    pub labelled_leaves: usize,
+    /// Labelled leaves whose votes disagreed.
+    pub conflicting_labels: usize,
+    /// Depth of the deepest leaf.
+    pub tree_depth: u32,
+    /// Lookup-table depth used.
+    pub lut_depth: u32,
+    /// Bytes of the node array.
+    pub node_bytes: usize,
+    /// Bytes of the lookup table.
+    pub lut_bytes: usize,
+    /// Bytes of the whole buffer.
+    pub total_bytes: usize,
+    /// Root cube minimum corner.
+    pub root_min: [f32; 3],
+    /// Root cube edge length.
+    pub root_size: f32,
+    /// Wall time per stage.
+    pub timings: Vec<(&'static str, Duration)>,
+}
+
+/// One mesh of a scene, borrowed.
+#[derive(Clone, Copy, Debug)]
+pub struct MeshRef<'a> {
+    /// Vertex positions.
+    pub positions: &'a [[f32; 3]],
+    /// Triangles as vertex indices.
+    pub triangles: &'a [[u32; 3]],
+}
+
+
+/// A triangle of the scene, in f64.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Tri {
+    pub v: [DVec3; 3],
+    /// Unit normal.
+    pub n: DVec3,
+    pub area: f64,
+    pub closed: bool,
+}
+
+/// The grid: root cube and the exact `f32` planes every backend uses.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Grid {
+    pub root_min: [f32; 3],
+    pub root_size: f32,
+    pub unit: f32,
+}
+
+impl Grid {
+    /// Plane `i` of the finest grid along `axis`, as `f32` (same formula as core) in f64.
+    pub fn plane(&self, axis: usize, i: u32) -> f64 {
+        octoproxy_core::format::grid_plane(self.root_min[axis], self.unit, i) as f64
+    }
+
+    /// The box of `cell` at `depth`.
+    pub fn cell_box(&self, cell: UVec3, depth: u32) -> (DVec3, DVec3) {
+        let s = MAX_DEPTH - depth;
+        let lo = DVec3::new(self.plane(0, cell.x << s), self.plane(1, cell.y << s), self.plane(2, cell.z << s));
+        let hi = DVec3::new(
+            self.plane(0, (cell.x + 1) << s),
+            self.plane(1, (cell.y + 1) << s),
+            self.plane(2, (cell.z + 1) << s),
+        );
+        (lo, hi)
+    }
+}
+
+/// A node of the pointer tree, before encoding.
+pub(crate) enum Node {
+    Empty,
+    Surface { tris: Vec<u32> },
+    Internal { children: Box<[Node; 8]> },
+}
+
+/// Bakes the meshes of one scene into proxy words.
+pub fn bake(meshes: &[MeshRef<'_>], params: &BuildParams, progress: &dyn BuildProgress) -> Result<(Vec<u32>, BuildReport), BuildError> {
+    params.validate()?;
+    let mut report = BuildReport::default();
+    let t = Instant::now();
+    let tris = gather(meshes, &mut report)?;
+    report.timings.push(("gather", t.elapsed()));
+
+    let grid = root_grid(&tris, params.dmax)?;
+    report.root_min = grid.root_min;
+    report.root_size = grid.root_size;
+
+    let t = Instant::now();
+    let all: Vec<u32> = (0..tris.len() as u32).collect();
+    progress.begin("subdivide", 1 << (3 * PROGRESS_DEPTH));
+    let ctx = Subdiv {
+        tris: &tris,
+        grid,
+        params: *params,
+        nodes: AtomicU64::new(1),
+        over: AtomicBool::new(false),
+        progress,
+    };
+    let root = ctx.build(all, UVec3::ZERO, 0);
+    if ctx.over.load(Ordering::Relaxed) {
+        return Err(BuildError::TooManyNodes { max_nodes: params.max_nodes });
+    }
+    report.timings.push(("subdivide", t.elapsed()));
+
+    let t = Instant::now();
+    let tree = encode::Flat::new(root, &tris, &grid);
+    report.timings.push(("normals", t.elapsed()));
+
+    let t = Instant::now();
+    let labels = label::label(&tree, &tris, &grid, progress);
+    report.timings.push(("label", t.elapsed()));
+
+    let t = Instant::now();
+    let words = encode::encode(&tree, &labels, &grid, params, &mut report);
+    report.timings.push(("encode", t.elapsed()));
+    Ok((words, report))
+}
+
+fn gather(meshes: &[MeshRef<'_>], report: &mut BuildReport) -> Result<Vec<Tri>, BuildError> {
+    let mut tris = Vec::new();
+    for (mi, m) in meshes.iter().enumerate() {
+        if let Some(vertex) = m.positions.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
+            return Err(BuildError::NonFinite { mesh: mi, vertex });
+        }
+        let closed = closed_triangles(m);
+        for (ti, t) in m.triangles.iter().enumerate() {
+            report.triangles_in += 1;
+            let mut v = [DVec3::ZERO; 3];
+            for k in 0..3 {
+                let i = t[k];
+                let Some(p) = m.positions.get(i as usize) else {
+                    return Err(BuildError::IndexOutOfRange {
+                        mesh: mi,
+                        triangle: ti,
+                        index: i,
+                        vertices: m.positions.len(),
+                    });
+                };
+                v[k] = DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+            }
+            let c = (v[1] - v[0]).cross(v[2] - v[0]);
+            let len = c.length();
+            if !(len > 0.0) || !len.is_finite() {
+                report.degenerate_skipped += 1;
+                continue;
+            }
+            if closed[ti] {
+                report.closed_triangles += 1;
+            }
+            tris.push(Tri { v, n: c / len, area: len * 0.5, closed: closed[ti] });
+        }
+    }
+    if tris.is_empty() {
+        return Err(BuildError::Empty { degenerate: report.degenerate_skipped });
+    }
+    Ok(tris)
+}
+
+/// Marks the triangles of closed components: components (triangles joined by shared edges)
+/// in which every edge is used exactly once in each direction. Vertices are welded by
+/// position first, so seams of duplicated vertices do not open a mesh.
+fn closed_triangles(m: &MeshRef<'_>) -> Vec<bool> {
+    let n = m.triangles.len();
+    // Weld: canonical vertex id per position bit pattern.
+    let mut order: Vec<u32> = (0..m.positions.len() as u32).collect();
+    let key = |i: u32| m.positions[i as usize].map(f32::to_bits);
+    order.par_sort_unstable_by_key(|&i| key(i));
+    let mut canon = vec![0u32; m.positions.len()];
+    for w in 0..order.len() {
+        let i = order[w];
+        canon[i as usize] = if w > 0 && key(order[w - 1]) == key(i) { canon[order[w - 1] as usize] } else { i };
+    }
+    let valid = |t: &[u32; 3]| t.iter().all(|&i| (i as usize) < m.positions.len());
+    // Directed edges (a, b, triangle), sorted by undirected key.
+    let mut edges: Vec<(u64, bool, u32)> = Vec::with_capacity(n * 3);
+    for (ti, t) in m.triangles.iter().enumerate() {
+        if !valid(t) {
+            continue;
+        }
+        let c = t.map(|i| canon[i as usize]);
+        for k in 0..3 {
+            let (a, b) = (c[k], c[(k + 1) % 3]);
+            if a == b {
+                continue;
+            }
+            let (lo, hi, fwd) = if a < b { (a, b, true) } else { (b, a, false) };
+            edges.push(((lo as u64) << 32 | hi as u64, fwd, ti as u32));
+        }
+    }
+    edges.par_sort_unstable();
+    let mut parent: Vec<u32> = (0..n as u32).collect();
+    fn find(p: &mut [u32], mut x: u32) -> u32 {
+        while p[x as usize] != x {
+            p[x as usize] = p[p[x as usize] as usize];
+            x = p[x as usize];
+        }
+        x
+    }
+    let mut open = vec![false; n];
+    let mut i = 0;
+    while i < edges.len() {
+        let mut j = i;
+        while j < edges.len() && edges[j].0 == edges[i].0 {
+            j += 1;
+        }
+        let group = &edges[i..j];
+        let good = group.len() == 2 && group[0].1 != group[1].1;
+        if !good {
+            for e in group {
+                open[e.2 as usize] = true;
+            }
+        }
+        for e in &group[1..] {
+            let (a, b) = (find(&mut parent, group[0].2), find(&mut parent, e.2));
+            if a != b {
+                parent[a as usize] = b;
+            }
+        }
+        i = j;
+    }
+    let mut comp_open = vec![false; n];
+    for t in 0..n {
+        if open[t] || !valid(&m.triangles[t]) {
+            let r = find(&mut parent, t as u32);
+            comp_open[r as usize] = true;
+        }
+    }
+    (0..n).map(|t| !comp_open[find(&mut parent, t as u32) as usize]).collect()
+}
+
+/// The root cube: the scene box grown so that every triangle stays more than one `dmax`
+/// leaf from the boundary, with an exact size.
+fn root_grid(tris: &[Tri], dmax: u32) -> Result<Grid, BuildError> {
+    let mut lo = DVec3::splat(f64::INFINITY);
+    let mut hi = DVec3::splat(f64::NEG_INFINITY);
+    for t in tris {
+        for v in t.v {
+            lo = lo.min(v);
+            hi = hi.max(v);
+        }
+    }
+    let extent = (hi - lo).max_element();
+    let center = (lo + hi) * 0.5;
+    let leaves = (1u64 << dmax) as f64;
+    // 2.5 leaves of slack in all: 1.25 on each side, before rounding.
+    let mut size = quantize_root_size((extent / (1.0 - 2.5 / leaves)) as f32 * (1.0 + 1e-6));
+    for _ in 0..64 {
+        let root_min = [0, 1, 2].map(|a| (center[a] - size as f64 * 0.5) as f32);
+        let grid = Grid { root_min, root_size: size, unit: size * (1.0 / (1u32 << MAX_DEPTH) as f32) };
+        let n = 1u32 << MAX_DEPTH;
+        let leaf = size as f64 / leaves;
+        let fits = (0..3).all(|a| lo[a] - grid.plane(a, 0) > leaf && grid.plane(a, n) - hi[a] > leaf);
+        if fits {
+            let magnitude = (0..3)
+                .map(|a| grid.plane(a, 0).abs().max(grid.plane(a, n).abs()))
+                .fold(0.0, f64::max) as f32;
+            let cell = (size as f64 / leaves) as f32;
+            if !(cell >= 4.0 * ulp(magnitude)) || !grid.unit.is_normal() {
+                return Err(BuildError::Resolution { dmax, cell, magnitude });
+            }
+            return Ok(grid);
+        }
+        // Rounding ate the slack: the next representable size up.
+        size = quantize_root_size(f32::from_bits(size.to_bits() + (1 << (23 - (ROOT_SIZE_MANTISSA_BITS - 1)))));
+    }
+    Err(BuildError::Resolution { dmax, cell: size / leaves as f32, magnitude: extent as f32 })
+}
+
+struct Subdiv<'a> {
+    tris: &'a [Tri],
+    grid: Grid,
+    params: BuildParams,
+    nodes: AtomicU64,
+    over: AtomicBool,
+    progress: &'a dyn BuildProgress,
+}
+
+impl Subdiv<'_> {
+    /// Builds the subtree of `cell` at `depth` from the triangles that overlap it.
+    fn build(&self, list: Vec<u32>, cell: UVec3, depth: u32) -> Node {
+        let node = self.build_inner(list, cell, depth);
+        // Progress in units of depth-3 cells: 512 in all.
+        if depth == PROGRESS_DEPTH || (depth < PROGRESS_DEPTH && !matches!(node, Node::Internal { .. })) {
+            self.progress.advance(1 << (3 * (PROGRESS_DEPTH - depth)));
+        }
+        node
+    }
+
+    fn build_inner(&self, list: Vec<u32>, cell: UVec3, depth: u32) -> Node {
+        if list.is_empty() {
+            return Node::Empty;
+        }
+        if self.over.load(Ordering::Relaxed) {
+            return Node::Surface { tris: list };
+        }
+        let n = 1u32 << depth;
+        let on_boundary = cell.min_element() == 0 || cell.max_element() == n - 1;
+        let stop = depth >= self.params.dmax
+            || (depth > self.params.dmin && !on_boundary && self.variance(&list) < self.params.epsilon as f64);
+        if stop {
+            return Node::Surface { tris: list };
+        }
+        if self.nodes.fetch_add(8, Ordering::Relaxed) + 8 > self.params.max_nodes {
+            self.over.store(true, Ordering::Relaxed);
+            return Node::Surface { tris: list };
+        }
+        let child = |o: u32| -> Node {
+            let c = cell * 2 + UVec3::new(o & 1, (o >> 1) & 1, (o >> 2) & 1);
+            let (lo, hi) = self.grid.cell_box(c, depth + 1);
+            let sub: Vec<u32> = list
+                .iter()
+                .copied()
+                .filter(|&t| geom::triangle_overlaps_box(&self.tris[t as usize].v, lo, hi))
+                .collect();
+            self.build(sub, c, depth + 1)
+        };
+        let children: Vec<Node> = if list.len() > 1024 {
+            (0..8u32).into_par_iter().map(child).collect()
+        } else {
+            (0..8u32).map(child).collect()
+        };
+        let mut it = children.into_iter();
+        Node::Internal { children: Box::new(std::array::from_fn(|_| it.next().unwrap_or(Node::Empty))) }
+    }
+
+    /// Equations (1)–(2), divided by the total area: Σ aᵢ‖nᵢ − n̄‖² / Σ aᵢ with n̄ the
+    /// normalised area-weighted mean. 0 for a flat patch, up to 4 for opposite faces.
+    fn variance(&self, list: &[u32]) -> f64 {
+        let mut sum = DVec3::ZERO;
+        let mut area = 0.0;
+        for &t in list {
+            let t = &self.tris[t as usize];
+            sum += t.n * t.area;
+            area += t.area;
+        }
+        let len = sum.length();
+        if !(len > 0.0) || !(area > 0.0) {
+            return f64::INFINITY;
+        }
+        let avg = sum / len;
+        list.iter()
+            .map(|&t| {
+                let t = &self.tris[t as usize];
+                t.area * (t.n - avg).length_squared()
+            })
+            .sum::<f64>()
+            / area
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,216 @@
+//! Unit tests of the baker: the metric, labels, encoding round trip and validation.
+
+use glam::Vec3;
+use octoproxy_core::*;
+
+use super::*;
+
+/// A closed, outward-facing axis-aligned box.
+fn cube(min: [f32; 3], max: [f32; 3]) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
+    let mut p = Vec::new();
+    for i in 0..8 {
+        p.push([
+            if i & 1 == 0 { min[0] } else { max[0] },
+            if i & 2 == 0 { min[1] } else { max[1] },
+            if i & 4 == 0 { min[2] } else { max[2] },
+        ]);
+    }
+    let quads = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]];
+    let mut t = Vec::new();
+    for q in quads {
+        t.push([q[0], q[1], q[2]]);
+        t.push([q[0], q[2], q[3]]);
+    }
+    (p, t)
+}
+
+fn bake_one(p: &[[f32; 3]], t: &[[u32; 3]], params: &BuildParams) -> (Vec<u32>, BuildReport) {
+    bake(&[MeshRef { positions: p, triangles: t }], params, &()).expect("bakes")
+}
+
+#[test]
+fn cube_is_closed_and_outward() {
+    let (p, t) = cube([0.0; 3], [1.0; 3]);
+    let closed = closed_triangles(&MeshRef { positions: &p, triangles: &t });
+    assert!(closed.iter().all(|&c| c));
+    let tris = gather(&[MeshRef { positions: &p, triangles: &t }], &mut BuildReport::default()).unwrap();
+    for tri in &tris {
+        let c = (tri.v[0] + tri.v[1] + tri.v[2]) / 3.0 - DVec3::splat(0.5);
+        assert!(tri.n.dot(c) > 0.0, "normals point out");
+    }
+    // Dropping one triangle opens it.
+    let closed = closed_triangles(&MeshRef { positions: &p, triangles: &t[1..] });
+    assert!(closed.iter().all(|&c| !c));
+}
+
+#[test]
+fn variance_metric_is_area_normalised() {
+    let (p, t) = cube([0.0; 3], [1.0; 3]);
+    let tris = gather(&[MeshRef { positions: &p, triangles: &t }], &mut BuildReport::default()).unwrap();
+    let grid = root_grid(&tris, 6).unwrap();
+    let ctx = Subdiv {
+        tris: &tris,
+        grid,
+        params: BuildParams::default(),
+        nodes: AtomicU64::new(0),
+        over: AtomicBool::new(false),
+        progress: &(),
+    };
+    // One face (two coplanar triangles): zero variance.
+    assert_eq!(ctx.variance(&[0, 1]), 0.0);
+    // Two perpendicular faces of equal area: mean normal at 45°, each off by |n - avg|² = 2 - √2.
+    let v = ctx.variance(&[0, 1, 4, 5]);
+    assert!((v - (2.0 - 2f64.sqrt())).abs() < 1e-12, "{v}");
+    // Opposite faces cancel: infinite, so the node always subdivides.
+    assert!(ctx.variance(&[0, 1, 2, 3]).is_infinite());
+}
+
+#[test]
+fn cube_labels_inside_back_outside_front() {
+    let (p, t) = cube([-1.0; 3], [1.0; 3]);
+    let params = BuildParams { dmin: 2, dmax: 5, ..BuildParams::default() };
+    let (words, report) = bake_one(&p, &t, &params);
+    let view = ProxyView::new(&words).expect("valid");
+    assert_eq!(report.conflicting_labels, 0);
+    assert!(report.labelled_leaves > 0);
+    let h = view.finest_leaf_size();
+    // Walking away from each face, the first empty leaf is back inside and front outside.
+    let first_empty = |axis: usize, from: f32, step: f32| -> Option<LeafInfo> {
+        (1..64).find_map(|k| {
+            let mut q = Vec3::splat(0.05);
+            q[axis] = from + step * k as f32;
+            view.locate_leaf(q).filter(|l| l.kind == LeafKind::Empty)
+        })
+    };
+    for axis in 0..3 {
+        for sign in [-1.0f32, 1.0] {
+            let inside = first_empty(axis, sign, -sign * h / 8.0).expect("an empty leaf inside");
+            let outside = first_empty(axis, sign, sign * h / 8.0).expect("an empty leaf outside");
+            assert_eq!(inside.label, Label::Back, "axis {axis} sign {sign}");
+            assert_eq!(outside.label, Label::Front, "axis {axis} sign {sign}");
+        }
+    }
+    // On the face: a surface leaf whose normal is the face's.
+    let on = view.locate_leaf(Vec3::new(1.0, 0.3, 0.2)).unwrap();
+    let on = if on.kind == LeafKind::Surface { on } else { view.locate_leaf_toward(Vec3::new(1.0, 0.3, 0.2), -Vec3::X).unwrap() };
+    assert_eq!(on.kind, LeafKind::Surface);
+    assert!((on.normal - Vec3::X).length() < 1e-3, "{}", on.normal);
+}
+
+#[test]
+fn lut_and_root_descent_agree() {
+    let (p, t) = cube([-1.0, -0.5, -0.25], [1.0, 0.7, 0.3]);
+    let (words, _) = bake_one(&p, &t, &BuildParams { dmin: 1, dmax: 6, lut_depth: 3, ..BuildParams::default() });
+    let view = ProxyView::new(&words).unwrap();
+    let nolut = view.without_lut();
+    let mut s = 99u64;
+    let mut r = || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        (s >> 40) as f32 / (1u64 << 24) as f32 * 3.0 - 1.5
+    };
+    for _ in 0..5000 {
+        let q = Vec3::new(r(), r(), r());
+        let d = Vec3::new(r(), r(), r());
+        assert_eq!(view.locate_leaf_toward(q, d), nolut.locate_leaf_toward(q, d));
+    }
+}
+
+#[test]
+fn validation_rejects_every_single_bit_flip_or_survives_it() {
+    let (p, t) = cube([-1.0; 3], [1.0; 3]);
+    let (words, _) = bake_one(&p, &t, &BuildParams { dmin: 1, dmax: 4, lut_depth: 2, ..BuildParams::default() });
+    assert!(ProxyView::new(&words).is_ok());
+    // Truncation at any length is an error, never a panic.
+    for len in 0..words.len() {
+        assert!(ProxyView::new(&words[..len]).is_err(), "truncated to {len}");
+    }
+    // Any bit flip either fails validation or leaves a proxy whose queries still work.
+    for i in 0..words.len() {
+        for bit in [0, 1, 7, 16, 30, 31] {
+            let mut w = words.clone();
+            w[i] ^= 1 << bit;
+            if let Ok(v) = ProxyView::new(&w) {
+                let _ = v.locate_leaf(Vec3::new(0.1, 0.2, 0.3));
+                let mut part = Particle::new([0.0, 3.0, 0.0], [0.0, -50.0, 0.0]);
+                step_particle(&v, &mut part, &StepParams::default());
+            }
+        }
+    }
+    // Version mismatch has its own error.
+    let mut w = words.clone();
+    w[1] = 99;
+    assert_eq!(ProxyView::new(&w).unwrap_err(), FormatError::UnsupportedVersion { found: 99 });
+}
+
+#[test]
+fn bad_input_is_an_error() {
+    let (p, t) = cube([0.0; 3], [1.0; 3]);
+    let mut bad = p.clone();
+    bad[3][1] = f32::NAN;
+    let r = bake(&[MeshRef { positions: &bad, triangles: &t }], &BuildParams::default(), &());
+    assert!(matches!(r, Err(BuildError::NonFinite { vertex: 3, .. })));
+    let mut badt = t.clone();
+    badt[5][2] = 8;
+    let r = bake(&[MeshRef { positions: &p, triangles: &badt }], &BuildParams::default(), &());
+    assert!(matches!(r, Err(BuildError::IndexOutOfRange { triangle: 5, index: 8, .. })));
+    let degenerate = vec![[0, 0, 1], [1, 1, 1]];
+    let r = bake(&[MeshRef { positions: &p, triangles: &degenerate }], &BuildParams::default(), &());
+    assert!(matches!(r, Err(BuildError::Empty { degenerate: 2 })));
+    for params in [
+        BuildParams { dmax: 0, ..Default::default() },
+        BuildParams { dmax: 40, ..Default::default() },
+        BuildParams { dmin: 9, dmax: 8, ..Default::default() },
+        BuildParams { epsilon: -1.0, ..Default::default() },
+        BuildParams { epsilon: f32::NAN, ..Default::default() },
+        BuildParams { lut_depth: 9, ..Default::default() },
+    ] {
+        assert!(matches!(bake(&[MeshRef { positions: &p, triangles: &t }], &params, &()), Err(BuildError::BadParam(_))));
+    }
+    // A runaway tree stops at the node cap.
+    let big = BuildParams { dmax: 16, dmin: 16, max_nodes: 10_000, ..Default::default() };
+    assert!(matches!(bake(&[MeshRef { positions: &p, triangles: &t }], &big, &()), Err(BuildError::TooManyNodes { .. })));
+}
+
+#[test]
+fn particles_bounce_off_a_closed_box_from_both_sides() {
+    let (p, t) = cube([-1.0; 3], [1.0; 3]);
+    let (words, _) = bake_one(&p, &t, &BuildParams { dmin: 2, dmax: 6, ..BuildParams::default() });
+    let view = ProxyView::new(&words).unwrap();
+    let params = StepParams { gravity: [0.0, -9.81, 0.0], dt: 0.01, restitution: 0.5, friction: 0.1, _pad: [0; 2] };
+    // Outside, falling onto the top; inside, falling onto the floor from within.
+    let mut outside = Particle::new([0.1, 2.0, 0.2], [0.0, -3.0, 0.0]);
+    let mut inside = Particle::new([0.1, 0.5, 0.2], [0.0, -3.0, 0.0]);
+    inside.side = initial_side(&view, inside.position);
+    assert_eq!(inside.side, SIDE_FRONT, "the centre is unlabelled: front until a label stamps it");
+    for _ in 0..2000 {
+        step_particle(&view, &mut outside, &params);
+        step_particle(&view, &mut inside, &params);
+        assert!(outside.position[1] >= 1.0 - 1e-6, "outside sank to {:?}", outside.position);
+        assert!(inside.position[1] >= -1.0 - 1e-6 && inside.position[1] <= 1.0, "inside left: {:?}", inside.position);
+    }
+    assert!(outside.collisions() > 0 && inside.collisions() > 0);
+    assert_eq!(inside.side, SIDE_BACK);
+    // Both came to rest on their surfaces.
+    assert!((outside.position[1] - 1.0).abs() < 0.05, "{:?}", outside.position);
+    assert!((inside.position[1] + 1.0).abs() < 0.05, "{:?}", inside.position);
+}
+
+#[test]
+fn nan_particles_are_flagged_and_unchanged() {
+    let (p, t) = cube([-1.0; 3], [1.0; 3]);
+    let (words, _) = bake_one(&p, &t, &BuildParams { dmin: 2, dmax: 4, ..BuildParams::default() });
+    let view = ProxyView::new(&words).unwrap();
+    for bad in [
+        Particle::new([f32::NAN, 0.0, 0.0], [0.0; 3]),
+        Particle::new([0.0; 3], [0.0, f32::INFINITY, 0.0]),
+        Particle::new([f32::NEG_INFINITY, 0.0, 0.0], [1.0; 3]),
+    ] {
+        let mut q = bad;
+        assert_eq!(step_particle(&view, &mut q, &StepParams::default()), StepOutcome::Invalid);
+        assert_eq!(q.position.map(f32::to_bits), bad.position.map(f32::to_bits));
+        assert_eq!(q.velocity.map(f32::to_bits), bad.velocity.map(f32::to_bits));
+        assert_ne!(q.flags & FLAG_INVALID, 0);
+    }
+}

@@ -1,0 +1,13 @@
+//! octoproxy on the CPU: everything host-side.
+//!
+//! - [`build`]: baking triangle meshes into an encoded proxy (subdivision, normals,
+//!   view-visible labelling, encoding, lookup table), in parallel with rayon.
+//! - [`mesh`]: reading PLY, OBJ and STL meshes (each also gzipped).
+//! - [`particles`]: particle point clouds in PLY, in and out.
+//! - [`CpuBackend`]: the core step over particles with rayon, behind the core `Backend` trait.
+
+pub mod backend;
+pub mod build;
+
+pub use backend::{CpuBackend, CpuError};
+pub use build::{bake, BuildError, BuildParams, BuildProgress, BuildReport, MeshRef};

@@ -1,0 +1,216 @@
+//! Point queries: which leaf holds a point, entered through the lookup table.
+//!
+//! A point that lies exactly on a cell plane belongs to the cell its direction of travel
+//! enters: the upper cell when the direction's component is `>= 0`, the lower one otherwise.
+//! Every plane coordinate comes from [`grid_plane`], so the box a query returns and the
+//! planes the next query compares against are the very same floats.
+
+use glam::{UVec3, Vec3};
+
+use crate::format::{grid_plane, Label, LUT_DEPTH_SHIFT, LUT_INDEX_MASK, MAX_DEPTH};
+use crate::math;
+use crate::view::ProxyView;
+
+/// An axis-aligned box.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Aabb {
+    /// Minimum corner.
+    pub min: Vec3,
+    /// Maximum corner.
+    pub max: Vec3,
+}
+
+/// What a leaf holds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LeafKind {
+    /// No triangle touches the leaf.
+    Empty,
+    /// Triangles touch the leaf; it keeps one representative normal.
+    Surface,
+}
+
+/// The leaf that holds a point.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LeafInfo {
+    /// The leaf's box.
+    pub aabb: Aabb,
+    /// Empty or surface.
+    pub kind: LeafKind,
+    /// Surface leaves: the representative normal (zero for empty leaves).
+    pub normal: Vec3,
+    /// Surface leaves: whether the leaf is two-sided (solid from every side).
+    pub two_sided: bool,
+    /// Empty leaves: the front/back label ([`Label::None`] for surface leaves).
+    pub label: Label,
+    /// Surface leaves: the index of the leaf's record. Empty leaves have no record: the
+    /// index of their parent's record.
+    pub node: u32,
+    /// Depth of the leaf.
+    pub depth: u32,
+    /// Integer coordinates of the leaf among the `2^depth` cells per axis.
+    pub cell: UVec3,
+}
+
+impl LeafInfo {
+    /// A key that identifies the leaf: surface leaves by record, empty ones by parent and octant.
+    pub fn key(&self) -> u32 {
+        match self.kind {
+            LeafKind::Surface => self.node,
+            LeafKind::Empty => {
+                let o = (self.cell.x & 1) | (self.cell.y & 1) << 1 | (self.cell.z & 1) << 2;
+                0x8000_0000 | self.node << 3 | o
+            }
+        }
+    }
+}
+
+#[inline]
+fn upper(p: f32, plane: f32, dir: f32) -> bool {
+    p > plane || (p == plane && dir >= 0.0)
+}
+
+impl ProxyView<'_> {
+    /// Coordinate of grid plane `i` (on the `2^MAX_DEPTH` grid) along `axis`.
+    #[inline]
+    pub fn plane(&self, axis: usize, i: u32) -> f32 {
+        grid_plane(self.header().root_min[axis], self.cell_unit(), i)
+    }
+
+    /// The root cube.
+    pub fn root_aabb(&self) -> Aabb {
+        let n = 1u32 << MAX_DEPTH;
+        Aabb {
+            min: Vec3::new(self.plane(0, 0), self.plane(1, 0), self.plane(2, 0)),
+            max: Vec3::new(self.plane(0, n), self.plane(1, n), self.plane(2, n)),
+        }
+    }
+
+    /// The box of the cell `cell` at `depth`.
+    #[inline]
+    pub fn cell_aabb(&self, cell: UVec3, depth: u32) -> Aabb {
+        let s = MAX_DEPTH - depth;
+        Aabb {
+            min: Vec3::new(self.plane(0, cell.x << s), self.plane(1, cell.y << s), self.plane(2, cell.z << s)),
+            max: Vec3::new(
+                self.plane(0, (cell.x + 1) << s),
+                self.plane(1, (cell.y + 1) << s),
+                self.plane(2, (cell.z + 1) << s),
+            ),
+        }
+    }
+
+    /// Whether `p`, travelling along `dir`, is inside the root cube (ties as the module says).
+    #[inline]
+    pub fn root_contains(&self, p: Vec3, dir: Vec3) -> bool {
+        let n = 1u32 << MAX_DEPTH;
+        (0..3).all(|a| upper(p[a], self.plane(a, 0), dir[a]) && !upper(p[a], self.plane(a, n), dir[a]))
+    }
+
+    /// The leaf holding `p` (ties go to the upper cell), or `None` outside the root cube.
+    pub fn locate_leaf(&self, p: Vec3) -> Option<LeafInfo> {
+        self.locate_leaf_toward(p, Vec3::ZERO)
+    }
+
+    /// The leaf that a point at `p` travelling along `dir` is in: on a cell plane, the cell
+    /// it enters. `None` outside the root cube or for a non-finite point.
+    pub fn locate_leaf_toward(&self, p: Vec3, dir: Vec3) -> Option<LeafInfo> {
+        if !p.is_finite() || !self.root_contains(p, dir) {
+            return None;
+        }
+        Some(self.locate_inside(p, dir))
+    }
+
+    /// [`Self::locate_leaf_toward`] for a point known to be inside the root cube.
+    #[inline]
+    pub(crate) fn locate_inside(&self, p: Vec3, dir: Vec3) -> LeafInfo {
+        let (mut index, mut depth, mut cell) = if self.uses_lut() {
+            let d = self.header().lut_depth;
+            let c = self.cell_at_depth(p, dir, d);
+            let n = 1u32 << d;
+            let entry = self.lut()[((c.z * n + c.y) * n + c.x) as usize];
+            let depth = entry >> LUT_DEPTH_SHIFT;
+            (entry & LUT_INDEX_MASK, depth, c >> (d - depth))
+        } else {
+            (0, 0, UVec3::ZERO)
+        };
+        let nodes = self.nodes();
+        loop {
+            let rec = nodes[index as usize];
+            if rec.is_leaf() {
+                return LeafInfo {
+                    aabb: self.cell_aabb(cell, depth),
+                    kind: LeafKind::Surface,
+                    normal: rec.normal(),
+                    two_sided: rec.is_two_sided(),
+                    label: Label::None,
+                    node: index,
+                    depth,
+                    cell,
+                };
+            }
+            if depth >= MAX_DEPTH {
+                // A validated proxy has no internal node this deep; stay total anyway.
+                return self.empty_leaf(cell, depth, index, Label::None);
+            }
+            let s = MAX_DEPTH - depth - 1;
+            let mut octant = 0;
+            for a in 0..3 {
+                let mid = self.plane(a, (2 * cell[a] + 1) << s);
+                if upper(p[a], mid, dir[a]) {
+                    octant |= 1 << a;
+                }
+            }
+            cell = cell * 2 + UVec3::new(octant & 1, (octant >> 1) & 1, (octant >> 2) & 1);
+            depth += 1;
+            if rec.child_mask() & (1 << octant) == 0 {
+                let label = Label::from_bits(rec.label_bits(octant)).unwrap_or(Label::None);
+                return self.empty_leaf(cell, depth, index, label);
+            }
+            index = rec.child_index(octant);
+        }
+    }
+
+    fn empty_leaf(&self, cell: UVec3, depth: u32, parent: u32, label: Label) -> LeafInfo {
+        LeafInfo {
+            aabb: self.cell_aabb(cell, depth),
+            kind: LeafKind::Empty,
+            normal: Vec3::ZERO,
+            two_sided: false,
+            label,
+            node: parent,
+            depth,
+            cell,
+        }
+    }
+
+    /// Integer cell of `p` at `depth`, consistent with the plane comparisons of a descent.
+    fn cell_at_depth(&self, p: Vec3, dir: Vec3, depth: u32) -> UVec3 {
+        let n = 1u32 << depth;
+        let s = MAX_DEPTH - depth;
+        let root_min = self.header().root_min;
+        let scale = n as f32 / self.header().root_size;
+        let mut c = UVec3::ZERO;
+        for a in 0..3 {
+            let est = math::floor((p[a] - root_min[a]) * scale);
+            let mut i = if est >= (n - 1) as f32 {
+                n - 1
+            } else if est > 0.0 {
+                est as u32
+            } else {
+                0
+            };
+            // The estimate is off by at most one cell from rounding; settle it on the planes.
+            for _ in 0..4 {
+                if i > 0 && !upper(p[a], self.plane(a, i << s), dir[a]) {
+                    i -= 1;
+                } else if i + 1 < n && upper(p[a], self.plane(a, (i + 1) << s), dir[a]) {
+                    i += 1;
+                } else {
+                    break;
+                }
+            }
+            c[a] = i;
+        }
+        c
+    }
+}

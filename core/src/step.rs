@@ -1,0 +1,364 @@
+//! The step: one particle marched leaf by leaf along `x(t) → x(t + dt)`.
+//!
+//! Each leaf on the way is handled as the paper's section 4 says, plus one rule that makes
+//! the surface shell hold where the averaged normals cannot (sharp features, thin walls):
+//!
+//! - an empty leaf with a label stamps the particle's side;
+//! - a surface leaf collides when the velocity opposes its normal (flipped for back-side
+//!   particles; a two-sided leaf uses the face the particle came through), responding at the
+//!   entry point with restitution and Coulomb friction, and the march goes on with the new
+//!   velocity and the time left;
+//! - **shell rule:** a particle that went into the shell of surface leaves from its own side
+//!   may come out only into an empty leaf of that side. Coming out into a leaf labelled with
+//!   the other side means it crossed the surface; it is put back where it entered the shell,
+//!   its velocity reflected off the face it tried to cross, and the step ends.
+//!
+//! The number of leaves a step visits is bounded by [`max_leaves_per_step`]; when the bound
+//! is hit the particle is left at its last safe point.
+
+use bytemuck::{Pod, Zeroable};
+use glam::Vec3;
+
+use crate::format::{Label, MAX_DEPTH};
+use crate::math;
+use crate::particle::*;
+use crate::query::{Aabb, LeafKind};
+use crate::view::ProxyView;
+
+/// Bound on the leaves one step visits in a tree of depth `tree_depth`: a straight path
+/// crosses at most `3 * 2^depth` cells of a `2^depth` grid, and an octree has no more cells
+/// on a line than its finest grid. The rest is room for collisions and re-entries.
+pub const fn max_leaves_per_step(tree_depth: u32) -> u32 {
+    (4u32 << tree_depth) + 64
+}
+
+/// [`max_leaves_per_step`] at [`MAX_DEPTH`]: the largest bound any proxy can have.
+pub const MAX_LEAVES_PER_STEP: u32 = max_leaves_per_step(MAX_DEPTH);
+
+/// Parameters of one step, shared by every backend (a GPU uniform, hence `Pod`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct StepParams {
+    /// Acceleration, units per second squared.
+    pub gravity: [f32; 3],
+    /// Time step, seconds.
+    pub dt: f32,
+    /// Fraction of normal speed kept by a collision, in `[0, 1]`.
+    pub restitution: f32,
+    /// Coulomb friction coefficient, `>= 0`.
+    pub friction: f32,
+    /// Padding to 32 bytes; must be zero.
+    pub _pad: [u32; 2],
+}
+
+const _: () = assert!(core::mem::size_of::<StepParams>() == 32);
+
+/// Why step parameters were rejected.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
+pub enum ParamError {
+    /// `dt` is NaN, infinite, zero or negative.
+    BadDt(f32),
+    /// A gravity component is NaN or infinite.
+    BadGravity,
+    /// Restitution is outside `[0, 1]`.
+    BadRestitution(f32),
+    /// Friction is negative, NaN or infinite.
+    BadFriction(f32),
+}
+
+impl core::fmt::Display for ParamError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match *self {
+            ParamError::BadDt(dt) => write!(f, "dt must be a positive finite number of seconds, got {dt}"),
+            ParamError::BadGravity => write!(f, "gravity must be three finite numbers"),
+            ParamError::BadRestitution(r) => write!(f, "restitution must be in [0, 1], got {r}"),
+            ParamError::BadFriction(m) => write!(f, "friction must be a finite number >= 0, got {m}"),
+        }
+    }
+}
+
+impl core::error::Error for ParamError {}
+
+impl Default for StepParams {
+    fn default() -> Self {
+        Self { gravity: [0.0, -9.81, 0.0], dt: 1.0 / 60.0, restitution: 0.5, friction: 0.1, _pad: [0; 2] }
+    }
+}
+
+impl StepParams {
+    /// Checks every field.
+    pub fn validate(&self) -> Result<(), ParamError> {
+        if !(self.dt > 0.0) || !self.dt.is_finite() {
+            return Err(ParamError::BadDt(self.dt));
+        }
+        if !Vec3::from_array(self.gravity).is_finite() {
+            return Err(ParamError::BadGravity);
+        }
+        if !(0.0..=1.0).contains(&self.restitution) {
+            return Err(ParamError::BadRestitution(self.restitution));
+        }
+        if !(self.friction >= 0.0) || !self.friction.is_finite() {
+            return Err(ParamError::BadFriction(self.friction));
+        }
+        Ok(())
+    }
+}
+
+/// How a step ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum StepOutcome {
+    /// The particle used its whole time step.
+    Done,
+    /// The particle tried to leave the shell on the other side and was put back.
+    Blocked,
+    /// The leaf bound was hit; the particle was left at its last safe point.
+    BoundHit,
+    /// Position or velocity was not finite (on input, or after integrating); unchanged.
+    Invalid,
+}
+
+/// The collision response: the normal part of `v` is reversed and scaled by `restitution`,
+/// the tangential part loses up to `friction` times the normal impulse. `n` is unit length.
+#[inline]
+pub fn respond(v: Vec3, n: Vec3, restitution: f32, friction: f32) -> Vec3 {
+    let vn = v.dot(n);
+    if vn >= 0.0 {
+        return v;
+    }
+    let v_n = n * vn;
+    let v_t = v - v_n;
+    let t_len = math::sqrt(v_t.dot(v_t));
+    let impulse = friction * (1.0 + restitution) * -vn;
+    let keep = if t_len > impulse { 1.0 - impulse / t_len } else { 0.0 };
+    v_t * keep - v_n * restitution
+}
+
+/// Unit normal of the face(s) in `axes` that a particle moving with signs `signs` crossed,
+/// pointing back where it came from.
+#[inline]
+fn face_normal(axes: u32, signs: Vec3) -> Vec3 {
+    let mut n = Vec3::ZERO;
+    for a in 0..3 {
+        if axes & (1 << a) != 0 {
+            n[a] = if signs[a] >= 0.0 { -1.0 } else { 1.0 };
+        }
+    }
+    let l2 = n.dot(n);
+    if l2 > 0.0 {
+        n * (1.0 / math::sqrt(l2))
+    } else {
+        n
+    }
+}
+
+/// Time and point at which a ray from `x` (inside `b`) with velocity `v` leaves `b`, and the
+/// axes whose face it leaves through. The exit point lies exactly on those faces.
+#[inline]
+fn exit_box(b: &Aabb, x: Vec3, v: Vec3) -> (f32, Vec3, u32) {
+    let mut t = f32::INFINITY;
+    let mut ts = [f32::INFINITY; 3];
+    for a in 0..3 {
+        let ta = if v[a] > 0.0 {
+            (b.max[a] - x[a]) / v[a]
+        } else if v[a] < 0.0 {
+            (b.min[a] - x[a]) / v[a]
+        } else {
+            f32::INFINITY
+        };
+        ts[a] = if ta > 0.0 { ta } else { 0.0 };
+        if ts[a] < t {
+            t = ts[a];
+        }
+    }
+    let mut axes = 0;
+    let mut p = x;
+    for a in 0..3 {
+        if ts[a] == t && t.is_finite() {
+            axes |= 1 << a;
+            p[a] = if v[a] > 0.0 { b.max[a] } else { b.min[a] };
+        } else {
+            p[a] = (x[a] + v[a] * t).clamp(b.min[a], b.max[a]);
+        }
+    }
+    (t, p, axes)
+}
+
+/// Time and point at which a ray from `x` (outside `b`) with velocity `v` enters `b` within
+/// `limit`, and the axes whose faces it enters through; `None` if it does not.
+#[inline]
+fn enter_box(b: &Aabb, x: Vec3, v: Vec3, limit: f32) -> Option<(f32, Vec3, u32)> {
+    let mut near = f32::NEG_INFINITY;
+    let mut far = f32::INFINITY;
+    let mut axes = 0;
+    for a in 0..3 {
+        if v[a] == 0.0 {
+            // Half-open on the upper side, as the tie rule of point location.
+            if !(x[a] >= b.min[a] && x[a] < b.max[a]) {
+                return None;
+            }
+            continue;
+        }
+        let t1 = (b.min[a] - x[a]) / v[a];
+        let t2 = (b.max[a] - x[a]) / v[a];
+        let (lo, hi) = if v[a] > 0.0 { (t1, t2) } else { (t2, t1) };
+        if lo > near {
+            near = lo;
+            axes = 1 << a;
+        } else if lo == near {
+            axes |= 1 << a;
+        }
+        if hi < far {
+            far = hi;
+        }
+    }
+    if !(near >= 0.0 && near <= far && far > 0.0 && near < limit) {
+        return None;
+    }
+    let mut p = x;
+    for a in 0..3 {
+        if axes & (1 << a) != 0 {
+            p[a] = if v[a] > 0.0 { b.min[a] } else { b.max[a] };
+        } else {
+            p[a] = (x[a] + v[a] * near).clamp(b.min[a], b.max[a]);
+        }
+    }
+    Some((near, p, axes))
+}
+
+#[inline]
+fn side_of(label: Label) -> u32 {
+    if label == Label::Back {
+        SIDE_BACK
+    } else {
+        SIDE_FRONT
+    }
+}
+
+const NO_LEAF: u32 = u32::MAX;
+
+/// Advances one particle by `params.dt`: integrates gravity (semi-implicit Euler), then
+/// marches the path through the proxy, colliding as the module documentation says.
+/// Allocates nothing; visits at most `view.max_leaves_per_step()` leaves.
+pub fn step_particle(view: &ProxyView<'_>, p: &mut Particle, params: &StepParams) -> StepOutcome {
+    let x0 = Vec3::from_array(p.position);
+    let v0 = Vec3::from_array(p.velocity);
+    if !x0.is_finite() || !v0.is_finite() {
+        p.flags |= FLAG_INVALID;
+        return StepOutcome::Invalid;
+    }
+    let (e, mu) = (params.restitution, params.friction);
+    let root = view.root_aabb();
+    let mut v = v0 + Vec3::from_array(params.gravity) * params.dt;
+    let mut x = x0;
+    let mut side = if p.side == SIDE_BACK { SIDE_BACK } else { SIDE_FRONT };
+    let mut remaining = params.dt;
+    let mut collisions = 0u32;
+    let mut in_shell = false;
+    let mut shell_entry = x0;
+    let mut last_collided = NO_LEAF;
+    // The face the particle last crossed (axes) and the signs of its velocity then.
+    let mut cross_axes = 0u32;
+    let mut cross_signs = Vec3::ZERO;
+    let mut outcome = StepOutcome::Done;
+    let budget = view.max_leaves_per_step();
+    let mut visited = 0u32;
+    while remaining > 0.0 {
+        if visited >= budget {
+            outcome = StepOutcome::BoundHit;
+            if in_shell {
+                x = shell_entry;
+            }
+            break;
+        }
+        visited += 1;
+        if !view.root_contains(x, v) {
+            match enter_box(&root, x, v, remaining) {
+                Some((t, entry, axes)) => {
+                    x = entry;
+                    remaining -= t;
+                    cross_axes = axes;
+                    cross_signs = v;
+                    last_collided = NO_LEAF;
+                    continue;
+                }
+                None => {
+                    x += v * remaining;
+                    break;
+                }
+            }
+        }
+        let leaf = view.locate_inside(x, v);
+        match leaf.kind {
+            LeafKind::Empty => {
+                if leaf.label != Label::None {
+                    let label_side = side_of(leaf.label);
+                    if in_shell && label_side != side {
+                        x = shell_entry;
+                        v = respond(v, face_normal(cross_axes, cross_signs), e, mu);
+                        collisions += 1;
+                        outcome = StepOutcome::Blocked;
+                        break;
+                    }
+                    side = label_side;
+                }
+                in_shell = false;
+            }
+            LeafKind::Surface => {
+                if !in_shell {
+                    in_shell = true;
+                    shell_entry = x;
+                }
+                if leaf.node != last_collided {
+                    let n = if leaf.two_sided {
+                        face_normal(cross_axes, cross_signs)
+                    } else if side == SIDE_BACK {
+                        -leaf.normal
+                    } else {
+                        leaf.normal
+                    };
+                    if v.dot(n) < 0.0 {
+                        v = respond(v, n, e, mu);
+                        collisions += 1;
+                        last_collided = leaf.node;
+                        continue;
+                    }
+                }
+            }
+        }
+        let (t_exit, exit, axes) = exit_box(&leaf.aabb, x, v);
+        if t_exit >= remaining {
+            x = (x + v * remaining).clamp(leaf.aabb.min, leaf.aabb.max);
+            break;
+        }
+        x = exit;
+        remaining -= t_exit;
+        cross_axes = axes;
+        cross_signs = v;
+        last_collided = NO_LEAF;
+    }
+    if !x.is_finite() || !v.is_finite() {
+        p.flags |= FLAG_INVALID;
+        return StepOutcome::Invalid;
+    }
+    p.position = x.to_array();
+    p.velocity = v.to_array();
+    p.side = side;
+    let count = (p.collisions() + collisions).min(MAX_COLLISIONS);
+    let mut status = p.flags & FLAG_STATUS_MASK & !FLAG_STEP_STATUS;
+    match outcome {
+        StepOutcome::Blocked => status |= FLAG_BLOCKED,
+        StepOutcome::BoundHit => status |= FLAG_BOUND_HIT,
+        _ => {}
+    }
+    p.flags = status | count << COLLISION_SHIFT;
+    outcome
+}
+
+/// Initial side of a particle that has none: the label of its leaf (front when unlabelled).
+pub fn initial_side(view: &ProxyView<'_>, position: [f32; 3]) -> u32 {
+    match view.locate_leaf(Vec3::from_array(position)) {
+        Some(leaf) => side_of(leaf.label),
+        None => SIDE_FRONT,
+    }
+}

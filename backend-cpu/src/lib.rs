@@ -8,6 +8,10 @@
 
 pub mod backend;
 pub mod build;
+pub mod emit;
 
 pub use backend::{CpuBackend, CpuError};
 pub use build::{bake, BuildError, BuildParams, BuildProgress, BuildReport, MeshRef};
+pub mod mesh;
+pub mod particles;
+pub mod ply;

@@ -240,7 +240,20 @@ const NO_LEAF: u32 = u32::MAX;
 /// Advances one particle by `params.dt`: integrates gravity (semi-implicit Euler), then
 /// marches the path through the proxy, colliding as the module documentation says.
 /// Allocates nothing; visits at most `view.max_leaves_per_step()` leaves.
+#[inline]
 pub fn step_particle(view: &ProxyView<'_>, p: &mut Particle, params: &StepParams) -> StepOutcome {
+    step_particle_traced(view, p, params, &mut |_, _| {})
+}
+
+/// [`step_particle`], calling `trace(from, to)` for every straight piece of the particle's
+/// path in order, including the jump back to the shell entry when the shell rule stops it.
+/// Ground-truth checks use it to test the real path against the mesh.
+pub fn step_particle_traced<F: FnMut(Vec3, Vec3)>(
+    view: &ProxyView<'_>,
+    p: &mut Particle,
+    params: &StepParams,
+    trace: &mut F,
+) -> StepOutcome {
     let x0 = Vec3::from_array(p.position);
     let v0 = Vec3::from_array(p.velocity);
     if !x0.is_finite() || !v0.is_finite() {
@@ -267,6 +280,7 @@ pub fn step_particle(view: &ProxyView<'_>, p: &mut Particle, params: &StepParams
         if visited >= budget {
             outcome = StepOutcome::BoundHit;
             if in_shell {
+                trace(x, shell_entry);
                 x = shell_entry;
             }
             break;
@@ -275,6 +289,7 @@ pub fn step_particle(view: &ProxyView<'_>, p: &mut Particle, params: &StepParams
         if !view.root_contains(x, v) {
             match enter_box(&root, x, v, remaining) {
                 Some((t, entry, axes)) => {
+                    trace(x, entry);
                     x = entry;
                     remaining -= t;
                     cross_axes = axes;
@@ -283,7 +298,9 @@ pub fn step_particle(view: &ProxyView<'_>, p: &mut Particle, params: &StepParams
                     continue;
                 }
                 None => {
-                    x += v * remaining;
+                    let end = x + v * remaining;
+                    trace(x, end);
+                    x = end;
                     break;
                 }
             }
@@ -294,6 +311,7 @@ pub fn step_particle(view: &ProxyView<'_>, p: &mut Particle, params: &StepParams
                 if leaf.label != Label::None {
                     let label_side = side_of(leaf.label);
                     if in_shell && label_side != side {
+                        trace(x, shell_entry);
                         x = shell_entry;
                         v = respond(v, face_normal(cross_axes, cross_signs), e, mu);
                         collisions += 1;
@@ -328,9 +346,12 @@ pub fn step_particle(view: &ProxyView<'_>, p: &mut Particle, params: &StepParams
         }
         let (t_exit, exit, axes) = exit_box(&leaf.aabb, x, v);
         if t_exit >= remaining {
-            x = (x + v * remaining).clamp(leaf.aabb.min, leaf.aabb.max);
+            let end = (x + v * remaining).clamp(leaf.aabb.min, leaf.aabb.max);
+            trace(x, end);
+            x = end;
             break;
         }
+        trace(x, exit);
         x = exit;
         remaining -= t_exit;
         cross_axes = axes;

@@ -1,0 +1,130 @@
+//! Particle emitters for trying octoproxy out without a particle file: uniformly in a box, or
+//! just in front of a scene's surface. Deterministic for a given seed.
+
+use glam::{DVec3, Vec3};
+use octoproxy_core::Particle;
+
+use crate::build::MeshRef;
+
+/// A small, fast, seedable generator (xorshift64*), so emission needs no dependency.
+#[derive(Clone, Debug)]
+pub struct Rng(u64);
+
+impl Rng {
+    /// A generator for `seed` (any value, zero included).
+    pub fn new(seed: u64) -> Self {
+        Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ 0xD1B5_4A32_D192_ED03 | 1)
+    }
+
+    /// The next 64 random bits.
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
+    }
+
+    /// Uniform in `[0, 1)`.
+    pub fn f32(&mut self) -> f32 {
+        (self.next_u64() >> 40) as f32 * (1.0 / (1u64 << 24) as f32)
+    }
+
+    /// Uniform in `[lo, hi)`.
+    pub fn range(&mut self, lo: f32, hi: f32) -> f32 {
+        lo + (hi - lo) * self.f32()
+    }
+
+    /// A uniformly random unit vector.
+    pub fn unit_vector(&mut self) -> Vec3 {
+        loop {
+            let v = Vec3::new(self.range(-1.0, 1.0), self.range(-1.0, 1.0), self.range(-1.0, 1.0));
+            let l = v.length_squared();
+            if l > 1e-4 && l <= 1.0 {
+                return v / l.sqrt();
+            }
+        }
+    }
+}
+
+/// `n` particles uniformly in the box `[min, max]`, each moving in a random direction at
+/// `speed`.
+pub fn emit_box(n: usize, min: Vec3, max: Vec3, speed: f32, seed: u64) -> Vec<Particle> {
+    let mut rng = Rng::new(seed);
+    (0..n)
+        .map(|_| {
+            let p = Vec3::new(rng.range(min.x, max.x), rng.range(min.y, max.y), rng.range(min.z, max.z));
+            Particle::new(p.to_array(), (rng.unit_vector() * speed).to_array())
+        })
+        .collect()
+}
+
+/// `n` particles on the surface of the meshes (triangles picked by area), lifted `offset`
+/// along the triangle normal so they start in front, moving at `speed` in random directions.
+/// Empty when the meshes have no area.
+pub fn emit_surface(n: usize, meshes: &[MeshRef<'_>], offset: f32, speed: f32, seed: u64) -> Vec<Particle> {
+    let mut tris = Vec::new();
+    let mut cumulative = Vec::new();
+    let mut total = 0.0f64;
+    for m in meshes {
+        for t in m.triangles {
+            let Some(v) = t.iter().map(|&i| m.positions.get(i as usize)).collect::<Option<Vec<_>>>() else {
+                continue;
+            };
+            let v: [DVec3; 3] = [0, 1, 2].map(|k| DVec3::from_array(v[k].map(f64::from)));
+            let c = (v[1] - v[0]).cross(v[2] - v[0]);
+            let area = c.length() * 0.5;
+            if area > 0.0 && area.is_finite() {
+                total += area;
+                tris.push((v, c.normalize()));
+                cumulative.push(total);
+            }
+        }
+    }
+    if tris.is_empty() {
+        return Vec::new();
+    }
+    let mut rng = Rng::new(seed);
+    (0..n)
+        .map(|_| {
+            let r = rng.f32() as f64 * total;
+            let i = cumulative.partition_point(|&c| c < r).min(tris.len() - 1);
+            let (v, normal) = tris[i];
+            let (mut a, mut b) = (rng.f32() as f64, rng.f32() as f64);
+            if a + b > 1.0 {
+                a = 1.0 - a;
+                b = 1.0 - b;
+            }
+            let p = v[0] + (v[1] - v[0]) * a + (v[2] - v[0]) * b + normal * offset as f64;
+            let p = p.as_vec3();
+            Particle::new(p.to_array(), (rng.unit_vector() * speed).to_array())
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn box_emission_stays_in_the_box_and_is_deterministic() {
+        let a = emit_box(1000, Vec3::splat(-1.0), Vec3::new(2.0, 3.0, 4.0), 2.0, 7);
+        let b = emit_box(1000, Vec3::splat(-1.0), Vec3::new(2.0, 3.0, 4.0), 2.0, 7);
+        assert_eq!(a, b);
+        for p in &a {
+            let x = Vec3::from_array(p.position);
+            assert!(x.cmpge(Vec3::splat(-1.0)).all() && x.cmplt(Vec3::new(2.0, 3.0, 4.0)).all());
+            assert!((Vec3::from_array(p.velocity).length() - 2.0).abs() < 1e-4);
+        }
+    }
+
+    #[test]
+    fn surface_emission_is_offset_along_the_normal() {
+        let positions = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]];
+        let triangles = [[0, 1, 2]]; // normal +y
+        let p = emit_surface(100, &[MeshRef { positions: &positions, triangles: &triangles }], 0.25, 0.0, 3);
+        assert_eq!(p.len(), 100);
+        for q in p {
+            assert!((q.position[1] - 0.25).abs() < 1e-6, "{:?}", q.position);
+        }
+    }
+}

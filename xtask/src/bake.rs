@@ -1,0 +1,63 @@
+//! `cargo xtask bake`: meshes → a proxy file.
+
+use std::ffi::OsString;
+use std::path::PathBuf;
+
+use anyhow::{bail, Result};
+
+use crate::flags::{self, BuildFlags};
+use crate::scene;
+
+fn help() -> String {
+    format!(
+        "usage: cargo xtask bake --mesh MESH [--mesh MESH...] -o FILE [build options]\n\n\
+         Bakes the meshes (PLY, OBJ or STL, each optionally .gz) into one proxy file.\n\n{}",
+        flags::BUILD_HELP
+    )
+}
+
+pub fn run(args: Vec<OsString>) -> Result<()> {
+    let mut meshes: Vec<PathBuf> = Vec::new();
+    let mut out: Option<PathBuf> = None;
+    let mut build = BuildFlags::default();
+    let mut parser = lexopt::Parser::from_args(args);
+    while let Some((name, unexpected)) = flags::next_option(&mut parser)? {
+        if build.parse(&name, &mut parser)? {
+            continue;
+        }
+        match name.as_str() {
+            "--mesh" => meshes.push(flags::path(&mut parser, "--mesh")?),
+            "-o" | "--out" => out = Some(flags::path(&mut parser, "--out")?),
+            "-h" | "--help" => {
+                println!("{}", help());
+                return Ok(());
+            }
+            _ => return Err(unexpected.into()),
+        }
+    }
+    if meshes.is_empty() {
+        bail!("bake needs at least one --mesh");
+    }
+    let Some(out) = out else { bail!("bake needs --out FILE (or -o FILE)") };
+    if meshes.iter().any(|m| same_file(m, &out)) {
+        bail!("--out {} is one of the input meshes; refusing to overwrite it", out.display());
+    }
+    let params = build.params()?;
+    let loaded = scene::load_meshes(&meshes)?;
+    let scene = scene::bake_meshes(loaded, &params)?;
+    scene::print_bake_summary(&scene)?;
+    scene::write_proxy(&out, &scene.words)?;
+    println!("wrote {}", out.display());
+    Ok(())
+}
+
+/// Whether two paths name the same existing file (or are spelled the same).
+pub fn same_file(a: &std::path::Path, b: &std::path::Path) -> bool {
+    if a == b {
+        return true;
+    }
+    match (std::fs::canonicalize(a), std::fs::canonicalize(b)) {
+        (Ok(x), Ok(y)) => x == y,
+        _ => false,
+    }
+}

@@ -1,0 +1,102 @@
+//! Parsing of command-line values, each with a clear error.
+
+use std::ffi::OsString;
+use std::path::PathBuf;
+
+use anyhow::{bail, Context, Result};
+use octoproxy_cpu::BuildParams;
+
+/// The next option as `--long` or `-s`, and the error to give if it is not one we take.
+/// Positional arguments are an error right away.
+pub fn next_option(parser: &mut lexopt::Parser) -> Result<Option<(String, lexopt::Error)>> {
+    let Some(arg) = parser.next()? else { return Ok(None) };
+    let name = match &arg {
+        lexopt::Arg::Long(s) => format!("--{s}"),
+        lexopt::Arg::Short(c) => format!("-{c}"),
+        lexopt::Arg::Value(_) => return Err(arg.unexpected().into()),
+    };
+    Ok(Some((name, arg.unexpected())))
+}
+
+/// Takes the value of an option as a string.
+pub fn string(parser: &mut lexopt::Parser, name: &str) -> Result<String> {
+    let v: OsString = parser.value().with_context(|| format!("{name} needs a value"))?;
+    v.into_string().map_err(|v| anyhow::anyhow!("{name}: {v:?} is not valid UTF-8"))
+}
+
+/// Takes the value of an option as a path.
+pub fn path(parser: &mut lexopt::Parser, name: &str) -> Result<PathBuf> {
+    Ok(PathBuf::from(parser.value().with_context(|| format!("{name} needs a value"))?))
+}
+
+/// Parses a number, naming the option in the error.
+pub fn number<T: std::str::FromStr>(parser: &mut lexopt::Parser, name: &str) -> Result<T> {
+    let s = string(parser, name)?;
+    s.trim().parse().map_err(|_| anyhow::anyhow!("{name}: {s:?} is not a valid number"))
+}
+
+/// Parses `N` comma-separated finite floats (negative numbers fine: `--gravity 0,-9.81,0`).
+pub fn floats<const N: usize>(parser: &mut lexopt::Parser, name: &str) -> Result<[f32; N]> {
+    let s = string(parser, name)?;
+    let parts: Vec<&str> = s.split(',').collect();
+    if parts.len() != N {
+        bail!("{name}: expected {N} comma-separated numbers, got {s:?}");
+    }
+    let mut out = [0.0f32; N];
+    for (o, p) in out.iter_mut().zip(parts) {
+        *o = p.trim().parse().map_err(|_| anyhow::anyhow!("{name}: {p:?} is not a number"))?;
+        if !o.is_finite() {
+            bail!("{name}: {p:?} is not a finite number");
+        }
+    }
+    Ok(out)
+}
+
+/// The options that shape a bake, shared by `bake` and `sim`.
+#[derive(Default)]
+pub struct BuildFlags {
+    pub dmin: Option<u32>,
+    pub dmax: Option<u32>,
+    pub epsilon: Option<f32>,
+    pub lut_depth: Option<u32>,
+}
+
+impl BuildFlags {
+    /// Consumes the option if it is a build flag; returns whether it was.
+    pub fn parse(&mut self, name: &str, parser: &mut lexopt::Parser) -> Result<bool> {
+        match name {
+            "--dmin" => self.dmin = Some(number(parser, name)?),
+            "--dmax" => self.dmax = Some(number(parser, name)?),
+            "--epsilon" => self.epsilon = Some(number(parser, name)?),
+            "--lut-depth" => self.lut_depth = Some(number(parser, name)?),
+            _ => return Ok(false),
+        }
+        Ok(true)
+    }
+
+    /// Whether any was given.
+    pub fn any(&self) -> bool {
+        self.dmin.is_some() || self.dmax.is_some() || self.epsilon.is_some() || self.lut_depth.is_some()
+    }
+
+    /// The parameters, defaults filled in, checked.
+    pub fn params(&self) -> Result<BuildParams> {
+        let d = BuildParams::default();
+        let p = BuildParams {
+            dmin: self.dmin.unwrap_or(d.dmin),
+            dmax: self.dmax.unwrap_or(d.dmax),
+            epsilon: self.epsilon.unwrap_or(d.epsilon),
+            lut_depth: self.lut_depth.unwrap_or(d.lut_depth),
+            max_nodes: d.max_nodes,
+        };
+        p.validate()?;
+        Ok(p)
+    }
+}
+
+/// The build-flag help lines.
+pub const BUILD_HELP: &str = "\
+  --dmin N          depth below which nodes always subdivide (default 4)
+  --dmax N          maximum depth, 2..=16 (default 8)
+  --epsilon X       normal-variance tolerance, >= 0 (default 0.01)
+  --lut-depth N     lookup-table depth, 0..=8, clamped to the tree depth (default 5)";

@@ -1,0 +1,58 @@
+//! `cargo xtask`: the octoproxy command line.
+//!
+//! - `demo`: a built-in scene, stepped on the best backend, with a summary and a picture.
+//! - `bake`: meshes → proxy file.
+//! - `sim`: a proxy (or meshes) and particles → stepped particles, optionally every frame.
+//!
+//! Errors print as one line and exit non-zero.
+
+mod bake;
+mod demo;
+mod flags;
+mod progress;
+mod render;
+mod scene;
+mod sim;
+
+use std::process::ExitCode;
+
+const USAGE: &str = "\
+usage: cargo xtask <command> [options]
+
+commands:
+  demo   run a built-in scene and write a picture of it
+  bake   --mesh MESH [--mesh MESH...] -o FILE [--dmin N --dmax N --epsilon X --lut-depth N]
+  sim    (--mesh MESH... | --proxy FILE) (--particles IN.ply | --emit N ...) -o OUT.ply [options]
+
+run `cargo xtask <command> --help` for a command's options";
+
+fn main() -> ExitCode {
+    let mut args = std::env::args_os().skip(1);
+    let Some(cmd) = args.next() else {
+        eprintln!("{USAGE}");
+        return ExitCode::from(2);
+    };
+    let rest: Vec<_> = args.collect();
+    let result = match cmd.to_str() {
+        Some("demo") => demo::run(rest),
+        Some("bake") => bake::run(rest),
+        Some("sim") => sim::run(rest),
+        Some("-h" | "--help" | "help") => {
+            println!("{USAGE}");
+            return ExitCode::SUCCESS;
+        }
+        _ => {
+            eprintln!("error: unknown command {cmd:?} (commands: demo, bake, sim; see `cargo xtask --help`)");
+            return ExitCode::from(2);
+        }
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            // One readable line: the error and its causes.
+            let msg = format!("{e:#}").replace('\n', " ");
+            eprintln!("error: {msg}");
+            ExitCode::FAILURE
+        }
+    }
+}

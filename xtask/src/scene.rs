@@ -1,0 +1,146 @@
+//! Getting a scene: meshes from files (baked with progress) or a proxy file, and reports.
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context, Result};
+use octoproxy_core::ProxyView;
+use octoproxy_cpu::mesh::{load_mesh, Mesh};
+use octoproxy_cpu::{bake, BuildParams, BuildReport, MeshRef};
+
+use crate::progress::BakeBars;
+
+/// A baked scene, with what it was made from.
+pub struct Scene {
+    pub words: Vec<u32>,
+    pub meshes: Vec<Mesh>,
+    pub triangles: usize,
+    pub bake_time: Option<Duration>,
+    pub report: Option<BuildReport>,
+}
+
+impl Scene {
+    pub fn view(&self) -> Result<ProxyView<'_>> {
+        ProxyView::new(&self.words).context("validating the proxy")
+    }
+}
+
+/// Loads every mesh, reporting each.
+pub fn load_meshes(paths: &[PathBuf]) -> Result<Vec<Mesh>> {
+    let mut meshes = Vec::new();
+    for p in paths {
+        let (mesh, report) = load_mesh(p)?;
+        eprintln!(
+            "loaded {}: {} vertices, {} triangles{}",
+            p.display(),
+            mesh.positions.len(),
+            mesh.triangles.len(),
+            if report.polygons_triangulated > 0 {
+                format!(" ({} polygons triangulated)", report.polygons_triangulated)
+            } else {
+                String::new()
+            }
+        );
+        meshes.push(mesh);
+    }
+    Ok(meshes)
+}
+
+/// Bakes meshes into one proxy, with progress bars.
+pub fn bake_meshes(meshes: Vec<Mesh>, params: &BuildParams) -> Result<Scene> {
+    let refs: Vec<MeshRef<'_>> = meshes.iter().map(MeshRef::from).collect();
+    let bars = BakeBars::default();
+    let t = Instant::now();
+    let result = bake(&refs, params, &bars);
+    bars.finish();
+    let (words, report) = result.context("baking the proxy")?;
+    let bake_time = t.elapsed();
+    let triangles = report.triangles_in;
+    Ok(Scene { words, meshes, triangles, bake_time: Some(bake_time), report: Some(report) })
+}
+
+/// Reads and validates a proxy file.
+pub fn read_proxy(path: &Path) -> Result<Scene> {
+    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+    if bytes.len() % 4 != 0 {
+        bail!("{}: not a proxy file (length {} is not a multiple of 4)", path.display(), bytes.len());
+    }
+    let words: Vec<u32> = bytes.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+    ProxyView::new(&words).with_context(|| format!("{} is not a valid proxy", path.display()))?;
+    Ok(Scene { words, meshes: Vec::new(), triangles: 0, bake_time: None, report: None })
+}
+
+/// Writes a proxy file (little-endian words), through a temporary file.
+pub fn write_proxy(path: &Path, words: &[u32]) -> Result<()> {
+    let bytes: Vec<u8> = words.iter().flat_map(|w| w.to_le_bytes()).collect();
+    let tmp = path.with_extension("octoproxy-tmp");
+    std::fs::write(&tmp, &bytes).with_context(|| format!("writing {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))?;
+    Ok(())
+}
+
+/// Prints what a bake produced.
+pub fn print_bake_summary(scene: &Scene) -> Result<()> {
+    let view = scene.view()?;
+    let h = view.header();
+    if let Some(r) = &scene.report {
+        eprintln!(
+            "triangles: {} ({} degenerate skipped, {} in closed components)",
+            r.triangles_in, r.degenerate_skipped, r.closed_triangles
+        );
+        eprintln!(
+            "leaves: {} surface ({} two-sided), {} labelled empty ({} with conflicting votes)",
+            r.surface_leaves, r.two_sided_leaves, r.labelled_leaves, r.conflicting_labels
+        );
+    }
+    eprintln!(
+        "proxy: {} nodes, depth {} (dmin {}, dmax {}, epsilon {}), lookup table depth {}",
+        h.node_count, h.tree_depth, h.dmin, h.dmax, h.epsilon, h.lut_depth
+    );
+    eprintln!(
+        "size: {} (node array {}, lookup table {})",
+        bytes(view.words().len() * 4),
+        bytes(view.node_bytes()),
+        bytes(view.lut_bytes())
+    );
+    if let Some(t) = scene.bake_time {
+        eprintln!("bake time: {:.3} s", t.as_secs_f64());
+    }
+    Ok(())
+}
+
+/// Human-readable byte count.
+pub fn bytes(n: usize) -> String {
+    if n >= 1 << 20 {
+        format!("{:.2} MiB", n as f64 / (1u64 << 20) as f64)
+    } else if n >= 1 << 10 {
+        format!("{:.1} KiB", n as f64 / 1024.0)
+    } else {
+        format!("{n} B")
+    }
+}
+
+/// An open hemispherical dome (upper half of a sphere, normals outward, open at the bottom).
+pub fn dome(radius: f32, segments: u32, rings: u32) -> Mesh {
+    let mut positions = vec![[0.0, radius, 0.0]];
+    for r in 1..=rings {
+        let phi = std::f32::consts::FRAC_PI_2 * r as f32 / rings as f32;
+        for s in 0..segments {
+            let th = std::f32::consts::TAU * s as f32 / segments as f32;
+            positions.push([radius * phi.sin() * th.cos(), radius * phi.cos(), radius * phi.sin() * th.sin()]);
+        }
+    }
+    let idx = |r: u32, s: u32| 1 + (r - 1) * segments + (s % segments);
+    let mut triangles = Vec::new();
+    for s in 0..segments {
+        triangles.push([0, idx(1, s + 1), idx(1, s)]);
+    }
+    for r in 1..rings {
+        for s in 0..segments {
+            let (a, b, c, d) = (idx(r, s), idx(r, s + 1), idx(r + 1, s), idx(r + 1, s + 1));
+            triangles.push([a, b, d]);
+            triangles.push([a, d, c]);
+        }
+    }
+    Mesh { positions, triangles }
+}

@@ -1,0 +1,112 @@
+//! The command line end to end: the demo, bake → sim round trips, frames, and readable
+//! one-line errors for bad input.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn xtask(args: &[&str], dir: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_xtask")).args(args).current_dir(dir).output().expect("xtask runs")
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("octoproxy-cli-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// A closed box as ascii OBJ (outward faces, quads).
+const BOX_OBJ: &str = "v -1 -1 -1\nv 1 -1 -1\nv -1 1 -1\nv 1 1 -1\nv -1 -1 1\nv 1 -1 1\nv -1 1 1\nv 1 1 1\n\
+f 1 3 4 2\nf 5 6 8 7\nf 1 2 6 5\nf 3 7 8 4\nf 1 5 7 3\nf 2 4 8 6\n";
+
+fn assert_one_line_error(out: &Output, needle: &str) {
+    assert!(!out.status.success(), "expected failure");
+    let err = String::from_utf8_lossy(&out.stderr);
+    let lines: Vec<&str> = err.lines().filter(|l| !l.trim().is_empty()).collect();
+    let last = lines.last().copied().unwrap_or("");
+    assert!(last.starts_with("error: "), "stderr: {err}");
+    assert!(last.contains(needle), "expected {needle:?} in {last:?}");
+    assert!(!err.contains("panicked"), "stderr: {err}");
+}
+
+#[test]
+fn demo_writes_a_picture() {
+    let dir = scratch("demo");
+    let out = xtask(&["demo", "--particles", "2000", "--steps", "20", "-o", "demo.png"], &dir);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    for key in ["triangles:", "proxy:", "bake time:", "particles:", "ms per step:", "backend:", "picture:"] {
+        assert!(stdout.contains(key), "summary lacks {key}: {stdout}");
+    }
+    let png = std::fs::read(dir.join("demo.png")).unwrap();
+    assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
+}
+
+#[test]
+fn bake_then_sim_keeps_every_particle_in_order() {
+    let dir = scratch("sim");
+    std::fs::write(dir.join("box.obj"), BOX_OBJ).unwrap();
+    let out = xtask(&["bake", "--mesh", "box.obj", "-o", "box.octoproxy", "--dmax", "6"], &dir);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    // An input with an extra property, no velocities, no side.
+    let ply = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nproperty int id\nend_header\n\
+0 3 0 7\n0.5 0 0 8\n5 5 5 9\n";
+    std::fs::write(dir.join("in.ply"), ply).unwrap();
+    let out = xtask(
+        &["sim", "--proxy", "box.octoproxy", "--particles", "in.ply", "-o", "out.ply", "--ascii", "--steps", "30",
+          "--frames", "frames", "--every", "7", "--gravity", "0,-9.81,0"],
+        &dir,
+    );
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = std::fs::read_to_string(dir.join("out.ply")).unwrap();
+    let body: Vec<&str> = text.split("end_header").nth(1).unwrap().lines().filter(|l| !l.is_empty()).collect();
+    assert_eq!(body.len(), 3);
+    let ids: Vec<&str> = body.iter().map(|l| l.split_whitespace().last().unwrap()).collect();
+    assert_eq!(ids, ["7", "8", "9"], "order and extra property kept");
+    // The particle above the box lands on it, the one inside stays inside.
+    let y0: f32 = body[0].split_whitespace().nth(1).unwrap().parse().unwrap();
+    assert!(y0 >= 1.0 - 1e-4, "landed on the top, y = {y0}");
+    let y1: f32 = body[1].split_whitespace().nth(1).unwrap().parse().unwrap();
+    assert!((-1.0..=1.0).contains(&y1), "stayed inside, y = {y1}");
+    // Frames: 0, 7, 14, 21, 28 and the final 30.
+    let mut frames: Vec<String> = std::fs::read_dir(dir.join("frames")).unwrap().map(|e| e.unwrap().file_name().into_string().unwrap()).collect();
+    frames.sort();
+    assert_eq!(frames, ["frame_00000.ply", "frame_00001.ply", "frame_00002.ply", "frame_00003.ply", "frame_00004.ply", "frame_00005.ply"]);
+    // Output continues in the next run, and existing frames are refused without --force.
+    let out = xtask(&["sim", "--proxy", "box.octoproxy", "--particles", "out.ply", "-o", "out2.ply", "--frames", "frames"], &dir);
+    assert_one_line_error(&out, "--force");
+    let out = xtask(&["sim", "--proxy", "box.octoproxy", "--particles", "out.ply", "-o", "out2.ply"], &dir);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+}
+
+#[test]
+fn bad_input_gets_one_readable_line() {
+    let dir = scratch("errors");
+    std::fs::write(dir.join("box.obj"), BOX_OBJ).unwrap();
+    std::fs::write(dir.join("bad.obj"), "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n").unwrap();
+    std::fs::write(dir.join("nan.obj"), "v 0 0 0\nv nan 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+    std::fs::write(dir.join("junk.octoproxy"), b"not a proxy at all!").unwrap();
+    std::fs::write(dir.join("noz.ply"), "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nend_header\n0 0\n").unwrap();
+    let cases: &[(&[&str], &str)] = &[
+        (&["bake", "--mesh", "missing.obj", "-o", "x"], "missing.obj"),
+        (&["bake", "--mesh", "bad.obj", "-o", "x"], "bad.obj"),
+        (&["bake", "--mesh", "nan.obj", "-o", "x"], "nan.obj"),
+        (&["bake", "--mesh", "box.obj", "-o", "x", "--dmax", "40"], "dmax"),
+        (&["bake", "--mesh", "box.obj", "-o", "x", "--dmax", "0"], "dmax"),
+        (&["bake", "--mesh", "box.obj", "-o", "x", "--epsilon", "-1"], "epsilon"),
+        (&["bake", "--mesh", "box.obj"], "--out"),
+        (&["sim", "--proxy", "junk.octoproxy", "--emit", "5", "-o", "o.ply"], "junk.octoproxy"),
+        (&["sim", "--mesh", "box.obj", "--emit", "5", "-o", "o.ply", "--dt", "NaN"], "dt"),
+        (&["sim", "--mesh", "box.obj", "--emit", "5", "-o", "o.ply", "--dt", "-1"], "dt"),
+        (&["sim", "--mesh", "box.obj", "--emit", "5", "-o", "o.ply", "--restitution", "2"], "restitution"),
+        (&["sim", "--mesh", "box.obj", "--emit", "5", "-o", "o.ply", "--gravity", "1,2"], "--gravity"),
+        (&["sim", "--mesh", "box.obj", "--proxy", "p", "--emit", "5", "-o", "o.ply"], "not both"),
+        (&["sim", "--mesh", "box.obj", "--particles", "noz.ply", "-o", "o.ply"], "z"),
+        (&["sim", "--mesh", "box.obj", "--particles", "noz.ply", "-o", "noz.ply"], "overwrite"),
+        (&["frobnicate"], "unknown command"),
+    ];
+    for (args, needle) in cases {
+        let out = xtask(args, &dir);
+        assert_one_line_error(&out, needle);
+    }
+}

@@ -15,3 +15,8 @@ pub use build::{bake, BuildError, BuildParams, BuildProgress, BuildReport, MeshR
 pub mod mesh;
 pub mod particles;
 pub mod ply;
+
+/// The README's examples, compiled and run as doctests.
+#[doc = include_str!("../../README.md")]
+#[cfg(doctest)]
+pub struct ReadmeDoctests;

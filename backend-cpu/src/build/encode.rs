@@ -139,8 +139,10 @@ fn finish_surface(s: &mut Surface, tris: &[Tri], lo: DVec3, hi: DVec3) {
     let mut clipped_area = 0.0;
     let mut full_sum = DVec3::ZERO;
     let mut full_area = 0.0;
+    let mut rim = false;
     for &t in &s.tris {
         let tri = &tris[t as usize];
+        rim |= tri.rim;
         let poly = geom::clip_triangle(&tri.v, lo, hi);
         let (area, centroid) = poly.area_centroid();
         if !poly.is_empty() {
@@ -153,7 +155,9 @@ fn finish_surface(s: &mut Surface, tris: &[Tri], lo: DVec3, hi: DVec3) {
     }
     let (sum, area) = if clipped_area > 0.0 { (clipped_sum, clipped_area) } else { (full_sum, full_area) };
     let len = sum.length();
-    s.two_sided = !(len > TWO_SIDED_COHERENCE * area);
+    // A leaf holding a rim cannot tell its sides apart by labels (they meet around the rim),
+    // so it is solid from every side, as is a leaf whose normals cancel.
+    s.two_sided = rim || !(len > TWO_SIDED_COHERENCE * area);
     s.normal = if len > 0.0 { sum / len } else { DVec3::Z };
     if s.anchors.is_empty() {
         // Numerically, no triangle reached inside: anchor at each centroid, clamped in.

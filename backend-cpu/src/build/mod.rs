@@ -12,7 +12,8 @@
 //!    paper, divided by the node's total triangle area so that `epsilon` means the same for a
 //!    mesh and its subdivision). A node touching the root boundary always subdivides.
 //! 4. **Normals**: the area-weighted normal of the triangles clipped to each surface leaf. If
-//!    they cancel (coherence below [`TWO_SIDED_COHERENCE`]), the leaf is two-sided.
+//!    they cancel (coherence below [`TWO_SIDED_COHERENCE`]), or the leaf holds a rim (an edge
+//!    of a hole, or a non-manifold edge), the leaf is two-sided: solid from every side.
 //! 5. **Label** every empty leaf that touches a surface leaf (faces, edges and corners, any
 //!    size) by the view-visible method: segments from points on the surface leaf's triangles
 //!    to the shared boundary; the hit nearest the boundary votes front or back. Votes from
@@ -204,6 +205,8 @@ pub(crate) struct Tri {
     pub n: DVec3,
     pub area: f64,
     pub closed: bool,
+    /// Has an edge not shared by exactly two triangles (a rim of a hole, or non-manifold).
+    pub rim: bool,
 }
 
 /// The grid: root cube and the exact `f32` planes every backend uses.
@@ -289,7 +292,7 @@ fn gather(meshes: &[MeshRef<'_>], report: &mut BuildReport) -> Result<Vec<Tri>, 
         if let Some(vertex) = m.positions.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
             return Err(BuildError::NonFinite { mesh: mi, vertex });
         }
-        let closed = closed_triangles(m);
+        let (closed, rim) = edge_classes(m);
         for (ti, t) in m.triangles.iter().enumerate() {
             report.triangles_in += 1;
             let mut v = [DVec3::ZERO; 3];
@@ -314,7 +317,7 @@ fn gather(meshes: &[MeshRef<'_>], report: &mut BuildReport) -> Result<Vec<Tri>, 
             if closed[ti] {
                 report.closed_triangles += 1;
             }
-            tris.push(Tri { v, n: c / len, area: len * 0.5, closed: closed[ti] });
+            tris.push(Tri { v, n: c / len, area: len * 0.5, closed: closed[ti], rim: rim[ti] });
         }
     }
     if tris.is_empty() {
@@ -323,10 +326,11 @@ fn gather(meshes: &[MeshRef<'_>], report: &mut BuildReport) -> Result<Vec<Tri>, 
     Ok(tris)
 }
 
-/// Marks the triangles of closed components: components (triangles joined by shared edges)
-/// in which every edge is used exactly once in each direction. Vertices are welded by
-/// position first, so seams of duplicated vertices do not open a mesh.
-fn closed_triangles(m: &MeshRef<'_>) -> Vec<bool> {
+/// Classifies triangles by their edges: those of closed components (components joined by
+/// shared edges in which every edge is used exactly once in each direction), and those with a
+/// rim edge (not used exactly once in each direction). Vertices are welded by position first,
+/// so seams of duplicated vertices do not open a mesh.
+fn edge_classes(m: &MeshRef<'_>) -> (Vec<bool>, Vec<bool>) {
     let n = m.triangles.len();
     // Weld: canonical vertex id per position bit pattern.
     let mut order: Vec<u32> = (0..m.positions.len() as u32).collect();
@@ -392,7 +396,8 @@ fn closed_triangles(m: &MeshRef<'_>) -> Vec<bool> {
             comp_open[r as usize] = true;
         }
     }
-    (0..n).map(|t| !comp_open[find(&mut parent, t as u32) as usize]).collect()
+    let closed = (0..n).map(|t| !comp_open[find(&mut parent, t as u32) as usize]).collect();
+    (closed, open)
 }
 
 /// The root cube: the scene box grown so that every triangle stays more than one `dmax`

@@ -31,16 +31,19 @@ fn bake_one(p: &[[f32; 3]], t: &[[u32; 3]], params: &BuildParams) -> (Vec<u32>, 
 #[test]
 fn cube_is_closed_and_outward() {
     let (p, t) = cube([0.0; 3], [1.0; 3]);
-    let closed = closed_triangles(&MeshRef { positions: &p, triangles: &t });
+    let (closed, rim) = edge_classes(&MeshRef { positions: &p, triangles: &t });
     assert!(closed.iter().all(|&c| c));
+    assert!(rim.iter().all(|&r| !r));
     let tris = gather(&[MeshRef { positions: &p, triangles: &t }], &mut BuildReport::default()).unwrap();
     for tri in &tris {
         let c = (tri.v[0] + tri.v[1] + tri.v[2]) / 3.0 - DVec3::splat(0.5);
         assert!(tri.n.dot(c) > 0.0, "normals point out");
     }
     // Dropping one triangle opens it.
-    let closed = closed_triangles(&MeshRef { positions: &p, triangles: &t[1..] });
+    let (closed, rim) = edge_classes(&MeshRef { positions: &p, triangles: &t[1..] });
     assert!(closed.iter().all(|&c| !c));
+    // The three triangles that shared an edge with the removed one now have a rim edge.
+    assert_eq!(rim.iter().filter(|&&r| r).count(), 3);
 }
 
 #[test]

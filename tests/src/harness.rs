@@ -1,0 +1,164 @@
+//! The penetration harness: any scene, any particles, many steps, checked against exact
+//! ground truth rather than the proxy.
+//!
+//! Every straight piece of every particle's real path (from `step_particle_traced`) is tested
+//! against the mesh; a particle whose crossings add up to an odd number has changed side.
+//! A **penetration** is a particle that has changed side and ends a step more than `tolerance`
+//! (one `dmax`-leaf diagonal) from the surface. For closed meshes the winding number checks
+//! the same thing a second way: a particle that started inside and ends outside (or the
+//! reverse), farther than the tolerance from the surface, escaped (or penetrated).
+//! Passing through a hole crosses no triangle, so open meshes may be passed only through holes.
+
+use glam::Vec3;
+use octoproxy_core::{
+    initial_side, step_particle_traced, Particle, ProxyView, StepParams, FLAG_BLOCKED, FLAG_BOUND_HIT, FLAG_INVALID,
+};
+use octoproxy_cpu::emit::Rng;
+use rayon::prelude::*;
+
+use crate::ground_truth::GroundTruth;
+
+/// What a run found.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct CheckReport {
+    /// Particles checked.
+    pub particles: usize,
+    /// Particle-steps taken.
+    pub particle_steps: u64,
+    /// Particles that changed side deeper than the tolerance (counted once each).
+    pub penetrations: u64,
+    /// Of those, particles that started inside a closed mesh and ended outside.
+    pub escapes: u64,
+    /// Particles whose state became NaN or infinite.
+    pub non_finite: u64,
+    /// Steps stopped by the shell rule.
+    pub blocked_steps: u64,
+    /// Steps stopped by the leaf bound.
+    pub bound_hits: u64,
+    /// Collisions in all.
+    pub collisions: u64,
+    /// The first few offenders: index, start position, end position.
+    pub examples: Vec<(usize, [f32; 3], [f32; 3])>,
+}
+
+impl CheckReport {
+    /// Penetrations per million particle-steps.
+    pub fn per_million(&self) -> f64 {
+        self.penetrations as f64 * 1e6 / self.particle_steps.max(1) as f64
+    }
+}
+
+/// Random particles in the root cube at least `2 * tolerance` from the surface, moving in
+/// random directions at speeds drawn from `speeds` (units per second).
+pub fn random_particles(view: &ProxyView<'_>, gt: &GroundTruth, n: usize, speeds: &[f32], seed: u64) -> Vec<Particle> {
+    let root = view.root_aabb();
+    let tol = tolerance(view);
+    let mut rng = Rng::new(seed);
+    let mut out = Vec::with_capacity(n);
+    let mut tries = 0;
+    while out.len() < n && tries < n * 50 {
+        tries += 1;
+        let p = Vec3::new(
+            rng.range(root.min.x, root.max.x),
+            rng.range(root.min.y, root.max.y),
+            rng.range(root.min.z, root.max.z),
+        );
+        if gt.distance(p.to_array()) <= 2.0 * tol as f64 {
+            continue;
+        }
+        if view.locate_leaf(p).is_some_and(|l| l.kind == octoproxy_core::LeafKind::Surface) {
+            continue;
+        }
+        let speed = speeds[out.len() % speeds.len().max(1)];
+        let mut q = Particle::new(p.to_array(), (rng.unit_vector() * speed).to_array());
+        q.side = initial_side(view, q.position);
+        out.push(q);
+    }
+    out
+}
+
+/// One `dmax`-leaf diagonal.
+pub fn tolerance(view: &ProxyView<'_>) -> f32 {
+    view.finest_leaf_size() * 3f32.sqrt()
+}
+
+/// Steps `particles` `steps` times against `view`, checking every path against `gt`.
+/// `closed`: also check inside/outside by winding number.
+pub fn run_check(
+    view: &ProxyView<'_>,
+    gt: &GroundTruth,
+    particles: &mut [Particle],
+    steps: u32,
+    params: &StepParams,
+    closed: bool,
+) -> CheckReport {
+    let tol = tolerance(view) as f64;
+    struct State {
+        start: [f32; 3],
+        inside: bool,
+        crossings: u64,
+        bad: bool,
+        escaped: bool,
+        non_finite: bool,
+        blocked: u64,
+        bound: u64,
+    }
+    let mut states: Vec<State> = particles
+        .par_iter()
+        .map(|p| State {
+            start: p.position,
+            inside: closed && gt.is_inside(p.position),
+            crossings: 0,
+            bad: false,
+            escaped: false,
+            non_finite: false,
+            blocked: 0,
+            bound: 0,
+        })
+        .collect();
+    particles.par_iter_mut().zip(states.par_iter_mut()).for_each(|(p, s)| {
+        for _ in 0..steps {
+            if s.bad || s.non_finite {
+                break;
+            }
+            step_particle_traced(view, p, params, &mut |a: Vec3, b: Vec3| {
+                if a != b {
+                    s.crossings += gt.segment_crossings(a.to_array(), b.to_array()) as u64;
+                }
+            });
+            if p.flags & FLAG_INVALID != 0 || !Vec3::from_array(p.position).is_finite() {
+                s.non_finite = true;
+                break;
+            }
+            s.blocked += (p.flags & FLAG_BLOCKED != 0) as u64;
+            s.bound += (p.flags & FLAG_BOUND_HIT != 0) as u64;
+            let far = gt.distance(p.position) > tol;
+            if far && s.crossings % 2 == 1 {
+                s.bad = true;
+            }
+            if closed && far && gt.is_inside(p.position) != s.inside {
+                s.bad = true;
+                s.escaped = s.inside;
+            }
+        }
+    });
+    let mut report = CheckReport {
+        particles: particles.len(),
+        particle_steps: particles.len() as u64 * steps as u64,
+        ..CheckReport::default()
+    };
+    for (i, (s, p)) in states.iter().zip(particles.iter()).enumerate() {
+        report.collisions += p.collisions() as u64;
+        report.blocked_steps += s.blocked;
+        report.bound_hits += s.bound;
+        report.non_finite += s.non_finite as u64;
+        if s.bad {
+            report.penetrations += 1;
+            report.escapes += s.escaped as u64;
+            if report.examples.len() < 5 {
+                report.examples.push((i, s.start, p.position));
+            }
+        }
+    }
+    report
+}

@@ -1,0 +1,126 @@
+//! Particles against exact ground truth: started outside a closed mesh they never end inside
+//! deeper than one dmax-leaf diagonal, started inside they never escape, and nobody crosses
+//! an open sheet except through a hole. Speeds run from a fraction of a leaf to the whole
+//! scene per step.
+
+use octoproxy_core::{ProxyView, StepParams};
+use octoproxy_cpu::{bake, BuildParams, MeshRef};
+use octoproxy_tests::ground_truth::GroundTruth;
+use octoproxy_tests::harness::{random_particles, run_check, CheckReport};
+use octoproxy_tests::meshes;
+use octoproxy_tests::scenes::{self, Mesh};
+
+const DT: f32 = 1.0 / 60.0;
+
+/// Bakes, makes particles at speeds from 0.2 leaf to the whole scene per step, and checks.
+fn check(name: &str, mesh: &Mesh, closed: bool, particles: usize, steps: u32, params: &BuildParams) -> CheckReport {
+    let (words, _) = bake(&[MeshRef::from(mesh)], params, &()).expect("bakes");
+    let view = ProxyView::new(&words).expect("valid");
+    let gt = GroundTruth::new(&mesh.positions, &mesh.triangles);
+    let leaf = view.finest_leaf_size();
+    let scene = view.header().root_size;
+    let speeds: Vec<f32> = [0.2 * leaf, leaf, 3.0 * leaf, 12.0 * leaf, 0.5 * scene, scene].iter().map(|d| d / DT).collect();
+    let mut total = CheckReport::default();
+    for (i, step) in [
+        StepParams { gravity: [0.0; 3], dt: DT, restitution: 1.0, friction: 0.0, _pad: [0; 2] },
+        StepParams { gravity: [0.0, -9.81, 0.0], dt: DT, restitution: 0.0, friction: 1.0, _pad: [0; 2] },
+        StepParams { dt: DT, ..StepParams::default() },
+    ]
+    .iter()
+    .enumerate()
+    {
+        let mut ps = random_particles(&view, &gt, particles, &speeds, 17 + i as u64);
+        let r = run_check(&view, &gt, &mut ps, steps, step, closed);
+        total.particles += r.particles;
+        total.particle_steps += r.particle_steps;
+        total.penetrations += r.penetrations;
+        total.escapes += r.escapes;
+        total.non_finite += r.non_finite;
+        total.collisions += r.collisions;
+        total.blocked_steps += r.blocked_steps;
+        total.bound_hits += r.bound_hits;
+        total.examples.extend(r.examples);
+    }
+    eprintln!(
+        "{name}: {} particle-steps, {} penetrations ({} escapes), {} collisions, {} blocked steps, {} bound hits",
+        total.particle_steps, total.penetrations, total.escapes, total.collisions, total.blocked_steps, total.bound_hits
+    );
+    assert_eq!(total.non_finite, 0, "{name}: non-finite particles");
+    assert!(total.collisions > 0, "{name}: nothing collided, the test tests nothing");
+    total
+}
+
+fn assert_clean(name: &str, r: &CheckReport) {
+    assert_eq!(r.penetrations, 0, "{name}: penetrations, e.g. (index, start, end) {:?}", r.examples);
+}
+
+fn defaults() -> BuildParams {
+    BuildParams { dmin: 3, dmax: 6, ..BuildParams::default() }
+}
+
+#[test]
+fn closed_procedural_scenes_hold() {
+    let cases: Vec<(&str, Mesh)> = vec![
+        ("cube", scenes::cube([-1.0; 3], [1.0; 3])),
+        ("sphere", scenes::uv_sphere([0.0; 3], 1.0, 48, 24)),
+        ("torus", scenes::torus([0.0; 3], 1.0, 0.35, 48, 24)),
+        ("star prism", scenes::star_prism(6, 1.0, 0.35, 0.6)),
+        ("knife wedge", scenes::wedge(8.0, 1.5, 1.0)),
+        ("nested shells", scenes::nested_shells(1.0, 0.3)),
+        ("low-poly convex", scenes::uv_sphere([0.0; 3], 1.0, 6, 3)),
+    ];
+    for (name, mesh) in &cases {
+        let r = check(name, mesh, true, 600, 40, &defaults());
+        assert_clean(name, &r);
+    }
+}
+
+#[test]
+fn thin_closed_slab_holds() {
+    // Thinner than a leaf at dmax 6 (root about 2.2, leaf about 0.035).
+    let mesh = scenes::slab([0.0; 3], [2.0, 0.01, 2.0]);
+    let r = check("thin slab", &mesh, true, 800, 40, &defaults());
+    assert_clean("thin slab", &r);
+}
+
+#[test]
+fn open_sheet_is_never_crossed_from_either_side() {
+    let mesh = scenes::flat_sheet([0.0; 3], 2.0, 8);
+    let r = check("flat sheet", &mesh, false, 800, 40, &defaults());
+    assert_clean("flat sheet", &r);
+    let dome = scenes::hemisphere([0.0; 3], 1.0, 48, 12);
+    let r = check("open dome", &dome, false, 800, 40, &defaults());
+    assert_clean("open dome", &r);
+}
+
+#[test]
+fn closed_shared_meshes_hold() {
+    for (name, closed) in meshes::ALL {
+        if !closed {
+            continue;
+        }
+        let Some(mesh) = meshes::load(name) else { return };
+        let r = check(name, &mesh, true, 500, 30, &BuildParams { dmax: 7, ..BuildParams::default() });
+        assert_clean(name, &r);
+    }
+}
+
+#[test]
+fn the_bunny_is_crossed_only_through_its_holes() {
+    let Some(mesh) = meshes::load("stanford-bunny.obj.gz") else { return };
+    let r = check("bunny", &mesh, false, 500, 30, &BuildParams { dmax: 7, ..BuildParams::default() });
+    assert_clean("bunny", &r);
+}
+
+/// KNOWN LEAK, not a pass: the teapot's spout and handle pass through its body, so empty
+/// leaves inside the spout see the spout's back and the body's front, the votes conflict,
+/// and particles inside the spout can leave through its wall. This guards the measured rate
+/// (8 of 1,500 particles over 30 steps when written) from getting worse until labels are
+/// tracked per surface.
+#[test]
+fn teapot_self_intersections_leak_no_more_than_measured() {
+    let Some(mesh) = meshes::load("teapot.obj.gz") else { return };
+    let r = check("teapot", &mesh, false, 500, 30, &BuildParams { dmax: 7, ..BuildParams::default() });
+    eprintln!("teapot: {:.1} penetrations per million particle-steps", r.per_million());
+    assert!(r.penetrations <= 8, "teapot leaks more than measured: {} ({:?})", r.penetrations, r.examples);
+}

@@ -374,3 +374,134 @@ fn parse_ply(name: &str, data: &[u8], report: &mut LoadReport) -> Result<Mesh, M
     }
     Ok(mesh)
 }
+
+#[cfg(test)]
+mod tests {
+    use std::io::Write;
+
+    use super::*;
+
+    const QUAD_OBJ: &str = "# a quad and a triangle\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvn 0 0 1\nf 1//1 2//1 3//1 4//1\nf -4/1/1 -3/2/1 -1/3/1\n";
+
+    #[test]
+    fn obj_quads_slashes_and_negative_indices() {
+        let (m, r) = parse_mesh("q.obj", QUAD_OBJ.as_bytes(), None).unwrap();
+        assert_eq!(m.positions.len(), 4);
+        assert_eq!(m.triangles, vec![[0, 1, 2], [0, 2, 3], [0, 1, 3]]);
+        assert_eq!(r.polygons_triangulated, 1);
+    }
+
+    #[test]
+    fn gzip_is_detected_by_magic() {
+        let mut enc = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+        enc.write_all(QUAD_OBJ.as_bytes()).unwrap();
+        let gz = enc.finish().unwrap();
+        let (m, r) = parse_mesh("q.obj.gz", &gz, None).unwrap();
+        assert!(r.gzipped);
+        assert_eq!(m.triangles.len(), 3);
+    }
+
+    #[test]
+    fn stl_ascii_and_binary_agree() {
+        let ascii = "solid t\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nvertex 0 1 0\nendloop\nendfacet\n\
+facet normal 0 0 1\nouter loop\nvertex 1 0 0\nvertex 1 1 0\nvertex 0 1 0\nendloop\nendfacet\nendsolid t\n";
+        let (a, _) = parse_mesh("t.stl", ascii.as_bytes(), None).unwrap();
+        assert_eq!(a.positions.len(), 4, "shared corners are welded");
+        let mut bin = vec![0u8; 80];
+        bin.extend_from_slice(&2u32.to_le_bytes());
+        for tri in [[[0.0f32, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]]] {
+            bin.extend_from_slice(&[0u8; 12]);
+            for v in tri {
+                for c in v {
+                    bin.extend_from_slice(&c.to_le_bytes());
+                }
+            }
+            bin.extend_from_slice(&[0u8; 2]);
+        }
+        let (b, _) = parse_mesh("t.stl", &bin, None).unwrap();
+        assert_eq!(a, b);
+        // A binary file whose size disagrees with its count, not starting with `solid`.
+        assert!(parse_mesh("t.stl", &bin[..bin.len() - 1], None).is_err());
+    }
+
+    #[test]
+    fn ply_ascii_and_binary_with_extra_elements() {
+        let ascii = "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\nproperty uchar red\n\
+element face 1\nproperty list uchar int vertex_indices\nelement edge 1\nproperty int a\nproperty int b\nend_header\n\
+0 0 0 1\n1 0 0 2\n1 1 0 3\n0 1 0 4\n4 0 1 2 3\n0 1\n";
+        let (a, r) = parse_mesh("a.ply", ascii.as_bytes(), None).unwrap();
+        assert_eq!(a.triangles, vec![[0, 1, 2], [0, 2, 3]]);
+        assert_eq!(r.polygons_triangulated, 1);
+        let mut bin = b"ply\nformat binary_big_endian 1.0\nelement vertex 3\nproperty double x\nproperty double y\nproperty double z\nelement face 1\nproperty list uchar uint vertex_index\nend_header\n".to_vec();
+        for v in [[0.0f64, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]] {
+            for c in v {
+                bin.extend_from_slice(&c.to_be_bytes());
+            }
+        }
+        bin.push(3);
+        for i in [0u32, 1, 2] {
+            bin.extend_from_slice(&i.to_be_bytes());
+        }
+        let (b, _) = parse_mesh("b.ply", &bin, None).unwrap();
+        assert_eq!(b.positions[1], [1.0, 0.0, 0.0]);
+        assert_eq!(b.triangles, vec![[0, 1, 2]]);
+    }
+
+    #[test]
+    fn errors_name_the_file_and_the_problem() {
+        let cases: &[(&str, &str, &str)] = &[
+            ("a.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n", "vertex 4, but there are 3"),
+            ("b.obj", "v 0 0 0\nv nan 0 0\nv 0 1 0\nf 1 2 3\n", "vertex 1 has a NaN"),
+            ("c.obj", "v 0 0 0\nv inf 0 0\nv 0 1 0\nf 1 2 3\n", "NaN or infinite"),
+            ("d.obj", "v 0 0 0\n", "no triangles"),
+            ("e.obj", "v 0 0\n", "line 1"),
+            ("f.obj", "v 0 0 0\nv 1 0 0\nf 1 2\n", "at least 3"),
+            ("g.ply", "ply\nformat binary_little_endian 1.0\nelement vertex 4000000000\nproperty float x\nproperty float y\nproperty float z\nend_header\n", "claims"),
+            ("h.ply", "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n", "vertex 7"),
+            ("i.xyz", "hello", "unknown mesh format"),
+        ];
+        for (name, text, needle) in cases {
+            let e = parse_mesh(name, text.as_bytes(), None).unwrap_err().to_string();
+            assert!(e.starts_with(name), "{e}");
+            assert!(e.contains(needle), "{name}: expected {needle:?} in {e:?}");
+        }
+    }
+
+    #[test]
+    fn mutated_and_truncated_bytes_never_panic() {
+        let seeds: Vec<Vec<u8>> = vec![
+            QUAD_OBJ.as_bytes().to_vec(),
+            b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n".iter().copied().chain([0u8; 36]).chain([3u8, 0, 0, 0, 0, 1, 0, 0, 0, 2, 0, 0, 0]).collect(),
+            b"solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nvertex 0 1 0\nendloop\nendfacet\n".to_vec(),
+        ];
+        let mut s = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            s
+        };
+        for seed in &seeds {
+            for _ in 0..1500 {
+                let mut b = seed.clone();
+                match next() % 3 {
+                    0 => b.truncate((next() as usize) % (b.len() + 1)),
+                    1 => {
+                        for _ in 0..1 + next() % 4 {
+                            let i = next() as usize % b.len();
+                            b[i] = next() as u8;
+                        }
+                    }
+                    _ => {
+                        let i = next() as usize % b.len();
+                        b.insert(i, next() as u8);
+                    }
+                }
+                for fmt in [None, Some(MeshFormat::Obj), Some(MeshFormat::Ply), Some(MeshFormat::Stl)] {
+                    let _ = parse_mesh("fuzz", &b, fmt);
+                }
+                let _ = crate::particles::parse_particles("fuzz", &b);
+            }
+        }
+    }
+}

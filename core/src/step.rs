@@ -5,7 +5,7 @@
 //!
 //! - an empty leaf with a label stamps the particle's side;
 //! - a surface leaf collides when the velocity opposes its normal (flipped for back-side
-//!   particles; a two-sided leaf uses the face the particle came through), responding at the
+//!   particles; a two-sided leaf is solid and uses the face the particle enters through), responding at the
 //!   entry point with restitution and Coulomb friction, and the march goes on with the new
 //!   velocity and the time left;
 //! - **shell rule:** a particle that went into the shell of surface leaves from its own side
@@ -150,6 +150,19 @@ fn face_normal(axes: u32, signs: Vec3) -> Vec3 {
     } else {
         n
     }
+}
+
+/// The faces of `b` that `x` lies on while `v` points into `b`: the faces a particle there
+/// enters through. Empty when `x` is strictly inside.
+#[inline]
+fn entry_faces(b: &Aabb, x: Vec3, v: Vec3) -> u32 {
+    let mut axes = 0;
+    for a in 0..3 {
+        if (x[a] == b.min[a] && v[a] > 0.0) || (x[a] == b.max[a] && v[a] < 0.0) {
+            axes |= 1 << a;
+        }
+    }
+    axes
 }
 
 /// Time and point at which a ray from `x` (inside `b`) with velocity `v` leaves `b`, and the
@@ -305,7 +318,22 @@ pub fn step_particle_traced<F: FnMut(Vec3, Vec3)>(
                 }
             }
         }
-        let leaf = view.locate_inside(x, v);
+        let mut leaf = view.locate_inside(x, v);
+        if leaf.two_sided {
+            // A particle sliding along a face of a solid leaf (no velocity across it) is not in
+            // the leaf: locate it on the face's outer side instead.
+            let mut dir = v;
+            for a in 0..3 {
+                if v[a] == 0.0 && x[a] == leaf.aabb.min[a] {
+                    dir[a] = -1.0;
+                } else if v[a] == 0.0 && x[a] == leaf.aabb.max[a] {
+                    dir[a] = 1.0;
+                }
+            }
+            if dir != v {
+                leaf = view.locate_inside(x, dir);
+            }
+        }
         match leaf.kind {
             LeafKind::Empty => {
                 if leaf.label != Label::None {
@@ -329,7 +357,9 @@ pub fn step_particle_traced<F: FnMut(Vec3, Vec3)>(
                 }
                 if leaf.node != last_collided {
                     let n = if leaf.two_sided {
-                        face_normal(cross_axes, cross_signs)
+                        // Solid from every side: the faces it is entering through, found from
+                        // the box, so a particle resting on one at the start of a step counts.
+                        face_normal(entry_faces(&leaf.aabb, x, v), v)
                     } else if side == SIDE_BACK {
                         -leaf.normal
                     } else {

@@ -208,10 +208,11 @@ pub(crate) fn encode(tree: &Flat, labels: &Labels, grid: &Grid, params: &BuildPa
             }
             Kind::Surface(s) => {
                 tree_depth = tree_depth.max(node.depth);
+                let two_sided = s.two_sided || labels.conflicted(id);
                 report.surface_leaves += 1;
-                report.two_sided_leaves += s.two_sided as usize;
+                report.two_sided_leaves += two_sided as usize;
                 let n = Vec3::new(s.normal.x as f32, s.normal.y as f32, s.normal.z as f32);
-                records.push(NodeRecord::surface(encode_normal(n), s.two_sided));
+                records.push(NodeRecord::surface(encode_normal(n), two_sided));
             }
         }
     }

@@ -12,9 +12,10 @@
 //! **Conflicts.** Two surfaces can see one empty leaf from different sides (thin gaps, holes,
 //! overlapping parts). Votes of triangles from closed components outrank votes from open
 //! ones: a leaf is labelled by the closed votes if it has any, else by the open ones. Within
-//! a rank the majority wins and a tie is labelled back. With the step's shell rule, a
-//! correctly labelled closed surface keeps particles on their side whatever the open
-//! surfaces near it vote.
+//! a rank the majority wins and a tie is labelled back. Where votes disagree at all, one side
+//! bit cannot be right for every surface there (self-intersections, overlapping parts, thin
+//! gaps between opposite faces), so every surface leaf that touches such an empty leaf is made
+//! two-sided: solid from every side, whatever the particle's side.
 
 use glam::DVec3;
 use octoproxy_core::Label;
@@ -29,11 +30,19 @@ pub(crate) const SAMPLES: usize = 3;
 pub(crate) struct Labels {
     /// Label per `parent * 8 + octant`, as label bits.
     bits: Vec<u8>,
+    /// Per flat node: a surface leaf next to an empty leaf whose votes disagree.
+    conflicted: Vec<bool>,
     pub labelled: usize,
     pub conflicts: usize,
 }
 
 impl Labels {
+    /// Whether surface leaf `node` touches an empty leaf whose votes disagree: one side bit
+    /// cannot be right for every surface there, so the leaf must be solid from every side.
+    pub fn conflicted(&self, node: u32) -> bool {
+        self.conflicted.get(node as usize).copied().unwrap_or(false)
+    }
+
     pub fn get(&self, empty_id: u32) -> Label {
         match self.bits.get(empty_id as usize) {
             Some(1) => Label::Front,
@@ -46,6 +55,7 @@ impl Labels {
 #[derive(Clone, Copy)]
 struct Vote {
     empty: u32,
+    surface: u32,
     front: bool,
     closed: bool,
 }
@@ -69,6 +79,13 @@ pub(crate) fn label(tree: &Flat, tris: &[Tri], grid: &Grid, progress: &dyn Build
     }
     let mut labelled = 0;
     let mut conflicts = 0;
+    let disagree = |c: &[u32; 4]| (c[0] + c[2] > 0) && (c[1] + c[3] > 0);
+    let mut conflicted = vec![false; tree.nodes.len()];
+    for v in &votes {
+        if disagree(&counts[v.empty as usize]) {
+            conflicted[v.surface as usize] = true;
+        }
+    }
     let bits = counts
         .iter()
         .map(|c| {
@@ -77,7 +94,7 @@ pub(crate) fn label(tree: &Flat, tris: &[Tri], grid: &Grid, progress: &dyn Build
                 return 0u8;
             }
             labelled += 1;
-            if (c[0] + c[2] > 0) && (c[1] + c[3] > 0) {
+            if disagree(c) {
                 conflicts += 1;
             }
             if front > back {
@@ -87,7 +104,7 @@ pub(crate) fn label(tree: &Flat, tris: &[Tri], grid: &Grid, progress: &dyn Build
             }
         })
         .collect();
-    Labels { bits, labelled, conflicts }
+    Labels { bits, conflicted, labelled, conflicts }
 }
 
 fn leaf_votes(tree: &Flat, leaf: u32, tris: &[Tri], grid: &Grid) -> Vec<Vote> {
@@ -116,7 +133,7 @@ fn leaf_votes(tree: &Flat, leaf: u32, tris: &[Tri], grid: &Grid) -> Vec<Vote> {
         for &(_, i) in best.iter().filter(|b| b.1 != usize::MAX) {
             let (pb, own) = surface.anchors[i];
             if let Some((front, closed)) = view_visible(pe, pb, own, &surface.tris, tris) {
-                out.push(Vote { empty, front, closed });
+                out.push(Vote { empty, surface: leaf, front, closed });
             }
         }
     });

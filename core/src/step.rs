@@ -319,9 +319,9 @@ pub fn step_particle_traced<F: FnMut(Vec3, Vec3)>(
             }
         }
         let mut leaf = view.locate_inside(x, v);
-        if leaf.two_sided {
-            // A particle sliding along a face of a solid leaf (no velocity across it) is not in
-            // the leaf: locate it on the face's outer side instead.
+        if leaf.two_sided && entry_faces(&leaf.aabb, x, v) == 0 {
+            // A particle sliding along a face of a solid leaf (no velocity across it), and not
+            // entering through another, is not in the leaf: locate it on the face's outer side.
             let mut dir = v;
             for a in 0..3 {
                 if v[a] == 0.0 && x[a] == leaf.aabb.min[a] {

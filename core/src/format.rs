@@ -10,7 +10,7 @@ use crate::math;
 /// First word of every proxy: the bytes `OCTP` read as a little-endian `u32`.
 pub const MAGIC: u32 = u32::from_le_bytes(*b"OCTP");
 /// Bumped whenever the meaning of any word or bit changes.
-pub const FORMAT_VERSION: u32 = 1;
+pub const FORMAT_VERSION: u32 = 2;
 /// Words in the header, before the node array.
 pub const HEADER_WORDS: usize = 16;
 /// Deepest tree the format supports. Cell bounds are computed on a `2^MAX_DEPTH` grid.
@@ -107,7 +107,8 @@ impl Label {
 ///
 /// Internal node: `a` is the index of its first child record (children with a record are
 /// stored contiguously in octant order), `b` holds the child, internal and label masks.
-/// Surface leaf: `a` holds [`LEAF_BIT`], [`TWO_SIDED_BIT`] and the octahedral normal; `b` is 0.
+/// Surface leaf: `a` holds [`LEAF_BIT`], [`TWO_SIDED_BIT`] and the octahedral normal; `b` is
+/// the plane offset as `f32` bits (see [`NodeRecord::plane_offset`]).
 // Layout reason: two `u32`, no padding, 4-byte aligned, so a `&[u32]` casts to `&[NodeRecord]`.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
@@ -131,10 +132,18 @@ impl NodeRecord {
         }
     }
 
-    /// A surface leaf record with the given (encoded) normal.
-    pub const fn surface(normal_bits: u32, two_sided: bool) -> Self {
+    /// A surface leaf record with the given (encoded) normal and plane offset.
+    pub fn surface(normal_bits: u32, two_sided: bool, plane_offset: f32) -> Self {
         let two = if two_sided { TWO_SIDED_BIT } else { 0 };
-        Self { a: LEAF_BIT | two | (normal_bits & oct_mask()), b: 0 }
+        Self { a: LEAF_BIT | two | (normal_bits & oct_mask()), b: plane_offset.to_bits() }
+    }
+
+    /// Surface leaf: the offset `d` of the surface's mean plane `n · (x - c) = d`, with `n`
+    /// the normal and `c` the leaf's centre. Only used to tell which side a particle that
+    /// starts inside the leaf is on; the step never reads it.
+    #[inline]
+    pub fn plane_offset(self) -> f32 {
+        f32::from_bits(self.b)
     }
 
     /// Whether this is a surface leaf.

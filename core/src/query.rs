@@ -40,6 +40,9 @@ pub struct LeafInfo {
     pub normal: Vec3,
     /// Surface leaves: whether the leaf is two-sided (solid from every side).
     pub two_sided: bool,
+    /// Surface leaves: offset of the surface's mean plane from the leaf's centre along
+    /// `normal` (see `NodeRecord::plane_offset`); 0 for empty leaves.
+    pub plane_offset: f32,
     /// Empty leaves: the front/back label ([`Label::None`] for surface leaves).
     pub label: Label,
     /// Surface leaves: the index of the leaf's record. Empty leaves have no record: the
@@ -142,6 +145,7 @@ impl ProxyView<'_> {
                     kind: LeafKind::Surface,
                     normal: rec.normal(),
                     two_sided: rec.is_two_sided(),
+                    plane_offset: rec.plane_offset(),
                     label: Label::None,
                     node: index,
                     depth,
@@ -176,6 +180,7 @@ impl ProxyView<'_> {
             kind: LeafKind::Empty,
             normal: Vec3::ZERO,
             two_sided: false,
+            plane_offset: 0.0,
             label,
             node: parent,
             depth,

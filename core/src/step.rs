@@ -406,9 +406,19 @@ pub fn step_particle_traced<F: FnMut(Vec3, Vec3)>(
     outcome
 }
 
-/// Initial side of a particle that has none: the label of its leaf (front when unlabelled).
+/// Initial side of a particle that has none: in an empty leaf, the leaf's label (front when
+/// unlabelled); in a surface leaf, the side of the surface's mean plane it is on.
 pub fn initial_side(view: &ProxyView<'_>, position: [f32; 3]) -> u32 {
-    match view.locate_leaf(Vec3::from_array(position)) {
+    let p = Vec3::from_array(position);
+    match view.locate_leaf(p) {
+        Some(leaf) if leaf.kind == LeafKind::Surface => {
+            let center = (leaf.aabb.min + leaf.aabb.max) * 0.5;
+            if leaf.normal.dot(p - center) >= leaf.plane_offset {
+                SIDE_FRONT
+            } else {
+                SIDE_BACK
+            }
+        }
         Some(leaf) => side_of(leaf.label),
         None => SIDE_FRONT,
     }

@@ -244,7 +244,7 @@ impl<'a> ProxyView<'a> {
         let nodes: &[NodeRecord] = bytemuck::cast_slice(&words[nodes_offset..lut_offset]);
         let lut = &words[lut_offset..total];
         let header = Header { node_count, lut_depth, tree_depth, dmin, dmax, epsilon, root_min, root_size };
-        validate_nodes(nodes, tree_depth)?;
+        validate_nodes(nodes, tree_depth, root_size)?;
         let view = ProxyView {
             words,
             nodes,
@@ -394,7 +394,7 @@ pub fn ulp(x: f32) -> f32 {
 }
 
 /// Checks breadth-first layout, masks, labels and depths in one pass with no allocation.
-fn validate_nodes(nodes: &[NodeRecord], tree_depth: u32) -> Result<(), FormatError> {
+fn validate_nodes(nodes: &[NodeRecord], tree_depth: u32, root_size: f32) -> Result<(), FormatError> {
     let count = nodes.len() as u32;
     if nodes[0].is_leaf() {
         return Err(FormatError::RootIsLeaf);
@@ -414,11 +414,17 @@ fn validate_nodes(nodes: &[NodeRecord], tree_depth: u32) -> Result<(), FormatErr
             level_end = next;
         }
         if rec.is_leaf() {
-            if rec.b != 0 || rec.a & !(format::LEAF_BIT | format::TWO_SIDED_BIT | ((1 << (2 * format::OCT_BITS)) - 1)) != 0 {
+            if rec.a & !(format::LEAF_BIT | format::TWO_SIDED_BIT | ((1 << (2 * format::OCT_BITS)) - 1)) != 0 {
                 return Err(FormatError::BadNode { node: i });
             }
             if depth == 0 || depth > tree_depth {
                 return Err(FormatError::TooDeep { node: i });
+            }
+            // The mean plane passes through the leaf: |d| is at most half its diagonal.
+            let half_diagonal = root_size / (1u32 << depth) as f32 * 0.8661;
+            let d = rec.plane_offset();
+            if !d.is_finite() || d.abs() > half_diagonal {
+                return Err(FormatError::BadNode { node: i });
             }
             continue;
         }

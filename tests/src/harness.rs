@@ -63,10 +63,7 @@ pub fn random_particles(view: &ProxyView<'_>, gt: &GroundTruth, n: usize, speeds
             rng.range(root.min.y, root.max.y),
             rng.range(root.min.z, root.max.z),
         );
-        if gt.distance(p.to_array()) <= 2.0 * tol as f64 {
-            continue;
-        }
-        if view.locate_leaf(p).is_some_and(|l| l.kind == octoproxy_core::LeafKind::Surface) {
+        if gt.distance_capped(p.to_array(), 4.0 * tol as f64) <= 2.0 * tol as f64 {
             continue;
         }
         let speed = speeds[out.len() % speeds.len().max(1)];
@@ -132,7 +129,7 @@ pub fn run_check(
             }
             s.blocked += (p.flags & FLAG_BLOCKED != 0) as u64;
             s.bound += (p.flags & FLAG_BOUND_HIT != 0) as u64;
-            let far = gt.distance(p.position) > tol;
+            let far = gt.distance_capped(p.position, 2.0 * tol) > tol;
             if far && s.crossings % 2 == 1 {
                 s.bad = true;
             }

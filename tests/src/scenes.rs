@@ -1,9 +1,67 @@
-//! Procedural test scenes. Closed ones are watertight and consistently oriented with
-//! outward normals (counter-clockwise seen from outside); open ones say which way they face.
+//! Procedural test scenes. Closed ones are watertight (vertices shared, every edge used by
+//! exactly two triangles) and consistently oriented with outward normals (counter-clockwise
+//! seen from outside); open ones say which way they face.
+//!
+//! [`Mesh`] is the mesh type of `octoproxy-cpu` (the same two public fields, `positions` and
+//! `triangles`), so that scenes, loaded meshes and the baker's `MeshRef::from` all take one
+//! type; [`MeshExt`] adds the checks.
 
+use std::collections::HashMap;
 use std::f32::consts::{PI, TAU};
 
 pub use octoproxy_cpu::mesh::Mesh;
+
+/// Checks on a [`Mesh`].
+pub trait MeshExt {
+    /// Whether every undirected edge is used by exactly two triangles (and no triangle
+    /// repeats a vertex or indexes past the vertex list).
+    fn is_closed(&self) -> bool;
+    /// Whether every directed edge is used at most once and, when its reverse is used, by a
+    /// neighbour: neighbours agree about orientation. A closed mesh for which this holds has
+    /// every edge once in each direction.
+    fn is_consistently_oriented(&self) -> bool;
+    /// The signed volume (positive for a closed mesh whose normals face out).
+    fn signed_volume(&self) -> f64;
+}
+
+impl MeshExt for Mesh {
+    fn is_closed(&self) -> bool {
+        let mut uses: HashMap<(u32, u32), u32> = HashMap::with_capacity(self.triangles.len() * 2);
+        for t in &self.triangles {
+            if t.iter().any(|&i| i as usize >= self.positions.len()) || t[0] == t[1] || t[1] == t[2] || t[2] == t[0] {
+                return false;
+            }
+            for k in 0..3 {
+                let (a, b) = (t[k], t[(k + 1) % 3]);
+                *uses.entry((a.min(b), a.max(b))).or_insert(0) += 1;
+            }
+        }
+        uses.values().all(|&n| n == 2)
+    }
+
+    fn is_consistently_oriented(&self) -> bool {
+        let mut uses: HashMap<(u32, u32), u32> = HashMap::with_capacity(self.triangles.len() * 3);
+        for t in &self.triangles {
+            for k in 0..3 {
+                *uses.entry((t[k], t[(k + 1) % 3])).or_insert(0) += 1;
+            }
+        }
+        uses.values().all(|&n| n == 1)
+    }
+
+    fn signed_volume(&self) -> f64 {
+        let p = |i: u32| {
+            self.positions.get(i as usize).map_or(glam::DVec3::ZERO, |v| glam::DVec3::from_array(v.map(f64::from)))
+        };
+        self.triangles.iter().map(|t| p(t[0]).dot(p(t[1]).cross(p(t[2]))) / 6.0).sum()
+    }
+}
+
+/// Whether every undirected edge of `mesh` is used by exactly two triangles (the same as
+/// [`MeshExt::is_closed`], for callers without the trait in scope).
+pub fn is_closed(mesh: &Mesh) -> bool {
+    mesh.is_closed()
+}
 
 /// Appends quad `a b c d` (counter-clockwise seen from the side it faces) as two triangles.
 fn quad(t: &mut Vec<[u32; 3]>, a: u32, b: u32, c: u32, d: u32) {
@@ -11,9 +69,9 @@ fn quad(t: &mut Vec<[u32; 3]>, a: u32, b: u32, c: u32, d: u32) {
     t.push([a, c, d]);
 }
 
-/// A closed axis-aligned box.
+/// A closed axis-aligned box from `min` to `max`: 8 vertices, 12 triangles.
 pub fn cube(min: [f32; 3], max: [f32; 3]) -> Mesh {
-    let mut positions = Vec::new();
+    let mut positions = Vec::with_capacity(8);
     for i in 0..8 {
         positions.push([
             if i & 1 == 0 { min[0] } else { max[0] },
@@ -21,21 +79,24 @@ pub fn cube(min: [f32; 3], max: [f32; 3]) -> Mesh {
             if i & 4 == 0 { min[2] } else { max[2] },
         ]);
     }
-    let mut triangles = Vec::new();
+    let mut triangles = Vec::with_capacity(12);
+    // Faces -z, +z, -y, +y, -x, +x, each counter-clockwise seen from outside.
     for q in [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]] {
         quad(&mut triangles, q[0], q[1], q[2], q[3]);
     }
     Mesh { positions, triangles }
 }
 
-/// A closed box centred at `center` with edge lengths `size` (thin in one axis: a slab).
+/// A closed box centred at `center` with edge lengths `size`; meant to be thin in one axis.
 pub fn slab(center: [f32; 3], size: [f32; 3]) -> Mesh {
     let h = size.map(|s| s * 0.5);
     cube([center[0] - h[0], center[1] - h[1], center[2] - h[2]], [center[0] + h[0], center[1] + h[1], center[2] + h[2]])
 }
 
-/// A closed UV sphere with shared poles.
+/// A closed UV sphere around the y axis: `segments` around (at least 3), `rings` from pole
+/// to pole (at least 2), one shared vertex at each pole.
 pub fn uv_sphere(center: [f32; 3], radius: f32, segments: u32, rings: u32) -> Mesh {
+    let (segments, rings) = (segments.max(3), rings.max(2));
     let mut positions = vec![[center[0], center[1] + radius, center[2]]];
     for r in 1..rings {
         let phi = PI * r as f32 / rings as f32;
@@ -51,7 +112,7 @@ pub fn uv_sphere(center: [f32; 3], radius: f32, segments: u32, rings: u32) -> Me
     positions.push([center[0], center[1] - radius, center[2]]);
     let south = positions.len() as u32 - 1;
     let idx = |r: u32, s: u32| 1 + (r - 1) * segments + (s % segments);
-    let mut triangles = Vec::new();
+    let mut triangles = Vec::with_capacity(2 * segments as usize * (rings as usize - 1));
     for s in 0..segments {
         triangles.push([0, idx(1, s + 1), idx(1, s)]);
         triangles.push([south, idx(rings - 1, s), idx(rings - 1, s + 1)]);
@@ -64,9 +125,12 @@ pub fn uv_sphere(center: [f32; 3], radius: f32, segments: u32, rings: u32) -> Me
     Mesh { positions, triangles }
 }
 
-/// A closed torus around the y axis.
+/// A closed torus around the y axis: tube centre line of radius `major`, tube radius
+/// `minor`, `seg_major` segments around the axis and `seg_minor` around the tube (each at
+/// least 3).
 pub fn torus(center: [f32; 3], major: f32, minor: f32, seg_major: u32, seg_minor: u32) -> Mesh {
-    let mut positions = Vec::new();
+    let (seg_major, seg_minor) = (seg_major.max(3), seg_minor.max(3));
+    let mut positions = Vec::with_capacity((seg_major * seg_minor) as usize);
     for i in 0..seg_major {
         let u = TAU * i as f32 / seg_major as f32;
         for j in 0..seg_minor {
@@ -76,7 +140,7 @@ pub fn torus(center: [f32; 3], major: f32, minor: f32, seg_major: u32, seg_minor
         }
     }
     let idx = |i: u32, j: u32| (i % seg_major) * seg_minor + (j % seg_minor);
-    let mut triangles = Vec::new();
+    let mut triangles = Vec::with_capacity(2 * (seg_major * seg_minor) as usize);
     for i in 0..seg_major {
         for j in 0..seg_minor {
             quad(&mut triangles, idx(i, j), idx(i, j + 1), idx(i + 1, j + 1), idx(i + 1, j));
@@ -85,21 +149,20 @@ pub fn torus(center: [f32; 3], major: f32, minor: f32, seg_major: u32, seg_minor
     Mesh { positions, triangles }
 }
 
-/// A closed prism whose cross-section (in xy) is the polygon `outline` (counter-clockwise),
-/// extruded along z from `-depth/2` to `depth/2`. The outline must be star-shaped around its
-/// first point's... centroid (caps are fans from the centroid).
+/// A closed prism: the polygon `outline` (in xy, counter-clockwise) extruded along z from
+/// `-depth / 2` to `depth / 2`. The caps are fans from the average of the outline's points, so
+/// the outline must be star-shaped around that point (convex outlines and stars are).
 pub fn prism(outline: &[[f32; 2]], depth: f32) -> Mesh {
     let n = outline.len() as u32;
     let c = outline.iter().fold([0.0, 0.0], |a, p| [a[0] + p[0] / n as f32, a[1] + p[1] / n as f32]);
-    let mut positions = Vec::new();
+    let mut positions = Vec::with_capacity(2 * n as usize + 2);
     for z in [-depth * 0.5, depth * 0.5] {
-        for p in outline {
-            positions.push([p[0], p[1], z]);
-        }
+        positions.extend(outline.iter().map(|p| [p[0], p[1], z]));
         positions.push([c[0], c[1], z]);
     }
+    // Bottom ring, its centre, top ring, its centre.
     let (b, bc, t, tc) = (0, n, n + 1, 2 * n + 1);
-    let mut triangles = Vec::new();
+    let mut triangles = Vec::with_capacity(4 * n as usize);
     for i in 0..n {
         let j = (i + 1) % n;
         triangles.push([bc, b + j, b + i]);
@@ -109,14 +172,18 @@ pub fn prism(outline: &[[f32; 2]], depth: f32) -> Mesh {
     Mesh { positions, triangles }
 }
 
-/// A closed wedge: a triangular prism whose apex angle (degrees) makes a knife edge at +x.
+/// A closed wedge: a triangular prism (along z, `depth` deep) whose cross-section has a
+/// sharp apex of `apex_angle_deg` degrees at `(length, 0)`, its back face on `x = 0`. The
+/// apex runs along z as a knife edge.
 pub fn wedge(apex_angle_deg: f32, length: f32, depth: f32) -> Mesh {
     let half = (apex_angle_deg.to_radians() * 0.5).tan() * length;
     prism(&[[0.0, -half], [length, 0.0], [0.0, half]], depth)
 }
 
-/// A closed, non-convex star prism.
+/// A closed, non-convex star prism: `points` tips (at least 2) at radius `r_outer`, notches
+/// at `r_inner`, extruded along z to `height` (centred on the origin).
 pub fn star_prism(points: u32, r_outer: f32, r_inner: f32, height: f32) -> Mesh {
+    let points = points.max(2);
     let outline: Vec<[f32; 2]> = (0..2 * points)
         .map(|i| {
             let a = PI * i as f32 / points as f32;
@@ -127,7 +194,9 @@ pub fn star_prism(points: u32, r_outer: f32, r_inner: f32, height: f32) -> Mesh 
     prism(&outline, height)
 }
 
-/// A hollow ball: the outer sphere facing out and the inner one facing into the cavity.
+/// A hollow ball centred on the origin: the outer sphere (radius `radius_outer`) facing out
+/// and the inner one (radius `radius_outer - thickness`) facing into the cavity, as one mesh.
+/// The solid is the shell between them; the cavity is outside.
 pub fn nested_shells(radius_outer: f32, thickness: f32) -> Mesh {
     let outer = uv_sphere([0.0; 3], radius_outer, 48, 24);
     let mut inner = uv_sphere([0.0; 3], radius_outer - thickness, 40, 20);
@@ -137,10 +206,11 @@ pub fn nested_shells(radius_outer: f32, thickness: f32) -> Mesh {
     merge(&[outer, inner])
 }
 
-/// An open square in the xz plane, facing +y.
+/// An open square sheet in the xz plane, `size` on a side, centred at `center`, split into
+/// `subdivisions` × `subdivisions` quads (at least 1), facing +y.
 pub fn flat_sheet(center: [f32; 3], size: f32, subdivisions: u32) -> Mesh {
     let n = subdivisions.max(1);
-    let mut positions = Vec::new();
+    let mut positions = Vec::with_capacity(((n + 1) * (n + 1)) as usize);
     for i in 0..=n {
         for j in 0..=n {
             positions.push([
@@ -151,7 +221,7 @@ pub fn flat_sheet(center: [f32; 3], size: f32, subdivisions: u32) -> Mesh {
         }
     }
     let idx = |i: u32, j: u32| i * (n + 1) + j;
-    let mut triangles = Vec::new();
+    let mut triangles = Vec::with_capacity(2 * (n * n) as usize);
     for i in 0..n {
         for j in 0..n {
             quad(&mut triangles, idx(i, j), idx(i, j + 1), idx(i + 1, j + 1), idx(i + 1, j));
@@ -160,8 +230,11 @@ pub fn flat_sheet(center: [f32; 3], size: f32, subdivisions: u32) -> Mesh {
     Mesh { positions, triangles }
 }
 
-/// An open dome: the upper half of a sphere, facing out, open at the bottom.
+/// An open dome: the upper half (y ≥ center.y) of a sphere, facing out, open at the bottom
+/// (its rim is the equator). `segments` around (at least 3), `rings` from the pole to the
+/// equator (at least 1).
 pub fn hemisphere(center: [f32; 3], radius: f32, segments: u32, rings: u32) -> Mesh {
+    let (segments, rings) = (segments.max(3), rings.max(1));
     let mut positions = vec![[center[0], center[1] + radius, center[2]]];
     for r in 1..=rings {
         let phi = 0.5 * PI * r as f32 / rings as f32;
@@ -175,7 +248,7 @@ pub fn hemisphere(center: [f32; 3], radius: f32, segments: u32, rings: u32) -> M
         }
     }
     let idx = |r: u32, s: u32| 1 + (r - 1) * segments + (s % segments);
-    let mut triangles = Vec::new();
+    let mut triangles = Vec::with_capacity((segments * (2 * rings - 1)) as usize);
     for s in 0..segments {
         triangles.push([0, idx(1, s + 1), idx(1, s)]);
     }
@@ -187,7 +260,7 @@ pub fn hemisphere(center: [f32; 3], radius: f32, segments: u32, rings: u32) -> M
     Mesh { positions, triangles }
 }
 
-/// One mesh holding all of `meshes`.
+/// One mesh holding all of `meshes` (vertices appended, indices shifted; nothing welded).
 pub fn merge(meshes: &[Mesh]) -> Mesh {
     let mut out = Mesh::default();
     for m in meshes {
@@ -198,10 +271,11 @@ pub fn merge(meshes: &[Mesh]) -> Mesh {
     out
 }
 
-/// Each triangle into four, midpoints shared between neighbours (closed stays closed).
+/// Each triangle into four, through its edge midpoints; a midpoint is shared by the two
+/// triangles of its edge, so a closed mesh stays closed and keeps its orientation.
 pub fn subdivide(mesh: &Mesh) -> Mesh {
     let mut positions = mesh.positions.clone();
-    let mut mids = std::collections::HashMap::new();
+    let mut mids: HashMap<(u32, u32), u32> = HashMap::new();
     let mut mid = |a: u32, b: u32, positions: &mut Vec<[f32; 3]>| -> u32 {
         *mids.entry((a.min(b), a.max(b))).or_insert_with(|| {
             let (p, q) = (positions[a as usize], positions[b as usize]);
@@ -217,51 +291,181 @@ pub fn subdivide(mesh: &Mesh) -> Mesh {
     Mesh { positions, triangles }
 }
 
-/// Whether every undirected edge is used exactly twice, once in each direction.
-pub fn is_closed(mesh: &Mesh) -> bool {
-    let mut edges = std::collections::HashMap::new();
-    for t in &mesh.triangles {
-        for k in 0..3 {
-            *edges.entry((t[k], t[(k + 1) % 3])).or_insert(0u32) += 1;
-        }
-    }
-    edges.iter().all(|(&(a, b), &n)| n == 1 && edges.get(&(b, a)) == Some(&1))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::ground_truth::GroundTruth;
+    use glam::Vec3;
+
+    fn normal(m: &Mesh, t: &[u32; 3]) -> Vec3 {
+        let p = t.map(|i| Vec3::from_array(m.positions[i as usize]));
+        (p[1] - p[0]).cross(p[2] - p[0])
+    }
+
+    /// Closed, oriented, outward, non-degenerate, and inside/outside by winding number.
+    fn check_closed(name: &str, m: &Mesh, inside: &[[f32; 3]], outside: &[[f32; 3]]) -> GroundTruth {
+        assert!(m.is_closed(), "{name} is not closed");
+        assert!(is_closed(m));
+        assert!(m.is_consistently_oriented(), "{name} is not consistently oriented");
+        assert!(m.signed_volume() > 0.0, "{name} faces in (volume {})", m.signed_volume());
+        assert!(m.triangles.iter().all(|t| normal(m, t).length() > 0.0), "{name} has a degenerate triangle");
+        let gt = GroundTruth::new(&m.positions, &m.triangles);
+        assert_eq!(gt.triangle_count(), m.triangles.len());
+        for p in inside {
+            let w = gt.winding_number(*p);
+            assert!((w - 1.0).abs() < 1e-6, "{name}: {p:?} should be inside (winding number {w})");
+        }
+        for p in outside.iter().chain([[5.0, 5.0, 5.0], [-9.0, 0.1, 0.0]].iter()) {
+            let w = gt.winding_number(*p);
+            assert!(w.abs() < 1e-6, "{name}: {p:?} should be outside (winding number {w})");
+        }
+        gt
+    }
 
     #[test]
-    fn closed_scenes_are_watertight_and_face_out() {
-        let cases: Vec<(Mesh, [f32; 3])> = vec![
-            (cube([-1.0; 3], [1.0; 3]), [0.0; 3]),
-            (uv_sphere([0.0; 3], 1.0, 32, 16), [0.0; 3]),
-            (torus([0.0; 3], 1.0, 0.3, 48, 24), [1.0, 0.0, 0.0]),
-            (wedge(20.0, 1.0, 1.0), [0.3, 0.0, 0.0]),
-            (star_prism(5, 1.0, 0.4, 0.5), [0.0, 0.0, 0.0]),
-            (nested_shells(1.0, 0.2), [0.0, 0.9, 0.0]),
-            (subdivide(&uv_sphere([0.0; 3], 1.0, 16, 8)), [0.0; 3]),
-        ];
-        for (i, (m, inside)) in cases.iter().enumerate() {
-            assert!(is_closed(m), "scene {i} is not closed");
-            // Outward: the signed volume is positive.
-            let vol: f64 = m
-                .triangles
-                .iter()
-                .map(|t| {
-                    let p = t.map(|k| glam::DVec3::from_array(m.positions[k as usize].map(f64::from)));
-                    p[0].dot(p[1].cross(p[2])) / 6.0
-                })
-                .sum();
-            assert!(vol > 0.0, "scene {i} faces in (volume {vol})");
-            let gt = GroundTruth::new(&m.positions, &m.triangles);
-            assert!(gt.is_inside(*inside), "scene {i}: {inside:?} should be inside");
-            assert!(!gt.is_inside([5.0, 5.0, 5.0]));
-        }
-        // The cavity of the hollow ball is outside the solid.
+    fn cube_and_slab() {
+        let m = cube([-1.0, 0.0, 2.0], [1.0, 0.5, 3.0]);
+        assert_eq!((m.positions.len(), m.triangles.len()), (8, 12));
+        check_closed("cube", &m, &[[0.0, 0.25, 2.5], [0.99, 0.49, 2.01]], &[[0.0, 0.25, 1.9], [1.01, 0.25, 2.5]]);
+        assert!((m.signed_volume() - 1.0).abs() < 1e-6);
+        let s = slab([0.0; 3], [2.0, 0.01, 2.0]);
+        check_closed("slab", &s, &[[0.3, 0.004, -0.7]], &[[0.3, 0.006, -0.7], [0.3, -0.006, -0.7]]);
+        assert!((s.signed_volume() - 0.04).abs() < 1e-6);
+    }
+
+    #[test]
+    fn spheres_and_tori() {
+        let m = uv_sphere([1.0, 2.0, 3.0], 0.5, 32, 16);
+        assert_eq!(m.positions.len(), 2 + 32 * 15);
+        assert_eq!(m.triangles.len(), 2 * 32 * 15);
+        check_closed("sphere", &m, &[[1.0, 2.0, 3.0], [1.0, 2.45, 3.0]], &[[1.0, 2.55, 3.0], [0.0; 3]]);
+        // The coarsest sphere, a triangular bipyramid, is still closed.
+        check_closed("low-poly sphere", &uv_sphere([0.0; 3], 1.0, 3, 2), &[[0.0, 0.1, 0.0]], &[[0.0, 1.1, 0.0]]);
+        check_closed("low-poly convex", &uv_sphere([0.0; 3], 1.0, 6, 3), &[[0.0; 3]], &[[1.01, 0.0, 0.0]]);
+        let t = torus([0.0, 1.0, 0.0], 1.0, 0.3, 48, 24);
+        assert_eq!(t.triangles.len(), 2 * 48 * 24);
+        check_closed(
+            "torus",
+            &t,
+            &[[1.0, 1.0, 0.0], [0.0, 1.2, -1.0]],
+            &[[0.0, 1.0, 0.0], [1.0, 1.35, 0.0], [1.4, 1.0, 0.0]],
+        );
+        let expected = 2.0 * PI * PI * 1.0 * 0.3 * 0.3;
+        assert!((t.signed_volume() as f32 - expected).abs() < 0.02 * expected);
+    }
+
+    #[test]
+    fn prisms() {
+        let w = wedge(20.0, 1.0, 1.0);
+        check_closed(
+            "wedge",
+            &w,
+            &[[0.3, 0.0, 0.0], [0.95, 0.0, 0.4]],
+            &[[1.05, 0.0, 0.0], [0.5, 0.2, 0.0], [-0.01, 0.0, 0.0]],
+        );
+        // The cross-section is a triangle of base 2 tan(10°) and height 1.
+        let area = (10f32).to_radians().tan();
+        assert!((w.signed_volume() as f32 - area).abs() < 1e-5);
+        // A knife: 8 degrees.
+        check_closed("knife wedge", &wedge(8.0, 1.5, 1.0), &[[1.4, 0.0, 0.0]], &[[1.4, 0.02, 0.0]]);
+        let s = star_prism(5, 1.0, 0.4, 0.5);
+        assert_eq!(s.triangles.len(), 4 * 10);
+        // A tip is solid; the notch between two tips (at 36°, radius 0.6) is not.
+        let notch = [0.6 * (PI / 5.0).cos(), 0.6 * (PI / 5.0).sin(), 0.0];
+        check_closed("star prism", &s, &[[0.0; 3], [0.9, 0.0, 0.2]], &[notch, [0.0, 0.0, 0.3]]);
+        check_closed("six-point star", &star_prism(6, 1.0, 0.35, 0.6), &[[0.0; 3]], &[[0.0, 0.0, 0.31]]);
+    }
+
+    #[test]
+    fn nested_shells_are_hollow() {
         let m = nested_shells(1.0, 0.2);
-        assert!(!GroundTruth::new(&m.positions, &m.triangles).is_inside([0.0; 3]));
+        let gt = check_closed("nested shells", &m, &[[0.0, 0.9, 0.0], [0.0, 0.0, -0.85]], &[[0.0; 3], [0.5, 0.0, 0.0]]);
+        assert!(!gt.is_inside([0.0; 3]));
+        // The shell's volume: the outer ball minus the inner one (both polygonal).
+        let v = m.signed_volume() as f32;
+        let want = 4.0 / 3.0 * PI * (1.0 - 0.8f32.powi(3));
+        assert!((v - want).abs() < 0.03 * want, "{v} vs {want}");
+    }
+
+    #[test]
+    fn open_scenes_face_the_right_way() {
+        let s = flat_sheet([0.0, 1.0, 0.0], 2.0, 8);
+        assert_eq!((s.positions.len(), s.triangles.len()), (81, 128));
+        assert!(!s.is_closed());
+        assert!(s.is_consistently_oriented());
+        for t in &s.triangles {
+            let n = normal(&s, t);
+            assert!(n.y > 0.0 && n.x == 0.0 && n.z == 0.0, "{n}");
+        }
+        assert!(s.positions.iter().all(|p| p[1] == 1.0 && p[0].abs() <= 1.0 && p[2].abs() <= 1.0));
+        let h = hemisphere([0.0, -1.0, 0.0], 2.0, 32, 8);
+        assert!(!h.is_closed());
+        assert!(h.is_consistently_oriented());
+        for t in &h.triangles {
+            let p = t.map(|i| Vec3::from_array(h.positions[i as usize]));
+            let c = (p[0] + p[1] + p[2]) / 3.0 - Vec3::new(0.0, -1.0, 0.0);
+            assert!(normal(&h, t).dot(c) > 0.0);
+        }
+        assert!(h.positions.iter().all(|p| p[1] >= -1.0 - 1e-6));
+        // The open edges are exactly the equator's.
+        let mut uses: HashMap<(u32, u32), u32> = HashMap::new();
+        for t in &h.triangles {
+            for k in 0..3 {
+                let (a, b) = (t[k], t[(k + 1) % 3]);
+                *uses.entry((a.min(b), a.max(b))).or_insert(0) += 1;
+            }
+        }
+        let rim: Vec<_> = uses.iter().filter(|(_, &n)| n == 1).map(|(e, _)| *e).collect();
+        assert_eq!(rim.len(), 32);
+        assert!(rim.iter().all(|&(a, b)| [a, b].iter().all(|&i| (h.positions[i as usize][1] + 1.0).abs() < 1e-5)));
+    }
+
+    #[test]
+    fn merge_and_subdivide() {
+        let a = cube([-1.0; 3], [0.0; 3]);
+        let b = uv_sphere([2.0, 0.0, 0.0], 0.5, 12, 6);
+        let m = merge(&[a.clone(), b.clone()]);
+        assert_eq!(m.positions.len(), a.positions.len() + b.positions.len());
+        assert_eq!(m.triangles.len(), a.triangles.len() + b.triangles.len());
+        assert_eq!(m.triangles[12], b.triangles[0].map(|i| i + 8));
+        check_closed("merged", &m, &[[-0.5; 3], [2.0, 0.0, 0.0]], &[[1.0, 0.0, 0.0]]);
+        let s = uv_sphere([0.0; 3], 1.0, 16, 8);
+        let d = subdivide(&s);
+        assert_eq!(d.triangles.len(), 4 * s.triangles.len());
+        // Euler: a closed triangle mesh has 3F/2 edges, one new vertex each.
+        assert_eq!(d.positions.len(), s.positions.len() + 3 * s.triangles.len() / 2);
+        check_closed("subdivided sphere", &d, &[[0.0; 3]], &[[0.0, 1.01, 0.0]]);
+        assert!((d.signed_volume() - s.signed_volume()).abs() < 1e-6, "midpoint subdivision keeps the shape");
+        check_closed(
+            "subdivided torus",
+            &subdivide(&torus([0.0; 3], 1.0, 0.3, 12, 8)),
+            &[[0.0, 0.0, 1.0]],
+            &[[0.0; 3]],
+        );
+        let sheet = subdivide(&flat_sheet([0.0; 3], 1.0, 2));
+        assert_eq!(sheet.triangles.len(), 32);
+        assert!(sheet.is_consistently_oriented() && !sheet.is_closed());
+        assert!(merge(&[]).triangles.is_empty());
+    }
+
+    #[test]
+    fn checks_catch_broken_meshes() {
+        let mut m = cube([0.0; 3], [1.0; 3]);
+        m.triangles.pop();
+        assert!(!m.is_closed());
+        let mut m = cube([0.0; 3], [1.0; 3]);
+        m.triangles[3].swap(1, 2);
+        assert!(m.is_closed() && !m.is_consistently_oriented());
+        let mut m = cube([0.0; 3], [1.0; 3]);
+        m.triangles[0] = [0, 0, 1];
+        assert!(!m.is_closed());
+        let mut m = cube([0.0; 3], [1.0; 3]);
+        m.triangles[0][0] = 99;
+        assert!(!m.is_closed());
+        let mut m = cube([0.0; 3], [1.0; 3]);
+        for t in &mut m.triangles {
+            t.swap(1, 2);
+        }
+        assert!(m.is_closed() && m.is_consistently_oriented() && m.signed_volume() < 0.0);
     }
 }

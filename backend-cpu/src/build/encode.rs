@@ -17,6 +17,8 @@ pub(crate) struct Surface {
     /// Unit representative normal (+z when the triangles cancel exactly).
     pub normal: DVec3,
     pub two_sided: bool,
+    /// Offset of the mean plane from the leaf centre along `normal`.
+    pub plane_offset: f64,
     /// Points on the leaf's triangles inside its box, with their triangle: the start points
     /// of labelling segments.
     pub anchors: Vec<(DVec3, u32)>,
@@ -131,7 +133,7 @@ impl Flat {
 }
 
 fn empty_surface() -> Surface {
-    Surface { tris: Vec::new(), normal: DVec3::Z, two_sided: false, anchors: Vec::new() }
+    Surface { tris: Vec::new(), normal: DVec3::Z, two_sided: false, plane_offset: 0.0, anchors: Vec::new() }
 }
 
 fn finish_surface(s: &mut Surface, tris: &[Tri], lo: DVec3, hi: DVec3) {
@@ -140,6 +142,8 @@ fn finish_surface(s: &mut Surface, tris: &[Tri], lo: DVec3, hi: DVec3) {
     let mut full_sum = DVec3::ZERO;
     let mut full_area = 0.0;
     let mut rim = false;
+    // Σ area · centroid of the clipped pieces, for the mean plane.
+    let mut moment = DVec3::ZERO;
     for &t in &s.tris {
         let tri = &tris[t as usize];
         rim |= tri.rim;
@@ -149,6 +153,7 @@ fn finish_surface(s: &mut Surface, tris: &[Tri], lo: DVec3, hi: DVec3) {
             s.anchors.push((centroid, t));
         }
         clipped_sum += tri.n * area;
+        moment += centroid * area;
         clipped_area += area;
         full_sum += tri.n * tri.area;
         full_area += tri.area;
@@ -159,6 +164,11 @@ fn finish_surface(s: &mut Surface, tris: &[Tri], lo: DVec3, hi: DVec3) {
     // so it is solid from every side, as is a leaf whose normals cancel.
     s.two_sided = rim || !(len > TWO_SIDED_COHERENCE * area);
     s.normal = if len > 0.0 { sum / len } else { DVec3::Z };
+    let center = (lo + hi) * 0.5;
+    let half_diagonal = (hi - lo).length() * 0.5;
+    let d = if clipped_area > 0.0 { s.normal.dot(moment / clipped_area - center) } else { 0.0 };
+    // Rounded to f32 inside the bound the validator checks.
+    s.plane_offset = d.clamp(-half_diagonal * 0.99, half_diagonal * 0.99);
     if s.anchors.is_empty() {
         // Numerically, no triangle reached inside: anchor at each centroid, clamped in.
         for &t in &s.tris {
@@ -212,7 +222,7 @@ pub(crate) fn encode(tree: &Flat, labels: &Labels, grid: &Grid, params: &BuildPa
                 report.surface_leaves += 1;
                 report.two_sided_leaves += two_sided as usize;
                 let n = Vec3::new(s.normal.x as f32, s.normal.y as f32, s.normal.z as f32);
-                records.push(NodeRecord::surface(encode_normal(n), two_sided));
+                records.push(NodeRecord::surface(encode_normal(n), two_sided, s.plane_offset as f32));
             }
         }
     }

@@ -217,3 +217,31 @@ fn nan_particles_are_flagged_and_unchanged() {
         assert_ne!(q.flags & FLAG_INVALID, 0);
     }
 }
+
+#[test]
+fn particles_starting_inside_big_surface_leaves_get_the_plane_side() {
+    // A large epsilon stops subdivision early: the cube's faces lie in big flat leaves.
+    // A small second cube far away keeps the first one off the root boundary.
+    let (p, t) = cube([-1.0; 3], [1.0; 3]);
+    let (p2, t2) = cube([5.0; 3], [5.5; 3]);
+    let params = BuildParams { dmin: 1, dmax: 6, epsilon: 10.0, ..BuildParams::default() };
+    let meshes = [MeshRef { positions: &p, triangles: &t }, MeshRef { positions: &p2, triangles: &t2 }];
+    let (words, _) = bake(&meshes, &params, &()).unwrap();
+    let view = ProxyView::new(&words).unwrap();
+    let mut checked = 0;
+    for axis in 0..3 {
+        for sign in [-1.0f32, 1.0] {
+            for (offset, expect) in [(-0.15f32, SIDE_BACK), (0.15, SIDE_FRONT)] {
+                let mut q = Vec3::splat(0.3);
+                q[axis] = sign * (1.0 + offset);
+                let leaf = view.locate_leaf(q).unwrap();
+                if leaf.kind == LeafKind::Surface {
+                    assert!(leaf.depth < 6, "the face leaf is big");
+                    assert_eq!(initial_side(&view, q.to_array()), expect, "{q} in {:?}", leaf.aabb);
+                    checked += 1;
+                }
+            }
+        }
+    }
+    assert!(checked >= 6, "only {checked} points fell in surface leaves");
+}

@@ -10,7 +10,9 @@
 //! 3. **Subdivide** with an exact triangle–box test until a node is empty, reaches `dmax`, or
 //!    is deeper than `dmin` with normal variance below `epsilon` (equations (1)–(2) of the
 //!    paper, divided by the node's total triangle area so that `epsilon` means the same for a
-//!    mesh and its subdivision). A node touching the root boundary always subdivides.
+//!    mesh and its subdivision). A node touching the root boundary always subdivides, and so
+//!    does a node holding a rim edge or triangles of more than one connected component (its
+//!    leaf may be solid, so it is kept to `dmax` size).
 //! 4. **Normals**: the area-weighted normal of the triangles clipped to each surface leaf. If
 //!    they cancel (coherence below [`TWO_SIDED_COHERENCE`]), or the leaf holds a rim (an edge
 //!    of a hole, or a non-manifold edge), the leaf is two-sided: solid from every side.
@@ -39,6 +41,9 @@ use rayon::prelude::*;
 pub const TWO_SIDED_COHERENCE: f64 = 0.3;
 
 const PROGRESS_DEPTH: u32 = 3;
+
+/// Most subdivide–label passes a bake makes (see [`bake`]).
+const MAX_PASSES: u32 = 4;
 
 /// Default cap on the number of tree nodes a bake may create.
 pub const DEFAULT_MAX_NODES: u64 = 1 << 26;
@@ -171,6 +176,8 @@ pub struct BuildReport {
     pub conflicting_labels: usize,
     /// Depth of the deepest leaf.
     pub tree_depth: u32,
+    /// Subdivide–label passes made (more than one when conflicts forced refinement).
+    pub passes: u32,
     /// Lookup-table depth used.
     pub lut_depth: u32,
     /// Bytes of the node array.
@@ -207,6 +214,8 @@ pub(crate) struct Tri {
     pub closed: bool,
     /// Has an edge not shared by exactly two triangles (a rim of a hole, or non-manifold).
     pub rim: bool,
+    /// Connected component (triangles joined by shared edges), unique across the scene.
+    pub component: u32,
 }
 
 /// The grid: root cube and the exact `f32` planes every backend uses.
@@ -255,30 +264,55 @@ pub fn bake(meshes: &[MeshRef<'_>], params: &BuildParams, progress: &dyn BuildPr
     report.root_min = grid.root_min;
     report.root_size = grid.root_size;
 
-    let t = Instant::now();
-    let all: Vec<u32> = (0..tris.len() as u32).collect();
-    progress.begin("subdivide", 1 << (3 * PROGRESS_DEPTH));
-    let ctx = Subdiv {
-        tris: &tris,
-        grid,
-        params: *params,
-        nodes: AtomicU64::new(1),
-        over: AtomicBool::new(false),
-        progress,
+    // Subdivide, flatten, label; if a leaf larger than dmax came out solid (two-sided: its
+    // normals cancel, or its labels conflict), force its region down to dmax and go again (solid leaves must be
+    // small: a particle inside one is then never farther than a dmax diagonal from the
+    // surface). A few passes settle it; what remains is left solid and reported.
+    let mut force: Vec<(UVec3, UVec3)> = Vec::new();
+    let mut pass = 0;
+    let (tree, labels) = loop {
+        pass += 1;
+        let t = Instant::now();
+        let all: Vec<u32> = (0..tris.len() as u32).collect();
+        progress.begin("subdivide", 1 << (3 * PROGRESS_DEPTH));
+        let ctx = Subdiv {
+            tris: &tris,
+            grid,
+            params: *params,
+            force: &force,
+            nodes: AtomicU64::new(1),
+            over: AtomicBool::new(false),
+            progress,
+        };
+        let root = ctx.build(all, UVec3::ZERO, 0);
+        if ctx.over.load(Ordering::Relaxed) {
+            return Err(BuildError::TooManyNodes { max_nodes: params.max_nodes });
+        }
+        report.timings.push(("subdivide", t.elapsed()));
+
+        let t = Instant::now();
+        let tree = encode::Flat::new(root, &tris, &grid);
+        report.timings.push(("normals", t.elapsed()));
+
+        let t = Instant::now();
+        let labels = label::label(&tree, &tris, &grid, progress);
+        report.timings.push(("label", t.elapsed()));
+
+        let big: Vec<(UVec3, UVec3)> = tree
+            .surface
+            .iter()
+            .filter_map(|&i| {
+                let n = &tree.nodes[i as usize];
+                let solid = labels.conflicted(i) || matches!(&n.kind, encode::Kind::Surface(s) if s.two_sided);
+                (n.depth < params.dmax && solid).then(|| n.range())
+            })
+            .collect();
+        if big.is_empty() || pass >= MAX_PASSES {
+            report.passes = pass;
+            break (tree, labels);
+        }
+        force.extend(big);
     };
-    let root = ctx.build(all, UVec3::ZERO, 0);
-    if ctx.over.load(Ordering::Relaxed) {
-        return Err(BuildError::TooManyNodes { max_nodes: params.max_nodes });
-    }
-    report.timings.push(("subdivide", t.elapsed()));
-
-    let t = Instant::now();
-    let tree = encode::Flat::new(root, &tris, &grid);
-    report.timings.push(("normals", t.elapsed()));
-
-    let t = Instant::now();
-    let labels = label::label(&tree, &tris, &grid, progress);
-    report.timings.push(("label", t.elapsed()));
 
     let t = Instant::now();
     let words = encode::encode(&tree, &labels, &grid, params, &mut report);
@@ -292,7 +326,8 @@ fn gather(meshes: &[MeshRef<'_>], report: &mut BuildReport) -> Result<Vec<Tri>, 
         if let Some(vertex) = m.positions.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
             return Err(BuildError::NonFinite { mesh: mi, vertex });
         }
-        let (closed, rim) = edge_classes(m);
+        let (closed, rim, component) = edge_classes(m);
+        let base = report.triangles_in as u32;
         for (ti, t) in m.triangles.iter().enumerate() {
             report.triangles_in += 1;
             let mut v = [DVec3::ZERO; 3];
@@ -317,7 +352,14 @@ fn gather(meshes: &[MeshRef<'_>], report: &mut BuildReport) -> Result<Vec<Tri>, 
             if closed[ti] {
                 report.closed_triangles += 1;
             }
-            tris.push(Tri { v, n: c / len, area: len * 0.5, closed: closed[ti], rim: rim[ti] });
+            tris.push(Tri {
+                v,
+                n: c / len,
+                area: len * 0.5,
+                closed: closed[ti],
+                rim: rim[ti],
+                component: base + component[ti],
+            });
         }
     }
     if tris.is_empty() {
@@ -330,7 +372,7 @@ fn gather(meshes: &[MeshRef<'_>], report: &mut BuildReport) -> Result<Vec<Tri>, 
 /// shared edges in which every edge is used exactly once in each direction), and those with a
 /// rim edge (not used exactly once in each direction). Vertices are welded by position first,
 /// so seams of duplicated vertices do not open a mesh.
-fn edge_classes(m: &MeshRef<'_>) -> (Vec<bool>, Vec<bool>) {
+fn edge_classes(m: &MeshRef<'_>) -> (Vec<bool>, Vec<bool>, Vec<u32>) {
     let n = m.triangles.len();
     // Weld: canonical vertex id per position bit pattern.
     let mut order: Vec<u32> = (0..m.positions.len() as u32).collect();
@@ -396,8 +438,9 @@ fn edge_classes(m: &MeshRef<'_>) -> (Vec<bool>, Vec<bool>) {
             comp_open[r as usize] = true;
         }
     }
-    let closed = (0..n).map(|t| !comp_open[find(&mut parent, t as u32) as usize]).collect();
-    (closed, open)
+    let component: Vec<u32> = (0..n).map(|t| find(&mut parent, t as u32)).collect();
+    let closed = component.iter().map(|&c| !comp_open[c as usize]).collect();
+    (closed, open, component)
 }
 
 /// The root cube: the scene box grown so that every triangle stays more than one `dmax`
@@ -442,6 +485,8 @@ struct Subdiv<'a> {
     tris: &'a [Tri],
     grid: Grid,
     params: BuildParams,
+    /// Regions (finest-grid plane ranges) that must be subdivided to `dmax`.
+    force: &'a [(UVec3, UVec3)],
     nodes: AtomicU64,
     over: AtomicBool,
     progress: &'a dyn BuildProgress,
@@ -467,8 +512,19 @@ impl Subdiv<'_> {
         }
         let n = 1u32 << depth;
         let on_boundary = cell.min_element() == 0 || cell.max_element() == n - 1;
+        // Leaves that may become solid (two-sided) must stay small, so no early stop for a
+        // rim, nor where parts meet (their votes may conflict).
+        let first = self.tris[list[0] as usize].component;
+        let rim = list.iter().any(|&t| self.tris[t as usize].rim || self.tris[t as usize].component != first);
+        let s = MAX_DEPTH - depth;
+        let (lo, hi) = (cell << s, (cell + 1) << s);
+        let forced = self.force.iter().any(|(flo, fhi)| lo.cmplt(*fhi).all() && flo.cmplt(hi).all());
         let stop = depth >= self.params.dmax
-            || (depth > self.params.dmin && !on_boundary && self.variance(&list) < self.params.epsilon as f64);
+            || (depth > self.params.dmin
+                && !on_boundary
+                && !rim
+                && !forced
+                && self.variance(&list) < self.params.epsilon as f64);
         if stop {
             return Node::Surface { tris: list };
         }

@@ -31,7 +31,7 @@ fn bake_one(p: &[[f32; 3]], t: &[[u32; 3]], params: &BuildParams) -> (Vec<u32>, 
 #[test]
 fn cube_is_closed_and_outward() {
     let (p, t) = cube([0.0; 3], [1.0; 3]);
-    let (closed, rim) = edge_classes(&MeshRef { positions: &p, triangles: &t });
+    let (closed, rim, _) = edge_classes(&MeshRef { positions: &p, triangles: &t });
     assert!(closed.iter().all(|&c| c));
     assert!(rim.iter().all(|&r| !r));
     let tris = gather(&[MeshRef { positions: &p, triangles: &t }], &mut BuildReport::default()).unwrap();
@@ -40,7 +40,7 @@ fn cube_is_closed_and_outward() {
         assert!(tri.n.dot(c) > 0.0, "normals point out");
     }
     // Dropping one triangle opens it.
-    let (closed, rim) = edge_classes(&MeshRef { positions: &p, triangles: &t[1..] });
+    let (closed, rim, _) = edge_classes(&MeshRef { positions: &p, triangles: &t[1..] });
     assert!(closed.iter().all(|&c| !c));
     // The three triangles that shared an edge with the removed one now have a rim edge.
     assert_eq!(rim.iter().filter(|&&r| r).count(), 3);
@@ -55,6 +55,7 @@ fn variance_metric_is_area_normalised() {
         tris: &tris,
         grid,
         params: BuildParams::default(),
+        force: &[],
         nodes: AtomicU64::new(0),
         over: AtomicBool::new(false),
         progress: &(),

@@ -27,3 +27,6 @@ pub use step::{
     MAX_LEAVES_PER_STEP,
 };
 pub use view::{lut_target, ulp, FormatError, Header, ProxyView};
+
+#[cfg(test)]
+mod tests;

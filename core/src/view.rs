@@ -302,7 +302,7 @@ impl<'a> ProxyView<'a> {
         self.use_lut
     }
 
-    /// Edge length of a leaf at depth `dmax`, and its diagonal.
+    /// Edge length of a leaf at depth `dmax`.
     pub fn finest_leaf_size(&self) -> f32 {
         self.header.root_size / (1u32 << self.header.dmax) as f32
     }

@@ -54,24 +54,12 @@ impl Flat {
     pub fn new(root: Node, tris: &[Tri], grid: &Grid) -> Flat {
         let mut flat = Flat { nodes: Vec::new(), surface: Vec::new() };
         flat.push(root, UVec3::ZERO, 0);
-        let surface_ids = flat.surface.clone();
-        let mut surfaces: Vec<(u32, Box<Surface>)> = Vec::with_capacity(surface_ids.len());
-        // Take the lists out, fill them in in parallel, put them back.
-        for &i in &surface_ids {
-            if let Kind::Surface(s) = &mut flat.nodes[i as usize].kind {
-                surfaces.push((i, std::mem::replace(s, Box::new(empty_surface()))));
+        flat.nodes.par_iter_mut().for_each(|n| {
+            if let Kind::Surface(s) = &mut n.kind {
+                let (lo, hi) = grid.cell_box(n.cell, n.depth);
+                finish_surface(s, tris, lo, hi);
             }
-        }
-        surfaces.par_iter_mut().for_each(|(i, s)| {
-            let (lo, hi) = {
-                let n = &flat.nodes[*i as usize];
-                grid.cell_box(n.cell, n.depth)
-            };
-            finish_surface(s, tris, lo, hi);
         });
-        for (i, s) in surfaces {
-            flat.nodes[i as usize].kind = Kind::Surface(s);
-        }
         flat
     }
 

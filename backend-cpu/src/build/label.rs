@@ -148,37 +148,23 @@ fn view_visible(pe: DVec3, pb: DVec3, own: u32, list: &[u32], tris: &[Tri]) -> O
     if dir.length_squared() == 0.0 {
         return None;
     }
-    let mut best_t = f64::INFINITY;
-    for &t in list {
-        if let Some(s) = geom::segment_triangle(pe, pb, &tris[t as usize].v) {
-            best_t = best_t.min(s);
-        }
-    }
-    if !best_t.is_finite() {
-        best_t = 1.0;
-    }
+    // One pass: the nearest hit, with the hits tied with it. `own` always counts, at the
+    // latest at `Pb` itself (t = 1), so there is always a hit.
+    const TIE: f64 = 1e-9;
+    let mut best = f64::INFINITY;
     let mut n = DVec3::ZERO;
     let mut closed = false;
-    let mut any = false;
     for &t in list {
-        let hit = if t == own && best_t >= 1.0 - 1e-9 {
-            Some(1.0)
-        } else {
-            geom::segment_triangle(pe, pb, &tris[t as usize].v)
-        };
-        if let Some(s) = hit {
-            if s <= best_t + 1e-9 {
-                let tri = &tris[t as usize];
-                n += tri.n;
-                closed |= tri.closed;
-                any = true;
-            }
+        let tri = &tris[t as usize];
+        let Some(s) = geom::segment_triangle(pe, pb, &tri.v).or((t == own).then_some(1.0)) else { continue };
+        if s < best - TIE {
+            best = s;
+            n = tri.n;
+            closed = tri.closed;
+        } else if s <= best + TIE {
+            n += tri.n;
+            closed |= tri.closed;
         }
-    }
-    if !any {
-        let tri = &tris[own as usize];
-        n = tri.n;
-        closed = tri.closed;
     }
     // The segment runs from Pe to Pb: the surface faces Pe when its normal opposes `dir`.
     let facing = -n.dot(dir);

@@ -28,6 +28,13 @@ pub trait Backend {
     /// Number of particles held.
     fn particle_count(&self) -> usize;
 
-    /// Steps every particle `steps` times.
+    /// Steps every particle `steps` times. A backend may return before the work is done
+    /// (a GPU queues it); [`Backend::finish`] waits, and a download always sees it.
     fn step(&mut self, params: &StepParams, steps: u32) -> Result<(), Self::Error>;
+
+    /// Waits until every step asked for is done (for timing). Backends that step
+    /// synchronously have nothing to wait for.
+    fn finish(&mut self) -> Result<(), Self::Error> {
+        Ok(())
+    }
 }

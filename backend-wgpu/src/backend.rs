@@ -1,0 +1,685 @@
+//! [`WgpuBackend`]: the WGSL mirror of core's step, run through wgpu.
+
+use std::num::NonZeroU64;
+use std::sync::mpsc;
+use std::sync::{Arc, Mutex};
+
+use bytemuck::{Pod, Zeroable};
+use octoproxy_core::{Backend, FormatError, ParamError, Particle, ProxyView, StepParams};
+
+use crate::shader::{self, WORKGROUP_SIZE};
+
+/// Bytes of one particle record, on both sides.
+pub const PARTICLE_BYTES: u64 = core::mem::size_of::<Particle>() as u64;
+
+/// Steps recorded in one command buffer. Each step is one dispatch per chunk (one step per
+/// invocation), and nothing is read back between steps.
+///
+/// Why not a loop of steps inside the kernel: Mesa 22.3's lavapipe miscompiled it. Lanes of
+/// a SIMD group lost whole steps when another lane of the group ran a long march, which
+/// the differential tests caught; one step per dispatch agrees with the CPU bit for bit.
+pub const STEPS_PER_SUBMIT: u32 = 64;
+
+/// Default cap on the particles of one chunk (one storage binding); the device's binding
+/// limit lowers it further.
+pub const DEFAULT_CHUNK_PARTICLES: u32 = 1 << 22;
+
+/// Per-call settings shared by every chunk: WGSL's `RunParams`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
+pub struct RunParams {
+    /// 1 to enter through the lookup table, 0 to descend from the root.
+    pub use_lut: u32,
+    /// Padding.
+    pub _pad0: u32,
+    /// Padding.
+    pub _pad1: u32,
+    /// Padding.
+    pub _pad2: u32,
+}
+
+/// Per-chunk settings: WGSL's `ChunkParams`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
+pub struct ChunkParams {
+    /// Particles in the chunk.
+    pub count: u32,
+    /// Padding.
+    pub _pad0: u32,
+    /// Padding.
+    pub _pad1: u32,
+    /// Padding.
+    pub _pad2: u32,
+}
+
+/// What the GPU backend can report. Nothing in this crate panics on a GPU failure: no
+/// adapter, a lost device, a rejected shader and an out-of-memory are all values here.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum WgpuError {
+    /// No adapter, or none of the kind asked for.
+    #[error("no GPU adapter: {0}")]
+    NoAdapter(String),
+    /// The adapter would not open a device.
+    #[error("could not open the GPU device: {0}")]
+    RequestDevice(String),
+    /// The device rejected the WGSL or the pipeline.
+    #[error("the GPU rejected the kernel: {0}")]
+    Shader(String),
+    /// A validation, out-of-memory or internal error while uploading, stepping or reading.
+    #[error("GPU error: {0}")]
+    Gpu(String),
+    /// The device was lost (driver reset, removal).
+    #[error("the GPU device was lost: {0}")]
+    DeviceLost(String),
+    /// The proxy did not validate.
+    #[error("invalid proxy: {0}")]
+    Format(#[from] FormatError),
+    /// Stepping before a proxy was uploaded.
+    #[error("no proxy uploaded")]
+    NoProxy,
+    /// Step parameters out of range.
+    #[error("invalid step parameters: {0}")]
+    Params(#[from] ParamError),
+    /// `download_particles` was given a slice of the wrong length.
+    #[error("expected room for {expected} particles, got {got}")]
+    LengthMismatch {
+        /// Particles held.
+        expected: usize,
+        /// Length given.
+        got: usize,
+    },
+    /// Something does not fit the device's limits.
+    #[error("{what} needs {needed} bytes, more than the device allows ({limit} bytes)")]
+    TooLarge {
+        /// What did not fit.
+        what: &'static str,
+        /// Bytes needed.
+        needed: u64,
+        /// The device's limit.
+        limit: u64,
+    },
+    /// A caller's particle buffer cannot be used as given.
+    #[error("particle buffer: {0}")]
+    BadBuffer(String),
+}
+
+/// The pipelines, layouts and uniform buffers: built once per backend, reused every step.
+#[derive(Debug)]
+struct Kernel {
+    layout: wgpu::BindGroupLayout,
+    step: wgpu::ComputePipeline,
+    integrate: wgpu::ComputePipeline,
+    params: wgpu::Buffer,
+    run: wgpu::Buffer,
+}
+
+/// A run of particles bound as one storage binding.
+#[derive(Debug)]
+struct Chunk {
+    buffer: wgpu::Buffer,
+    offset: u64,
+    count: u32,
+    params: wgpu::Buffer,
+    bind_group: Option<wgpu::BindGroup>,
+}
+
+/// Steps particles on a GPU through wgpu. Particles stay on the GPU between steps; they are
+/// read back only by [`Backend::download_particles`].
+///
+/// Build it with [`WgpuBackend::new`] (its own device) or [`WgpuBackend::from_device`] (a
+/// device the caller owns), and give it a caller's buffer to step in place with
+/// [`WgpuBackend::use_particle_buffer`].
+#[derive(Debug)]
+pub struct WgpuBackend {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    description: String,
+    software: bool,
+    kernel: Kernel,
+    proxy: Option<wgpu::Buffer>,
+    chunks: Vec<Chunk>,
+    count: usize,
+    external: bool,
+    chunk_particles: u32,
+    fold_width: u32,
+    use_lut: bool,
+    lost: Arc<Mutex<Option<String>>>,
+    uncaptured: Arc<Mutex<Option<String>>>,
+}
+
+fn lock(m: &Mutex<Option<String>>) -> std::sync::MutexGuard<'_, Option<String>> {
+    m.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+impl WgpuBackend {
+    /// Opens the best adapter there is (a discrete GPU first), software ones included.
+    pub fn new() -> Result<Self, WgpuError> {
+        Self::open(false)
+    }
+
+    /// Like [`WgpuBackend::new`], but refuses a software adapter (such as Mesa's lavapipe),
+    /// which steps slower than the CPU backend: what `--backend auto` uses.
+    pub fn new_hardware() -> Result<Self, WgpuError> {
+        Self::open(true)
+    }
+
+    fn open(hardware_only: bool) -> Result<Self, WgpuError> {
+        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        let options = wgpu::RequestAdapterOptions {
+            power_preference: wgpu::PowerPreference::HighPerformance,
+            ..Default::default()
+        };
+        let adapter = pollster::block_on(instance.request_adapter(&options))
+            .map_err(|e| WgpuError::NoAdapter(e.to_string()))?;
+        let info = adapter.get_info();
+        let software = info.device_type == wgpu::DeviceType::Cpu;
+        if hardware_only && software {
+            return Err(WgpuError::NoAdapter(format!(
+                "only a software adapter was found ({}), and the CPU backend is faster",
+                info.name
+            )));
+        }
+        let limits = adapter.limits();
+        let descriptor = wgpu::DeviceDescriptor {
+            label: Some("octoproxy"),
+            required_features: wgpu::Features::empty(),
+            required_limits: wgpu::Limits {
+                max_storage_buffer_binding_size: limits.max_storage_buffer_binding_size,
+                max_buffer_size: limits.max_buffer_size,
+                max_compute_workgroups_per_dimension: limits.max_compute_workgroups_per_dimension,
+                ..wgpu::Limits::downlevel_defaults()
+            },
+            ..Default::default()
+        };
+        let (device, queue) = pollster::block_on(adapter.request_device(&descriptor))
+            .map_err(|e| WgpuError::RequestDevice(e.to_string()))?;
+        let uncaptured = Arc::new(Mutex::new(None));
+        let sink = Arc::clone(&uncaptured);
+        device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
+            lock(&sink).get_or_insert_with(|| e.to_string());
+        }));
+        let lost = Arc::new(Mutex::new(None));
+        let lost_sink = Arc::clone(&lost);
+        device.set_device_lost_callback(move |reason, message| {
+            if reason != wgpu::DeviceLostReason::Destroyed {
+                *lock(&lost_sink) = Some(format!("{reason:?}: {message}"));
+            }
+        });
+        let description = format!("{} ({:?}, {:?})", info.name, info.backend, info.device_type);
+        let mut backend = Self::build(device, queue, description, lost, uncaptured)?;
+        backend.software = software;
+        Ok(backend)
+    }
+
+    /// A backend on a device the caller owns (an engine's renderer, say). It installs no
+    /// error handler or lost-device callback on it: errors of its own work are caught in
+    /// error scopes and returned.
+    pub fn from_device(device: &wgpu::Device, queue: &wgpu::Queue) -> Result<Self, WgpuError> {
+        let lost = Arc::new(Mutex::new(None));
+        let uncaptured = Arc::new(Mutex::new(None));
+        Self::build(device.clone(), queue.clone(), "caller's device".into(), lost, uncaptured)
+    }
+
+    fn build(
+        device: wgpu::Device,
+        queue: wgpu::Queue,
+        description: String,
+        lost: Arc<Mutex<Option<String>>>,
+        uncaptured: Arc<Mutex<Option<String>>>,
+    ) -> Result<Self, WgpuError> {
+        let scope = ErrorScope::push(&device);
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("octoproxy step"),
+            source: wgpu::ShaderSource::Wgsl(shader::source().into()),
+        });
+        let storage = |binding, read_only| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Storage { read_only },
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        };
+        let uniform = |binding, size: u64| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Uniform,
+                has_dynamic_offset: false,
+                min_binding_size: NonZeroU64::new(size),
+            },
+            count: None,
+        };
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("octoproxy"),
+            entries: &[
+                storage(0, true),
+                storage(1, false),
+                uniform(2, core::mem::size_of::<StepParams>() as u64),
+                uniform(3, core::mem::size_of::<RunParams>() as u64),
+                uniform(4, core::mem::size_of::<ChunkParams>() as u64),
+            ],
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("octoproxy"),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let pipeline = |entry: &str| {
+            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(entry),
+                layout: Some(&pipeline_layout),
+                module: &module,
+                entry_point: Some(entry),
+                compilation_options: Default::default(),
+                cache: None,
+            })
+        };
+        let step = pipeline("step_kernel");
+        let integrate = pipeline("integrate_kernel");
+        let uniform_buffer = |label, size: usize| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: size as u64,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            })
+        };
+        let params = uniform_buffer("octoproxy step params", core::mem::size_of::<StepParams>());
+        let run = uniform_buffer("octoproxy run params", core::mem::size_of::<RunParams>());
+        scope.pop().map_err(WgpuError::Shader)?;
+        let limits = device.limits();
+        Ok(Self {
+            device,
+            queue,
+            description,
+            software: false,
+            kernel: Kernel { layout, step, integrate, params, run },
+            proxy: None,
+            chunks: Vec::new(),
+            count: 0,
+            external: false,
+            chunk_particles: DEFAULT_CHUNK_PARTICLES,
+            fold_width: limits.max_compute_workgroups_per_dimension.max(1),
+            use_lut: true,
+            lost,
+            uncaptured,
+        })
+    }
+
+    /// The adapter, for reports: its name, API and kind.
+    pub fn description(&self) -> &str {
+        &self.description
+    }
+
+    /// Whether the adapter is a software one (such as lavapipe).
+    pub fn is_software(&self) -> bool {
+        self.software
+    }
+
+    /// The device.
+    pub fn device(&self) -> &wgpu::Device {
+        &self.device
+    }
+
+    /// The queue.
+    pub fn queue(&self) -> &wgpu::Queue {
+        &self.queue
+    }
+
+    /// Whether to enter through the lookup table (on by default; off only to measure it).
+    pub fn set_use_lut(&mut self, on: bool) {
+        self.use_lut = on;
+    }
+
+    /// Caps the particles of one chunk (one storage binding). It is rounded down to a
+    /// multiple of the workgroup size (at least one workgroup) and lowered to what the
+    /// device's binding limit allows. Small values make tests exercise chunking with few
+    /// particles. Takes effect at the next upload.
+    pub fn set_chunk_particles(&mut self, n: u32) {
+        self.chunk_particles = (n / WORKGROUP_SIZE).max(1) * WORKGROUP_SIZE;
+    }
+
+    /// Caps the workgroups of one dispatch row; a chunk that needs more is dispatched as a
+    /// 2D grid. The default is the device's limit (65,535 on most); small values make tests
+    /// exercise the fold.
+    pub fn set_fold_width(&mut self, groups: u32) {
+        let limit = self.device.limits().max_compute_workgroups_per_dimension.max(1);
+        self.fold_width = groups.clamp(1, limit);
+    }
+
+    /// Particles per chunk as the device allows.
+    fn chunk_capacity(&self) -> u32 {
+        let limits = self.device.limits();
+        let by_binding = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size) / PARTICLE_BYTES;
+        let by_binding = (by_binding.min(u32::MAX as u64) as u32 / WORKGROUP_SIZE) * WORKGROUP_SIZE;
+        self.chunk_particles.min(by_binding.max(WORKGROUP_SIZE))
+    }
+
+    /// Number of chunks the particles are split into.
+    pub fn chunk_count(&self) -> usize {
+        self.chunks.len()
+    }
+
+    /// Steps a caller's buffer of `count` particles (core's `Particle` records) starting at
+    /// byte `offset`, in place: a renderer can draw them with no copy. The buffer needs
+    /// `STORAGE` usage (and `COPY_SRC` for [`Backend::download_particles`], `COPY_DST` for
+    /// [`Backend::upload_particles`]); `offset` must meet the device's storage offset
+    /// alignment. Replaces any particles held before.
+    pub fn use_particle_buffer(&mut self, buffer: &wgpu::Buffer, offset: u64, count: usize) -> Result<(), WgpuError> {
+        if !buffer.usage().contains(wgpu::BufferUsages::STORAGE) {
+            return Err(WgpuError::BadBuffer("it needs STORAGE usage".into()));
+        }
+        let align = self.device.limits().min_storage_buffer_offset_alignment as u64;
+        if offset % align != 0 {
+            return Err(WgpuError::BadBuffer(format!("offset {offset} is not a multiple of {align}")));
+        }
+        let end = (count as u64).checked_mul(PARTICLE_BYTES).and_then(|bytes| offset.checked_add(bytes));
+        if end.is_none_or(|end| end > buffer.size()) {
+            return Err(WgpuError::BadBuffer(format!(
+                "{count} particles at offset {offset} do not fit in its {} bytes",
+                buffer.size()
+            )));
+        }
+        let cap = self.chunk_capacity() as usize;
+        let mut chunks = Vec::new();
+        let mut start = 0usize;
+        while start < count {
+            let n = (count - start).min(cap);
+            chunks.push(self.chunk(buffer.clone(), offset + start as u64 * PARTICLE_BYTES, n as u32));
+            start += n;
+        }
+        self.chunks = chunks;
+        self.count = count;
+        self.external = true;
+        self.bind();
+        Ok(())
+    }
+
+    fn chunk(&self, buffer: wgpu::Buffer, offset: u64, count: u32) -> Chunk {
+        let params = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("octoproxy chunk params"),
+            size: core::mem::size_of::<ChunkParams>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let values = ChunkParams { count, ..Default::default() };
+        self.queue.write_buffer(&params, 0, bytemuck::bytes_of(&values));
+        Chunk { buffer, offset, count, params, bind_group: None }
+    }
+
+    /// (Re)builds every chunk's bind group once both a proxy and particles are present.
+    fn bind(&mut self) {
+        let Some(proxy) = &self.proxy else { return };
+        for chunk in &mut self.chunks {
+            let size = NonZeroU64::new(chunk.count as u64 * PARTICLE_BYTES);
+            chunk.bind_group = Some(self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("octoproxy chunk"),
+                layout: &self.kernel.layout,
+                entries: &[
+                    wgpu::BindGroupEntry { binding: 0, resource: proxy.as_entire_binding() },
+                    wgpu::BindGroupEntry {
+                        binding: 1,
+                        resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                            buffer: &chunk.buffer,
+                            offset: chunk.offset,
+                            size,
+                        }),
+                    },
+                    wgpu::BindGroupEntry { binding: 2, resource: self.kernel.params.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 3, resource: self.kernel.run.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 4, resource: chunk.params.as_entire_binding() },
+                ],
+            }));
+        }
+    }
+
+    /// Workgroups for `count` particles: `(x, y)`, folded into rows of at most `fold_width`.
+    pub fn dispatch_size(&self, count: u32) -> (u32, u32) {
+        let groups = count.div_ceil(WORKGROUP_SIZE);
+        if groups <= self.fold_width {
+            (groups, 1)
+        } else {
+            (self.fold_width, groups.div_ceil(self.fold_width))
+        }
+    }
+
+    fn check_health(&self) -> Result<(), WgpuError> {
+        if let Some(message) = lock(&self.lost).clone() {
+            return Err(WgpuError::DeviceLost(message));
+        }
+        if let Some(message) = lock(&self.uncaptured).take() {
+            return Err(WgpuError::Gpu(message));
+        }
+        Ok(())
+    }
+
+    /// Waits until all submitted work is done.
+    pub fn wait(&self) -> Result<(), WgpuError> {
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| WgpuError::Gpu(e.to_string()))?;
+        self.check_health()
+    }
+
+    /// The floor: steps the particles `steps` times with integration only (the same
+    /// semi-implicit Euler, no proxy, no collision). Benchmarks measure the step against it.
+    pub fn integrate_only(&mut self, params: &StepParams, steps: u32) -> Result<(), WgpuError> {
+        self.dispatch(params, steps, true)
+    }
+
+    fn dispatch(&mut self, params: &StepParams, steps: u32, floor: bool) -> Result<(), WgpuError> {
+        params.validate()?;
+        self.check_health()?;
+        if self.proxy.is_none() {
+            return Err(WgpuError::NoProxy);
+        }
+        if self.count == 0 || steps == 0 {
+            return Ok(());
+        }
+        let scope = ErrorScope::push(&self.device);
+        self.queue.write_buffer(&self.kernel.params, 0, bytemuck::bytes_of(params));
+        let run = RunParams { use_lut: self.use_lut as u32, ..Default::default() };
+        self.queue.write_buffer(&self.kernel.run, 0, bytemuck::bytes_of(&run));
+        let pipeline = if floor { &self.kernel.integrate } else { &self.kernel.step };
+        let mut left = steps;
+        while left > 0 {
+            let batch = left.min(STEPS_PER_SUBMIT);
+            left -= batch;
+            let mut encoder = self.device.create_command_encoder(&Default::default());
+            for _ in 0..batch {
+                // One pass per step: each step reads what the last one wrote.
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("octoproxy step"),
+                    timestamp_writes: None,
+                });
+                pass.set_pipeline(pipeline);
+                for chunk in &self.chunks {
+                    let Some(group) = &chunk.bind_group else { continue };
+                    let (x, y) = self.dispatch_size(chunk.count);
+                    pass.set_bind_group(0, group, &[]);
+                    pass.dispatch_workgroups(x, y, 1);
+                }
+            }
+            self.queue.submit([encoder.finish()]);
+        }
+        scope.pop().map_err(WgpuError::Gpu)?;
+        self.check_health()
+    }
+}
+
+/// Validation, out-of-memory and internal error scopes around a piece of work, popped
+/// together. Fields drop in declaration order, so an early return pops them innermost
+/// first too, as wgpu requires.
+struct ErrorScope {
+    internal: wgpu::ErrorScopeGuard,
+    memory: wgpu::ErrorScopeGuard,
+    validation: wgpu::ErrorScopeGuard,
+}
+
+impl ErrorScope {
+    fn push(device: &wgpu::Device) -> Self {
+        let validation = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let memory = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let internal = device.push_error_scope(wgpu::ErrorFilter::Internal);
+        Self { internal, memory, validation }
+    }
+
+    fn pop(self) -> Result<(), String> {
+        // Innermost first.
+        let internal = pollster::block_on(self.internal.pop());
+        let memory = pollster::block_on(self.memory.pop());
+        let validation = pollster::block_on(self.validation.pop());
+        match internal.or(memory).or(validation) {
+            Some(e) => Err(e.to_string()),
+            None => Ok(()),
+        }
+    }
+}
+
+impl Backend for WgpuBackend {
+    type Error = WgpuError;
+
+    fn name(&self) -> &str {
+        "wgpu"
+    }
+
+    fn upload_proxy(&mut self, words: &[u32]) -> Result<(), WgpuError> {
+        // The very bytes the CPU validated, uploaded as they are.
+        ProxyView::new(words)?;
+        self.check_health()?;
+        let bytes: &[u8] = bytemuck::cast_slice(words);
+        let limits = self.device.limits();
+        let limit = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
+        if bytes.len() as u64 > limit {
+            return Err(WgpuError::TooLarge { what: "the proxy", needed: bytes.len() as u64, limit });
+        }
+        let scope = ErrorScope::push(&self.device);
+        let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("octoproxy proxy"),
+            size: bytes.len() as u64,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        self.queue.write_buffer(&buffer, 0, bytes);
+        scope.pop().map_err(WgpuError::Gpu)?;
+        self.proxy = Some(buffer);
+        self.bind();
+        Ok(())
+    }
+
+    fn upload_particles(&mut self, particles: &[Particle]) -> Result<(), WgpuError> {
+        self.check_health()?;
+        let bytes: &[u8] = bytemuck::cast_slice(particles);
+        let scope = ErrorScope::push(&self.device);
+        if self.external {
+            if let Some(chunk) = self.chunks.first() {
+                if !chunk.buffer.usage().contains(wgpu::BufferUsages::COPY_DST) {
+                    return Err(WgpuError::BadBuffer("uploading into it needs COPY_DST usage".into()));
+                }
+            }
+            if particles.len() != self.count {
+                return Err(WgpuError::LengthMismatch { expected: self.count, got: particles.len() });
+            }
+            for chunk in &self.chunks {
+                let start = (chunk.offset - self.chunks[0].offset) as usize;
+                let end = start + chunk.count as usize * PARTICLE_BYTES as usize;
+                self.queue.write_buffer(&chunk.buffer, chunk.offset, &bytes[start..end]);
+            }
+        } else {
+            let cap = self.chunk_capacity() as usize;
+            let same_layout = self.count == particles.len()
+                && self.chunks.iter().all(|c| c.count as usize == cap || c.count as usize == particles.len() % cap);
+            if !same_layout {
+                let mut chunks = Vec::new();
+                for part in particles.chunks(cap) {
+                    let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
+                        label: Some("octoproxy particles"),
+                        size: part.len() as u64 * PARTICLE_BYTES,
+                        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC,
+                        mapped_at_creation: false,
+                    });
+                    chunks.push(self.chunk(buffer, 0, part.len() as u32));
+                }
+                self.chunks = chunks;
+                self.count = particles.len();
+                self.bind();
+            }
+            for (chunk, part) in self.chunks.iter().zip(particles.chunks(cap)) {
+                self.queue.write_buffer(&chunk.buffer, 0, bytemuck::cast_slice(part));
+            }
+        }
+        scope.pop().map_err(WgpuError::Gpu)
+    }
+
+    fn download_particles(&mut self, out: &mut [Particle]) -> Result<(), WgpuError> {
+        if out.len() != self.count {
+            return Err(WgpuError::LengthMismatch { expected: self.count, got: out.len() });
+        }
+        self.check_health()?;
+        if self.count == 0 {
+            return Ok(());
+        }
+        if !self.chunks[0].buffer.usage().contains(wgpu::BufferUsages::COPY_SRC) {
+            return Err(WgpuError::BadBuffer("reading it back needs COPY_SRC usage".into()));
+        }
+        let scope = ErrorScope::push(&self.device);
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        let mut staging = Vec::with_capacity(self.chunks.len());
+        for chunk in &self.chunks {
+            let size = chunk.count as u64 * PARTICLE_BYTES;
+            let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("octoproxy read-back"),
+                size,
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            encoder.copy_buffer_to_buffer(&chunk.buffer, chunk.offset, &buffer, 0, size);
+            staging.push(buffer);
+        }
+        self.queue.submit([encoder.finish()]);
+        let (tx, rx) = mpsc::channel();
+        for (i, buffer) in staging.iter().enumerate() {
+            let tx = tx.clone();
+            buffer.map_async(wgpu::MapMode::Read, .., move |result| {
+                let _ = tx.send((i, result));
+            });
+        }
+        drop(tx);
+        self.wait()?;
+        scope.pop().map_err(WgpuError::Gpu)?;
+        let mut mapped = 0;
+        for (i, result) in rx.iter() {
+            result.map_err(|e| WgpuError::Gpu(format!("read-back of chunk {i}: {e}")))?;
+            mapped += 1;
+        }
+        if mapped != staging.len() {
+            return Err(WgpuError::Gpu("read-back did not complete".into()));
+        }
+        let mut start = 0;
+        for (chunk, buffer) in self.chunks.iter().zip(&staging) {
+            let view = buffer.get_mapped_range(..).map_err(|e| WgpuError::Gpu(e.to_string()))?;
+            let n = chunk.count as usize;
+            out[start..start + n].copy_from_slice(bytemuck::cast_slice(&view));
+            start += n;
+            drop(view);
+            buffer.unmap();
+        }
+        Ok(())
+    }
+
+    fn particle_count(&self) -> usize {
+        self.count
+    }
+
+    fn step(&mut self, params: &StepParams, steps: u32) -> Result<(), WgpuError> {
+        self.dispatch(params, steps, false)
+    }
+
+    fn finish(&mut self) -> Result<(), WgpuError> {
+        self.wait()
+    }
+}

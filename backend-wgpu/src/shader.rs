@@ -1,0 +1,118 @@
+//! The WGSL source of the kernel: the constants, generated from the Rust ones so the two
+//! sides cannot drift, followed by the hand-written mirror of core's routine.
+//!
+//! The `.wgsl` files beside this module mirror core's modules: `format.wgsl` (node records,
+//! header, `decode_normal`, `grid_plane`), `query.wgsl` (`locate_inside` and its helpers),
+//! `step.wgsl` (`step_particle` and its helpers) and `kernel.wgsl` (the entry points).
+
+use octoproxy_core::format::{self, header};
+use octoproxy_core::*;
+
+/// Invocations per workgroup.
+pub const WORKGROUP_SIZE: u32 = 64;
+
+/// The hand-written WGSL files in the order they are joined, each with its name.
+pub const FILES: [(&str, &str); 4] = [
+    ("format.wgsl", include_str!("wgsl/format.wgsl")),
+    ("query.wgsl", include_str!("wgsl/query.wgsl")),
+    ("step.wgsl", include_str!("wgsl/step.wgsl")),
+    ("kernel.wgsl", include_str!("wgsl/kernel.wgsl")),
+];
+
+/// A constant shared by Rust and WGSL.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum SharedValue {
+    /// A `u32` constant.
+    U32(u32),
+    /// An `f32` constant.
+    F32(f32),
+}
+
+/// Codes of [`StepOutcome`] in WGSL, where enums do not exist.
+pub const fn outcome_code(outcome: StepOutcome) -> u32 {
+    match outcome {
+        StepOutcome::Done => 0,
+        StepOutcome::Blocked => 1,
+        StepOutcome::BoundHit => 2,
+        StepOutcome::Invalid => 3,
+    }
+}
+
+/// Every constant the WGSL reads, by name, with its value taken from the Rust side.
+pub fn shared_constants() -> Vec<(&'static str, SharedValue)> {
+    use SharedValue::{F32, U32};
+    let h = |i: usize| U32(i as u32);
+    vec![
+        ("MAGIC", U32(format::MAGIC)),
+        ("FORMAT_VERSION", U32(FORMAT_VERSION)),
+        ("HEADER_WORDS", U32(format::HEADER_WORDS as u32)),
+        ("NODE_WORDS", U32(format::NODE_WORDS as u32)),
+        ("HEADER_LUT_DEPTH", h(header::LUT_DEPTH)),
+        ("HEADER_LUT_OFFSET", h(header::LUT_OFFSET)),
+        ("HEADER_TREE_DEPTH", h(header::TREE_DEPTH)),
+        ("HEADER_ROOT_MIN", h(header::ROOT_MIN)),
+        ("HEADER_ROOT_SIZE", h(header::ROOT_SIZE)),
+        ("MAX_DEPTH", U32(MAX_DEPTH)),
+        ("INV_GRID_CELLS", F32(1.0 / (1u32 << MAX_DEPTH) as f32)),
+        ("CHILD_MASK_SHIFT", U32(format::CHILD_MASK_SHIFT)),
+        ("INTERNAL_MASK_SHIFT", U32(format::INTERNAL_MASK_SHIFT)),
+        ("LABEL_SHIFT", U32(format::LABEL_SHIFT)),
+        ("LEAF_BIT", U32(format::LEAF_BIT)),
+        ("TWO_SIDED_BIT", U32(format::TWO_SIDED_BIT)),
+        ("OCT_BITS", U32(format::OCT_BITS)),
+        ("OCT_MAX", U32(format::OCT_MAX)),
+        ("OCT_MASK", U32((1 << (2 * format::OCT_BITS)) - 1)),
+        ("INV_OCT_MAX", F32(1.0 / format::OCT_MAX as f32)),
+        ("LUT_INDEX_MASK", U32(format::LUT_INDEX_MASK)),
+        ("LUT_DEPTH_SHIFT", U32(format::LUT_DEPTH_SHIFT)),
+        ("LABEL_NONE", U32(Label::None.bits())),
+        ("LABEL_FRONT", U32(Label::Front.bits())),
+        ("LABEL_BACK", U32(Label::Back.bits())),
+        ("LEAF_EMPTY", U32(0)),
+        ("LEAF_SURFACE", U32(1)),
+        ("SIDE_FRONT", U32(SIDE_FRONT)),
+        ("SIDE_BACK", U32(SIDE_BACK)),
+        ("FLAG_INVALID", U32(FLAG_INVALID)),
+        ("FLAG_BOUND_HIT", U32(FLAG_BOUND_HIT)),
+        ("FLAG_BLOCKED", U32(FLAG_BLOCKED)),
+        ("FLAG_STEP_STATUS", U32(FLAG_STEP_STATUS)),
+        ("FLAG_STATUS_MASK", U32(FLAG_STATUS_MASK)),
+        ("COLLISION_SHIFT", U32(COLLISION_SHIFT)),
+        ("MAX_COLLISIONS", U32(MAX_COLLISIONS)),
+        ("STEP_DONE", U32(outcome_code(StepOutcome::Done))),
+        ("STEP_BLOCKED", U32(outcome_code(StepOutcome::Blocked))),
+        ("STEP_BOUND_HIT", U32(outcome_code(StepOutcome::BoundHit))),
+        ("STEP_INVALID", U32(outcome_code(StepOutcome::Invalid))),
+        ("NO_LEAF", U32(u32::MAX)),
+        ("WORKGROUP_SIZE", U32(WORKGROUP_SIZE)),
+    ]
+}
+
+/// The generated WGSL prefix: one `const` per [`shared_constants`] entry.
+pub fn constants_wgsl() -> String {
+    let mut out = String::from("// Generated from Rust by octoproxy_wgpu::shader::constants_wgsl; do not edit.\n");
+    for (name, value) in shared_constants() {
+        let line = match value {
+            SharedValue::U32(v) => format!("const {name}: u32 = {v}u;\n"),
+            // `{:?}` prints the shortest decimal that reads back to the same f32.
+            SharedValue::F32(v) => format!("const {name}: f32 = {v:?}f;\n"),
+        };
+        out.push_str(&line);
+    }
+    out
+}
+
+/// The whole shader: the constants, then [`FILES`] in order.
+pub fn source() -> String {
+    source_upto(FILES.len())
+}
+
+/// The constants and the first `n` of [`FILES`] (each file needs only those before it).
+pub fn source_upto(n: usize) -> String {
+    let mut out = constants_wgsl();
+    for (name, text) in &FILES[..n.min(FILES.len())] {
+        out.push_str(&format!("\n// ---- {name}\n"));
+        out.push_str(text);
+    }
+    out
+}

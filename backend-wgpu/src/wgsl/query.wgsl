@@ -1,0 +1,132 @@
+// Point queries, as core/src/query.rs: which leaf holds a point, entered through the lookup
+// table. A point exactly on a cell plane belongs to the cell its direction of travel enters.
+
+// core's `Aabb`.
+struct Aabb {
+    min: vec3<f32>,
+    max: vec3<f32>,
+}
+
+// core's `LeafInfo`, less `plane_offset` (the step never reads it). `kind` is LEAF_EMPTY or
+// LEAF_SURFACE, `label` is LABEL_NONE, LABEL_FRONT or LABEL_BACK.
+struct LeafInfo {
+    aabb: Aabb,
+    kind: u32,
+    normal: vec3<f32>,
+    two_sided: bool,
+    label: u32,
+    node: u32,
+    depth: u32,
+    cell: vec3<u32>,
+}
+
+fn upper(p: f32, plane_at: f32, dir: f32) -> bool {
+    return p > plane_at || (p == plane_at && dir >= 0.0);
+}
+
+fn plane(axis: u32, i: u32) -> f32 {
+    return grid_plane(header.root_min[axis], header.cell_unit, i);
+}
+
+fn root_aabb() -> Aabb {
+    let n = 1u << MAX_DEPTH;
+    return Aabb(
+        vec3<f32>(plane(0u, 0u), plane(1u, 0u), plane(2u, 0u)),
+        vec3<f32>(plane(0u, n), plane(1u, n), plane(2u, n)),
+    );
+}
+
+fn cell_aabb(cell: vec3<u32>, depth: u32) -> Aabb {
+    let s = MAX_DEPTH - depth;
+    return Aabb(
+        vec3<f32>(plane(0u, cell.x << s), plane(1u, cell.y << s), plane(2u, cell.z << s)),
+        vec3<f32>(plane(0u, (cell.x + 1u) << s), plane(1u, (cell.y + 1u) << s), plane(2u, (cell.z + 1u) << s)),
+    );
+}
+
+fn root_contains(p: vec3<f32>, dir: vec3<f32>) -> bool {
+    let n = 1u << MAX_DEPTH;
+    for (var a = 0u; a < 3u; a++) {
+        if !(upper(p[a], plane(a, 0u), dir[a]) && !upper(p[a], plane(a, n), dir[a])) {
+            return false;
+        }
+    }
+    return true;
+}
+
+fn empty_leaf(cell: vec3<u32>, depth: u32, parent: u32, label: u32) -> LeafInfo {
+    return LeafInfo(cell_aabb(cell, depth), LEAF_EMPTY, vec3<f32>(0.0), false, label, parent, depth, cell);
+}
+
+fn cell_at_depth(p: vec3<f32>, dir: vec3<f32>, depth: u32) -> vec3<u32> {
+    let n = 1u << depth;
+    let s = MAX_DEPTH - depth;
+    let scale = f32(n) / header.root_size;
+    var c = vec3<u32>(0u);
+    for (var a = 0u; a < 3u; a++) {
+        let est = floor((p[a] - header.root_min[a]) * scale);
+        var i = 0u;
+        if est >= f32(n - 1u) {
+            i = n - 1u;
+        } else if est > 0.0 {
+            i = u32(est);
+        }
+        // The estimate is off by at most one cell from rounding; settle it on the planes.
+        for (var k = 0u; k < 4u; k++) {
+            if i > 0u && !upper(p[a], plane(a, i << s), dir[a]) {
+                i -= 1u;
+            } else if i + 1u < n && upper(p[a], plane(a, (i + 1u) << s), dir[a]) {
+                i += 1u;
+            } else {
+                break;
+            }
+        }
+        c[a] = i;
+    }
+    return c;
+}
+
+fn locate_inside(p: vec3<f32>, dir: vec3<f32>) -> LeafInfo {
+    var index = 0u;
+    var depth = 0u;
+    var cell = vec3<u32>(0u);
+    if header.use_lut {
+        let d = header.lut_depth;
+        let c = cell_at_depth(p, dir, d);
+        let n = 1u << d;
+        let entry = proxy[header.lut_offset + (c.z * n + c.y) * n + c.x];
+        depth = entry >> LUT_DEPTH_SHIFT;
+        index = entry & LUT_INDEX_MASK;
+        cell = c >> vec3<u32>(d - depth);
+    }
+    // A descent takes at most MAX_DEPTH + 1 records; the bound keeps the loop visibly finite.
+    for (var guard = 0u; guard <= MAX_DEPTH; guard++) {
+        let rec = node_record(index);
+        if is_leaf(rec) {
+            return LeafInfo(cell_aabb(cell, depth), LEAF_SURFACE, normal(rec), is_two_sided(rec), LABEL_NONE, index, depth, cell);
+        }
+        if depth >= MAX_DEPTH {
+            // A validated proxy has no internal node this deep; stay total anyway.
+            return empty_leaf(cell, depth, index, LABEL_NONE);
+        }
+        let s = MAX_DEPTH - depth - 1u;
+        var octant = 0u;
+        for (var a = 0u; a < 3u; a++) {
+            let mid = plane(a, (2u * cell[a] + 1u) << s);
+            if upper(p[a], mid, dir[a]) {
+                octant |= 1u << a;
+            }
+        }
+        cell = cell * 2u + vec3<u32>(octant & 1u, (octant >> 1u) & 1u, (octant >> 2u) & 1u);
+        depth += 1u;
+        if (child_mask(rec) & (1u << octant)) == 0u {
+            var label = label_bits(rec, octant);
+            if label > LABEL_BACK {
+                label = LABEL_NONE;
+            }
+            return empty_leaf(cell, depth, index, label);
+        }
+        index = child_index(rec, octant);
+    }
+    return empty_leaf(cell, depth, index, LABEL_NONE);
+}

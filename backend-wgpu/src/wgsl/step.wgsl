@@ -1,0 +1,306 @@
+// The step, as core/src/step.rs: one particle marched leaf by leaf along x(t) -> x(t + dt).
+// Read the Rust module for the rules; this file mirrors it function for function, with the
+// same names, the same order of floating-point operations, and no tracing.
+
+// core's `Particle`: 32 bytes, vec3 members at offsets 0 and 16.
+struct Particle {
+    position: vec3<f32>,
+    side: u32,
+    velocity: vec3<f32>,
+    flags: u32,
+}
+
+// core's `StepParams`: 32 bytes.
+struct StepParams {
+    gravity: vec3<f32>,
+    dt: f32,
+    restitution: f32,
+    friction: f32,
+    _pad: vec2<u32>,
+}
+
+fn respond(v: vec3<f32>, n: vec3<f32>, restitution: f32, friction: f32) -> vec3<f32> {
+    let vn = dot3(v, n);
+    if vn >= 0.0 {
+        return v;
+    }
+    let v_n = n * vn;
+    let v_t = v - v_n;
+    let t_len = sqrt(dot3(v_t, v_t));
+    let impulse = friction * (1.0 + restitution) * -vn;
+    var keep = 0.0;
+    if t_len > impulse {
+        keep = 1.0 - impulse / t_len;
+    }
+    return v_t * keep - v_n * restitution;
+}
+
+fn face_normal(axes: u32, signs: vec3<f32>) -> vec3<f32> {
+    var n = vec3<f32>(0.0);
+    for (var a = 0u; a < 3u; a++) {
+        if (axes & (1u << a)) != 0u {
+            if signs[a] >= 0.0 {
+                n[a] = -1.0;
+            } else {
+                n[a] = 1.0;
+            }
+        }
+    }
+    let l2 = dot3(n, n);
+    if l2 > 0.0 {
+        return n * (1.0 / sqrt(l2));
+    }
+    return n;
+}
+
+fn entry_faces(b: Aabb, x: vec3<f32>, v: vec3<f32>) -> u32 {
+    var axes = 0u;
+    for (var a = 0u; a < 3u; a++) {
+        if (x[a] == b.min[a] && v[a] > 0.0) || (x[a] == b.max[a] && v[a] < 0.0) {
+            axes |= 1u << a;
+        }
+    }
+    return axes;
+}
+
+// Where a ray crosses a box face: time, point (exactly on the faces in `axes`), and whether
+// it does at all (enter_box only).
+struct BoxCrossing {
+    t: f32,
+    p: vec3<f32>,
+    axes: u32,
+    hit: bool,
+}
+
+fn exit_box(b: Aabb, x: vec3<f32>, v: vec3<f32>) -> BoxCrossing {
+    let inf = infinity();
+    var t = inf;
+    var ts = vec3<f32>(inf);
+    for (var a = 0u; a < 3u; a++) {
+        var ta = inf;
+        if v[a] > 0.0 {
+            ta = (b.max[a] - x[a]) / v[a];
+        } else if v[a] < 0.0 {
+            ta = (b.min[a] - x[a]) / v[a];
+        }
+        if ta > 0.0 {
+            ts[a] = ta;
+        } else {
+            ts[a] = 0.0;
+        }
+        if ts[a] < t {
+            t = ts[a];
+        }
+    }
+    var axes = 0u;
+    var p = x;
+    for (var a = 0u; a < 3u; a++) {
+        if ts[a] == t && is_finite(t) {
+            axes |= 1u << a;
+            if v[a] > 0.0 {
+                p[a] = b.max[a];
+            } else {
+                p[a] = b.min[a];
+            }
+        } else {
+            p[a] = clamp(x[a] + v[a] * t, b.min[a], b.max[a]);
+        }
+    }
+    return BoxCrossing(t, p, axes, true);
+}
+
+fn enter_box(b: Aabb, x: vec3<f32>, v: vec3<f32>, limit: f32) -> BoxCrossing {
+    let miss = BoxCrossing(0.0, x, 0u, false);
+    let inf = infinity();
+    var near = -inf;
+    var far = inf;
+    var axes = 0u;
+    for (var a = 0u; a < 3u; a++) {
+        if v[a] == 0.0 {
+            // Half-open on the upper side, as the tie rule of point location.
+            if !(x[a] >= b.min[a] && x[a] < b.max[a]) {
+                return miss;
+            }
+            continue;
+        }
+        let t1 = (b.min[a] - x[a]) / v[a];
+        let t2 = (b.max[a] - x[a]) / v[a];
+        var lo = t2;
+        var hi = t1;
+        if v[a] > 0.0 {
+            lo = t1;
+            hi = t2;
+        }
+        if lo > near {
+            near = lo;
+            axes = 1u << a;
+        } else if lo == near {
+            axes |= 1u << a;
+        }
+        if hi < far {
+            far = hi;
+        }
+    }
+    if !(near >= 0.0 && near <= far && far > 0.0 && near < limit) {
+        return miss;
+    }
+    var p = x;
+    for (var a = 0u; a < 3u; a++) {
+        if (axes & (1u << a)) != 0u {
+            if v[a] > 0.0 {
+                p[a] = b.min[a];
+            } else {
+                p[a] = b.max[a];
+            }
+        } else {
+            p[a] = clamp(x[a] + v[a] * near, b.min[a], b.max[a]);
+        }
+    }
+    return BoxCrossing(near, p, axes, true);
+}
+
+fn side_of(label: u32) -> u32 {
+    if label == LABEL_BACK {
+        return SIDE_BACK;
+    }
+    return SIDE_FRONT;
+}
+
+fn max_leaves_per_step(tree_depth: u32) -> u32 {
+    return (4u << tree_depth) + 64u;
+}
+
+fn collisions(p: Particle) -> u32 {
+    return p.flags >> COLLISION_SHIFT;
+}
+
+// Advances one particle by params.dt; returns the outcome (STEP_DONE, STEP_BLOCKED,
+// STEP_BOUND_HIT or STEP_INVALID). `load_header` must have run.
+fn step_particle(p: ptr<function, Particle>, params: StepParams) -> u32 {
+    let x0 = (*p).position;
+    let v0 = (*p).velocity;
+    if !is_finite3(x0) || !is_finite3(v0) {
+        (*p).flags |= FLAG_INVALID;
+        return STEP_INVALID;
+    }
+    let e = params.restitution;
+    let mu = params.friction;
+    let root = root_aabb();
+    var v = v0 + params.gravity * params.dt;
+    var x = x0;
+    var side = SIDE_FRONT;
+    if (*p).side == SIDE_BACK {
+        side = SIDE_BACK;
+    }
+    var remaining = params.dt;
+    var n_collisions = 0u;
+    var in_shell = false;
+    var shell_entry = x0;
+    var last_collided = NO_LEAF;
+    // The face the particle last crossed (axes) and the signs of its velocity then.
+    var cross_axes = 0u;
+    var cross_signs = vec3<f32>(0.0);
+    var outcome = STEP_DONE;
+    let budget = max_leaves_per_step(header.tree_depth);
+    var visited = 0u;
+    while remaining > 0.0 {
+        if visited >= budget {
+            outcome = STEP_BOUND_HIT;
+            if in_shell {
+                x = shell_entry;
+            }
+            break;
+        }
+        visited += 1u;
+        if !root_contains(x, v) {
+            let entry = enter_box(root, x, v, remaining);
+            if entry.hit {
+                x = entry.p;
+                remaining -= entry.t;
+                cross_axes = entry.axes;
+                cross_signs = v;
+                last_collided = NO_LEAF;
+                continue;
+            }
+            x = x + v * remaining;
+            break;
+        }
+        var leaf = locate_inside(x, v);
+        if leaf.two_sided && entry_faces(leaf.aabb, x, v) == 0u {
+            // A particle sliding along a face of a solid leaf (no velocity across it), and not
+            // entering through another, is not in the leaf: locate it on the face's outer side.
+            var dir = v;
+            for (var a = 0u; a < 3u; a++) {
+                if v[a] == 0.0 && x[a] == leaf.aabb.min[a] {
+                    dir[a] = -1.0;
+                } else if v[a] == 0.0 && x[a] == leaf.aabb.max[a] {
+                    dir[a] = 1.0;
+                }
+            }
+            if any(dir != v) {
+                leaf = locate_inside(x, dir);
+            }
+        }
+        if leaf.kind == LEAF_EMPTY {
+            if leaf.label != LABEL_NONE {
+                let label_side = side_of(leaf.label);
+                if in_shell && label_side != side {
+                    x = shell_entry;
+                    v = respond(v, face_normal(cross_axes, cross_signs), e, mu);
+                    n_collisions += 1u;
+                    outcome = STEP_BLOCKED;
+                    break;
+                }
+                side = label_side;
+            }
+            in_shell = false;
+        } else {
+            if !in_shell {
+                in_shell = true;
+                shell_entry = x;
+            }
+            if leaf.node != last_collided {
+                var n = leaf.normal;
+                if leaf.two_sided {
+                    // Solid from every side: the faces it is entering through, found from
+                    // the box, so a particle resting on one at the start of a step counts.
+                    n = face_normal(entry_faces(leaf.aabb, x, v), v);
+                } else if side == SIDE_BACK {
+                    n = -leaf.normal;
+                }
+                if dot3(v, n) < 0.0 {
+                    v = respond(v, n, e, mu);
+                    n_collisions += 1u;
+                    last_collided = leaf.node;
+                    continue;
+                }
+            }
+        }
+        let exit = exit_box(leaf.aabb, x, v);
+        if exit.t >= remaining {
+            x = clamp(x + v * remaining, leaf.aabb.min, leaf.aabb.max);
+            break;
+        }
+        x = exit.p;
+        remaining -= exit.t;
+        cross_axes = exit.axes;
+        cross_signs = v;
+        last_collided = NO_LEAF;
+    }
+    if !is_finite3(x) || !is_finite3(v) {
+        (*p).flags |= FLAG_INVALID;
+        return STEP_INVALID;
+    }
+    (*p).position = x;
+    (*p).velocity = v;
+    (*p).side = side;
+    let count = min(collisions(*p) + n_collisions, MAX_COLLISIONS);
+    var status = (*p).flags & FLAG_STATUS_MASK & ~FLAG_STEP_STATUS;
+    if outcome == STEP_BLOCKED {
+        status |= FLAG_BLOCKED;
+    } else if outcome == STEP_BOUND_HIT {
+        status |= FLAG_BOUND_HIT;
+    }
+    (*p).flags = status | (count << COLLISION_SHIFT);
+    return outcome;
+}

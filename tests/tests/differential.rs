@@ -1,0 +1,260 @@
+//! The same proxy and particles stepped on the CPU and on the GPU (wgpu; lavapipe in CI) for
+//! many steps, compared particle by particle.
+//!
+//! Both run the same routine on the same bytes. Grid planes are exact on both sides
+//! (`grid_plane`), so leaves, labels and exit points agree exactly; what can differ is the
+//! last bits of a particle's coordinates along its travel and of its velocity after a
+//! response: Vulkan lets a GPU compute `x / y` and `sqrt` to within 2.5 ULP, and a driver
+//! may fuse `a * b + c` into one rounding, where the CPU rounds every operation. On lavapipe
+//! (x86 SSE, correctly rounded division and sqrt, no fusing) every particle comes out bit
+//! for bit identical, and these tests print how many did. On a GPU with approximate
+//! division, a particle that collides often can amplify an ULP into a visible difference,
+//! so the check is: the same collision count, side and status flags for every particle,
+//! and positions within `POSITION_TOLERANCE_LEAVES` of a finest leaf.
+
+use glam::Vec3;
+use octoproxy_core::{Backend, Particle, ProxyView, StepParams, FLAG_INVALID, MAX_DEPTH};
+use octoproxy_cpu::emit::Rng;
+use octoproxy_cpu::{bake, BuildParams, CpuBackend, MeshRef};
+use octoproxy_tests::ground_truth::GroundTruth;
+use octoproxy_tests::harness::random_particles;
+use octoproxy_tests::meshes;
+use octoproxy_tests::scenes::{self, Mesh};
+use octoproxy_wgpu::WgpuBackend;
+
+const DT: f32 = 1.0 / 60.0;
+
+/// Positions may differ by this many finest-leaf edges (see the module documentation).
+const POSITION_TOLERANCE_LEAVES: f32 = 1e-3;
+
+/// The GPU backend, on any adapter (lavapipe included). Without one: a failure under
+/// `CI=true`, a "skipped" message otherwise.
+fn gpu() -> Option<WgpuBackend> {
+    match WgpuBackend::new() {
+        Ok(gpu) => {
+            eprintln!("GPU adapter: {}", gpu.description());
+            Some(gpu)
+        }
+        Err(e) if std::env::var("CI").as_deref() == Ok("true") => {
+            panic!("CI=true needs a GPU adapter (lavapipe: apt install mesa-vulkan-drivers libvulkan1): {e}")
+        }
+        Err(e) => {
+            eprintln!("skipped: {e}");
+            None
+        }
+    }
+}
+
+/// How two runs differ.
+#[derive(Debug, Default)]
+struct Agreement {
+    particles: usize,
+    collisions_differ: usize,
+    side_differs: usize,
+    flags_differ: usize,
+    /// Largest position difference, in finest-leaf edges, and the particle.
+    worst_leaves: f32,
+    worst_index: usize,
+    /// Largest velocity difference relative to the speed.
+    worst_velocity: f32,
+    collisions: u64,
+    /// Particles whose 32 bytes are identical on both sides.
+    identical: usize,
+}
+
+fn compare(cpu: &[Particle], gpu: &[Particle], leaf: f32) -> Agreement {
+    let mut a = Agreement { particles: cpu.len(), ..Agreement::default() };
+    for (i, (c, g)) in cpu.iter().zip(gpu).enumerate() {
+        a.collisions += c.collisions() as u64;
+        a.identical += (bytemuck::bytes_of(c) == bytemuck::bytes_of(g)) as usize;
+        a.collisions_differ += (c.collisions() != g.collisions()) as usize;
+        a.side_differs += (c.side != g.side) as usize;
+        a.flags_differ += (c.flags & 0xff != g.flags & 0xff) as usize;
+        if c.flags & FLAG_INVALID != 0 {
+            continue;
+        }
+        let d = (Vec3::from_array(c.position) - Vec3::from_array(g.position)).abs().max_element() / leaf;
+        // NaN counts as the worst.
+        if !(d <= a.worst_leaves) {
+            a.worst_leaves = d;
+            a.worst_index = i;
+        }
+        let cv = Vec3::from_array(c.velocity);
+        let dv = (cv - Vec3::from_array(g.velocity)).length() / cv.length().max(1e-6);
+        if !(dv <= a.worst_velocity) {
+            a.worst_velocity = dv;
+        }
+    }
+    a
+}
+
+/// Particles placed where float edge cases live: exactly on leaf planes, moving along axes,
+/// at rest, grazing a plane, outside the root box, and with NaN or infinite input.
+fn hand_placed(view: &ProxyView<'_>, n: usize, seed: u64) -> Vec<Particle> {
+    let mut rng = Rng::new(seed);
+    let root = view.root_aabb();
+    let dmax = view.header().dmax;
+    let cells = 1u32 << dmax;
+    let shift = MAX_DEPTH - dmax;
+    let leaf = view.finest_leaf_size();
+    let mut out = Vec::with_capacity(n);
+    for k in 0..n {
+        let mut p = Vec3::new(
+            rng.range(root.min.x, root.max.x),
+            rng.range(root.min.y, root.max.y),
+            rng.range(root.min.z, root.max.z),
+        );
+        // Snap one, two or three coordinates onto leaf planes.
+        let snapped = 1 + k % 3;
+        for a in 0..snapped {
+            let i = ((rng.next_u64() % (cells as u64 + 1)) as u32) << shift;
+            p[(a + k) % 3] = view.plane((a + k) % 3, i);
+        }
+        let speed = leaf / DT * [0.0, 0.3, 1.0, 4.0, 40.0][k % 5];
+        let v = match (k / 5) % 6 {
+            0 => {
+                let mut v = Vec3::ZERO;
+                v[k % 3] = if k % 2 == 0 { speed } else { -speed };
+                v
+            }
+            1 => Vec3::ZERO,
+            // Grazing: almost parallel to a leaf plane.
+            2 => {
+                let mut v = rng.unit_vector() * speed;
+                v[k % 3] = speed * 1e-6;
+                v
+            }
+            3 => rng.unit_vector() * speed,
+            // Outside the root box, aimed at its centre.
+            4 => {
+                let c = (root.min + root.max) * 0.5;
+                p = c + rng.unit_vector() * (root.max.x - root.min.x);
+                (c - p).normalize() * speed.max(leaf / DT)
+            }
+            _ => rng.unit_vector() * speed,
+        };
+        let mut q = Particle::new(p.to_array(), v.to_array());
+        q.side = octoproxy_core::initial_side(view, q.position);
+        out.push(q);
+    }
+    for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+        out.push(Particle::new([bad, 0.0, 0.0], [0.0; 3]));
+        out.push(Particle::new([0.0; 3], [0.0, bad, 0.0]));
+    }
+    // Far outside, flying away; and a velocity whose step overflows.
+    out.push(Particle::new([1e30, 1e30, 1e30], [1.0, 1.0, 1.0]));
+    out.push(Particle::new((root.min - Vec3::ONE).to_array(), [3e38, 3e38, 3e38]));
+    out
+}
+
+/// Steps the same particles on both backends and checks the agreement.
+fn differential(name: &str, mesh: &Mesh, build: &BuildParams, steps: u32, chunk: Option<u32>) {
+    let Some(mut gpu) = gpu() else { return };
+    if let Some(n) = chunk {
+        gpu.set_chunk_particles(n);
+        gpu.set_fold_width(3);
+    }
+    let (words, _) = bake(&[MeshRef::from(mesh)], build, &()).expect("bakes");
+    let view = ProxyView::new(&words).expect("valid");
+    let gt = GroundTruth::new(&mesh.positions, &mesh.triangles);
+    let leaf = view.finest_leaf_size();
+    let scene = view.header().root_size;
+    let speeds: Vec<f32> = [0.1 * leaf, leaf, 5.0 * leaf, 0.5 * scene].iter().map(|d| d / DT).collect();
+    let mut particles = random_particles(&view, &gt, 3000, &speeds, 5);
+    particles.extend(hand_placed(&view, 2000, 6));
+    if let Some(n) = chunk {
+        gpu.upload_particles(&particles).unwrap();
+        assert_eq!(gpu.chunk_count(), particles.len().div_ceil(n as usize), "{name}: chunks");
+        assert!(gpu.dispatch_size(n).1 > 1, "{name}: the dispatch is not folded");
+    }
+    let mut cpu = CpuBackend::new();
+    cpu.upload_proxy(&words).unwrap();
+    gpu.upload_proxy(&words).unwrap();
+    let mut worst = 0f32;
+    for (k, params) in [
+        StepParams { dt: DT, ..StepParams::default() },
+        StepParams { gravity: [0.0; 3], dt: DT, restitution: 1.0, friction: 0.0, _pad: [0; 2] },
+        StepParams { gravity: [0.0, -9.81, 0.0], dt: DT, restitution: 0.0, friction: 1.0, _pad: [0; 2] },
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        // The last run descends from the root on both sides instead of using the table.
+        let use_lut = k < 2;
+        cpu.set_use_lut(use_lut);
+        gpu.set_use_lut(use_lut);
+        cpu.upload_particles(&particles).unwrap();
+        gpu.upload_particles(&particles).unwrap();
+        cpu.step(&params, steps).unwrap();
+        gpu.step(&params, steps).unwrap();
+        let mut from_gpu = vec![Particle::default(); particles.len()];
+        gpu.download_particles(&mut from_gpu).unwrap();
+        let a = compare(cpu.particles(), &from_gpu, leaf);
+        eprintln!(
+            "{name}{}: {} particles x {steps} steps, {} collisions; bit-identical {}; differ: collisions {}, side {}, flags {}; worst position {:.2e} leaf (particle {}), worst velocity {:.2e} relative",
+            if use_lut { "" } else { " (no LUT)" },
+            a.particles, a.collisions, a.identical, a.collisions_differ, a.side_differs, a.flags_differ, a.worst_leaves, a.worst_index, a.worst_velocity
+        );
+        assert!(a.collisions > 0, "{name}: nothing collided, the test tests nothing");
+        let i = a.worst_index;
+        assert_eq!(
+            (a.collisions_differ, a.side_differs, a.flags_differ),
+            (0, 0, 0),
+            "{name}: backends disagree; e.g. particle {i}: start {:?}, cpu {:?}, gpu {:?}",
+            particles[i],
+            cpu.particles()[i],
+            from_gpu[i]
+        );
+        assert!(
+            a.worst_leaves <= POSITION_TOLERANCE_LEAVES,
+            "{name}: particle {i} differs by {} leaves: start {:?}, cpu {:?}, gpu {:?}",
+            a.worst_leaves,
+            particles[i],
+            cpu.particles()[i],
+            from_gpu[i]
+        );
+        worst = worst.max(a.worst_leaves);
+    }
+    eprintln!("{name}: worst position difference {worst:.2e} of a finest leaf");
+}
+
+fn build(dmax: u32) -> BuildParams {
+    BuildParams { dmin: 3, dmax, ..BuildParams::default() }
+}
+
+#[test]
+fn bunny_open_mesh() {
+    let Some(mesh) = meshes::load("stanford-bunny.obj.gz") else { return };
+    differential("bunny", &mesh, &build(7), 120, None);
+}
+
+#[test]
+fn nefertiti_closed_scan() {
+    let Some(mesh) = meshes::load("nefertiti.obj.gz") else { return };
+    differential("nefertiti", &mesh, &build(7), 120, None);
+}
+
+#[test]
+fn thin_plates() {
+    // Plates far thinner than a leaf, crossing each other.
+    let mesh = scenes::merge(&[
+        scenes::slab([0.0, 0.0, 0.0], [2.0, 0.004, 2.0]),
+        scenes::slab([0.0, 0.0, 0.0], [0.004, 2.0, 1.5]),
+        scenes::flat_sheet([0.0, 0.6, 0.0], 1.6, 8),
+    ]);
+    differential("thin plates", &mesh, &build(6), 150, None);
+}
+
+#[test]
+fn sharp_wedges_and_star() {
+    let mesh = scenes::merge(&[scenes::wedge(8.0, 2.0, 1.0), scenes::star_prism(7, 1.5, 0.4, 1.0)]);
+    differential("wedge + star", &mesh, &build(7), 150, None);
+}
+
+#[test]
+fn nested_shells_in_small_chunks() {
+    // Chunks of 256 particles (4 workgroups) in dispatch rows of 3 workgroups: 20 chunks, each
+    // a folded 3 x 2 grid whose last two workgroups have no particles.
+    let mesh = scenes::nested_shells(1.0, 0.02);
+    differential("nested shells, chunked", &mesh, &build(6), 100, Some(256));
+}

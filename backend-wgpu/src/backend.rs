@@ -57,9 +57,12 @@ pub struct ChunkParams {
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum WgpuError {
-    /// No adapter, or none of the kind asked for.
+    /// No adapter at all.
     #[error("no GPU adapter: {0}")]
     NoAdapter(String),
+    /// Only a software adapter, and a hardware one was asked for.
+    #[error("only a software GPU adapter is present ({0}), and the CPU backend is faster")]
+    SoftwareOnly(String),
     /// The adapter would not open a device.
     #[error("could not open the GPU device: {0}")]
     RequestDevice(String),
@@ -175,10 +178,7 @@ impl WgpuBackend {
         let info = adapter.get_info();
         let software = info.device_type == wgpu::DeviceType::Cpu;
         if hardware_only && software {
-            return Err(WgpuError::NoAdapter(format!(
-                "only a software adapter was found ({}), and the CPU backend is faster",
-                info.name
-            )));
+            return Err(WgpuError::SoftwareOnly(info.name));
         }
         let limits = adapter.limits();
         let descriptor = wgpu::DeviceDescriptor {

@@ -7,17 +7,17 @@ use std::time::{Duration, Instant};
 
 use anyhow::Result;
 use glam::Vec3;
-use octoproxy_core::{initial_side, Backend, Particle, StepParams, SIDE_BACK};
+use octoproxy_core::{initial_side, Particle, StepParams, SIDE_BACK};
 use octoproxy_cpu::emit::Rng;
 use octoproxy_cpu::BuildParams;
 
 use crate::flags;
 use crate::render::{Camera, Canvas, BACK, FRONT};
 use crate::scene;
-use crate::sim::{select_backend, BackendChoice};
+use crate::backends::{select_backend, BackendChoice};
 
 const HELP: &str = "\
-usage: cargo xtask demo [--particles N] [--steps N] [-o PICTURE.png] [--backend auto|cpu]
+usage: cargo xtask demo [--particles N] [--steps N] [-o PICTURE.png] [--backend auto|cpu|wgpu]
 
 Runs a built-in scene: an open dome (no files needed). Half the particles rain onto it and
 slide off its front side; half are fired up from beneath and hit its back side.";
@@ -90,6 +90,7 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     for s in 0..steps {
         let t = Instant::now();
         backend.step(&params, 1)?;
+        backend.finish()?;
         stepping += t.elapsed();
         if s % 2 == 0 {
             backend.download_particles(&mut particles)?;

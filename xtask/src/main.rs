@@ -6,6 +6,7 @@
 //!
 //! Errors print as one line and exit non-zero.
 
+mod backends;
 mod bake;
 mod demo;
 mod flags;

@@ -6,11 +6,12 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
 use glam::Vec3;
-use octoproxy_core::{initial_side, Backend, StepParams, FLAG_BLOCKED, FLAG_BOUND_HIT, FLAG_INVALID, SIDE_BACK};
+use octoproxy_core::{initial_side, StepParams, FLAG_BLOCKED, FLAG_BOUND_HIT, FLAG_INVALID, SIDE_BACK};
 use octoproxy_cpu::emit::{emit_box, emit_surface};
 use octoproxy_cpu::particles::{read_particles, write_particles, ParticleCloud, PlyEncoding};
-use octoproxy_cpu::{CpuBackend, MeshRef};
+use octoproxy_cpu::MeshRef;
 
+use crate::backends::{select_backend, BackendChoice};
 use crate::bake::same_file;
 use crate::flags::{self, BuildFlags};
 use crate::scene;
@@ -38,7 +39,7 @@ stepping:
   --gravity X,Y,Z   acceleration (default 0,-9.81,0)
   --restitution R   in [0, 1] (default 0.5)
   --friction F      Coulomb coefficient >= 0 (default 0.1)
-  --backend B       auto or cpu (default auto)
+  --backend B       auto, cpu or wgpu (default auto: a hardware GPU if present, else cpu)
 
 output:
   -o, --out FILE    the stepped particles (binary little-endian PLY)
@@ -48,35 +49,6 @@ output:
   --force           allow --frames into a directory that already holds frames",
         flags::BUILD_HELP
     )
-}
-
-/// Which backend to step on.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum BackendChoice {
-    /// The best one available.
-    Auto,
-    /// The rayon CPU backend.
-    Cpu,
-}
-
-impl BackendChoice {
-    pub fn parse(s: &str) -> Result<Self> {
-        match s {
-            "auto" => Ok(BackendChoice::Auto),
-            "cpu" => Ok(BackendChoice::Cpu),
-            "wgpu" | "gpu" => bail!("--backend {s}: this build has no GPU backend yet; use auto or cpu"),
-            _ => bail!("--backend: expected auto or cpu, got {s:?}"),
-        }
-    }
-}
-
-/// The backend for a choice, saying which it picked.
-pub fn select_backend(choice: BackendChoice) -> Result<CpuBackend> {
-    match choice {
-        BackendChoice::Auto => eprintln!("backend: cpu (auto: this build has no GPU backend yet)"),
-        BackendChoice::Cpu => eprintln!("backend: cpu"),
-    }
-    Ok(CpuBackend::new())
 }
 
 #[derive(Default)]
@@ -264,6 +236,7 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
         let chunk = if o.frames.is_some() { every.min(steps - done) } else { steps - done };
         let t = Instant::now();
         backend.step(&params, chunk)?;
+        backend.finish()?;
         stepping += t.elapsed();
         done += chunk;
         bar.inc(chunk as u64);

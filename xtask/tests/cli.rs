@@ -111,3 +111,49 @@ fn bad_input_gets_one_readable_line() {
         assert_one_line_error(&out, needle);
     }
 }
+
+/// Whether wgpu finds an adapter here; under `CI=true` it must (lavapipe).
+fn gpu_present(dir: &Path) -> bool {
+    let probe = xtask(&["demo", "--particles", "64", "--steps", "1", "--backend", "wgpu", "-o", "probe.png"], dir);
+    if probe.status.success() {
+        return true;
+    }
+    let err = String::from_utf8_lossy(&probe.stderr);
+    assert!(!err.contains("panicked"), "stderr: {err}");
+    assert!(err.contains("no GPU adapter"), "stderr: {err}");
+    if std::env::var("CI").as_deref() == Ok("true") {
+        panic!("CI=true needs a GPU adapter (lavapipe: apt install mesa-vulkan-drivers libvulkan1): {err}");
+    }
+    eprintln!("skipped: no GPU adapter ({})", err.trim());
+    false
+}
+
+#[test]
+fn sim_on_wgpu_writes_the_same_file_as_on_cpu() {
+    let dir = scratch("wgpu");
+    if !gpu_present(&dir) {
+        return;
+    }
+    std::fs::write(dir.join("box.obj"), BOX_OBJ).unwrap();
+    let mut outputs = Vec::new();
+    for backend in ["cpu", "wgpu"] {
+        let out_file = format!("out-{backend}.ply");
+        let out = xtask(
+            &["sim", "--mesh", "box.obj", "--dmax", "6", "--emit", "5000", "--emit-speed", "3", "--steps", "60",
+              "--backend", backend, "-o", &out_file, "--frames", &format!("frames-{backend}"), "--every", "20"],
+            &dir,
+        );
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{err}");
+        assert!(err.contains(&format!("backend: {backend}")), "says which backend: {err}");
+        outputs.push(std::fs::read(dir.join(out_file)).unwrap());
+    }
+    assert!(outputs[0] == outputs[1], "the GPU's output file differs from the CPU's");
+    // The frames (read back between steps) agree too.
+    for k in 0..4 {
+        let name = format!("frame_{k:05}.ply");
+        let a = std::fs::read(dir.join("frames-cpu").join(&name)).unwrap();
+        let b = std::fs::read(dir.join("frames-wgpu").join(&name)).unwrap();
+        assert!(a == b, "{name} differs");
+    }
+}

@@ -1,0 +1,101 @@
+//! `--backend auto|cpu|wgpu`: picking where particles are stepped, and saying so.
+
+use anyhow::{bail, Result};
+use octoproxy_core::{Backend, Particle, StepParams};
+use octoproxy_cpu::CpuBackend;
+use octoproxy_wgpu::WgpuBackend;
+
+/// Which backend to step on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BackendChoice {
+    /// A hardware GPU when there is one, else the CPU.
+    Auto,
+    /// The rayon CPU backend.
+    Cpu,
+    /// The wgpu backend on the best adapter, software ones (lavapipe) included.
+    Wgpu,
+}
+
+impl BackendChoice {
+    pub fn parse(s: &str) -> Result<Self> {
+        match s {
+            "auto" => Ok(BackendChoice::Auto),
+            "cpu" => Ok(BackendChoice::Cpu),
+            "wgpu" | "gpu" => Ok(BackendChoice::Wgpu),
+            _ => bail!("--backend: expected auto, cpu or wgpu, got {s:?}"),
+        }
+    }
+}
+
+/// One of the backends, behind one set of methods.
+pub enum Stepper {
+    Cpu(CpuBackend),
+    Wgpu(Box<WgpuBackend>),
+}
+
+/// The backend for a choice, saying on stderr which it picked and why.
+pub fn select_backend(choice: BackendChoice) -> Result<Stepper> {
+    match choice {
+        BackendChoice::Cpu => {
+            eprintln!("backend: cpu");
+            Ok(Stepper::Cpu(CpuBackend::new()))
+        }
+        BackendChoice::Wgpu => match WgpuBackend::new() {
+            Ok(gpu) => {
+                eprintln!("backend: wgpu on {}", gpu.description());
+                Ok(Stepper::Wgpu(Box::new(gpu)))
+            }
+            Err(e) => bail!("--backend wgpu: {e}"),
+        },
+        BackendChoice::Auto => match WgpuBackend::new_hardware() {
+            Ok(gpu) => {
+                eprintln!("backend: wgpu on {} (auto: a GPU is present)", gpu.description());
+                Ok(Stepper::Wgpu(Box::new(gpu)))
+            }
+            Err(e) => {
+                eprintln!("backend: cpu (auto: {e})");
+                Ok(Stepper::Cpu(CpuBackend::new()))
+            }
+        },
+    }
+}
+
+macro_rules! both {
+    ($self:ident, $b:ident => $e:expr) => {
+        match $self {
+            Stepper::Cpu($b) => Ok($e?),
+            Stepper::Wgpu($b) => Ok($e?),
+        }
+    };
+}
+
+impl Stepper {
+    /// Name for reports: `cpu`, or `wgpu (adapter)`.
+    pub fn name(&self) -> String {
+        match self {
+            Stepper::Cpu(b) => b.name().to_string(),
+            Stepper::Wgpu(b) => format!("{} ({})", b.name(), b.description()),
+        }
+    }
+
+    pub fn upload_proxy(&mut self, words: &[u32]) -> Result<()> {
+        both!(self, b => b.upload_proxy(words))
+    }
+
+    pub fn upload_particles(&mut self, particles: &[Particle]) -> Result<()> {
+        both!(self, b => b.upload_particles(particles))
+    }
+
+    pub fn download_particles(&mut self, out: &mut [Particle]) -> Result<()> {
+        both!(self, b => b.download_particles(out))
+    }
+
+    pub fn step(&mut self, params: &StepParams, steps: u32) -> Result<()> {
+        both!(self, b => b.step(params, steps))
+    }
+
+    /// Waits for queued steps (for timing).
+    pub fn finish(&mut self) -> Result<()> {
+        both!(self, b => b.finish())
+    }
+}

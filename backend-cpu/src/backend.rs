@@ -50,6 +50,21 @@ impl CpuBackend {
     pub fn particles(&self) -> &[Particle] {
         &self.particles
     }
+
+    /// The floor: steps the particles `steps` times with integration only (the step's
+    /// semi-implicit Euler, no proxy, no collision). Benchmarks measure the step against it.
+    pub fn integrate_only(&mut self, params: &StepParams, steps: u32) -> Result<(), CpuError> {
+        params.validate()?;
+        let g = glam::Vec3::from_array(params.gravity) * params.dt;
+        for _ in 0..steps {
+            self.particles.par_iter_mut().with_min_len(1024).for_each(|p| {
+                let v = glam::Vec3::from_array(p.velocity) + g;
+                p.velocity = v.to_array();
+                p.position = (glam::Vec3::from_array(p.position) + v * params.dt).to_array();
+            });
+        }
+        Ok(())
+    }
 }
 
 impl Backend for CpuBackend {

@@ -3,11 +3,13 @@
 //! - `demo`: a built-in scene, stepped on the best backend, with a summary and a picture.
 //! - `bake`: meshes → proxy file.
 //! - `sim`: a proxy (or meshes) and particles → stepped particles, optionally every frame.
+//! - `check`: the penetration harness against exact ground truth.
 //!
 //! Errors print as one line and exit non-zero.
 
 mod backends;
 mod bake;
+mod check;
 mod demo;
 mod flags;
 mod progress;
@@ -24,6 +26,7 @@ commands:
   demo   run a built-in scene and write a picture of it
   bake   --mesh MESH [--mesh MESH...] -o FILE [--dmin N --dmax N --epsilon X --lut-depth N]
   sim    (--mesh MESH... | --proxy FILE) (--particles IN.ply | --emit N ...) -o OUT.ply [options]
+  check  (--mesh MESH... | --scene NAME) [options]: count penetrations against exact ground truth
 
 run `cargo xtask <command> --help` for a command's options";
 
@@ -38,12 +41,13 @@ fn main() -> ExitCode {
         Some("demo") => demo::run(rest),
         Some("bake") => bake::run(rest),
         Some("sim") => sim::run(rest),
+        Some("check") => check::run(rest),
         Some("-h" | "--help" | "help") => {
             println!("{USAGE}");
             return ExitCode::SUCCESS;
         }
         _ => {
-            eprintln!("error: unknown command {cmd:?} (commands: demo, bake, sim; see `cargo xtask --help`)");
+            eprintln!("error: unknown command {cmd:?} (commands: demo, bake, sim, check; see `cargo xtask --help`)");
             return ExitCode::from(2);
         }
     };

@@ -1,0 +1,168 @@
+//! `cargo xtask check`: the penetration harness on any scene. Steps particles many times and
+//! counts, against exact ground truth (not the proxy), particles that change side deeper
+//! than one dmax-leaf diagonal and particles that become NaN. The tests run the same code
+//! (`octoproxy_tests::harness::run_check`).
+
+use std::ffi::OsString;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{bail, Result};
+use octoproxy_core::StepParams;
+use octoproxy_cpu::mesh::Mesh;
+use octoproxy_cpu::particles::read_particles;
+use octoproxy_tests::ground_truth::GroundTruth;
+use octoproxy_tests::harness::{random_particles, run_check};
+use octoproxy_tests::scenes::{self, MeshExt};
+
+use crate::flags::{self, BuildFlags};
+use crate::scene;
+
+fn help() -> String {
+    format!(
+        "\
+usage: cargo xtask check (--mesh MESH... | --scene NAME) [options]
+
+Counts penetrations against exact ground truth: generalized winding numbers for closed
+meshes, crossing parity of every path segment for open ones, both through a BVH.
+
+scene:
+  --mesh FILE       a mesh (PLY/OBJ/STL, .gz); repeat for several
+  --scene NAME      a built-in scene: sphere, torus, slab, wedge, star, shells, sheet, dome, comb
+{}
+
+particles:
+  --particles FILE  a PLY point cloud (x y z, optional vx vy vz)
+  --emit N          N random particles at least two leaf diagonals from the surface
+                    (default 20000), speeds from 0.1 leaf to the whole scene per step
+  --seed K          (default 1)
+
+stepping:
+  --steps N         (default 100)
+  --restitution R   (default 0.5)
+  --friction F      (default 0.1)
+  --gravity X,Y,Z   (default 0,-9.81,0)
+  --dt S            (default 1/60)
+
+Exits non-zero when any particle penetrates or becomes NaN.",
+        flags::BUILD_HELP
+    )
+}
+
+fn builtin(name: &str) -> Result<Mesh> {
+    Ok(match name {
+        "sphere" => scenes::uv_sphere([0.0; 3], 1.0, 48, 24),
+        "torus" => scenes::torus([0.0; 3], 1.0, 0.3, 48, 24),
+        "slab" => scenes::slab([0.0; 3], [2.0, 0.004, 2.0]),
+        "wedge" => scenes::wedge(8.0, 2.0, 1.0),
+        "star" => scenes::star_prism(7, 1.5, 0.4, 1.0),
+        "shells" => scenes::nested_shells(1.0, 0.02),
+        "sheet" => scenes::flat_sheet([0.0; 3], 2.0, 8),
+        "dome" => scenes::hemisphere([0.0; 3], 1.0, 48, 12),
+        "comb" => scenes::merge(&(0..9).map(|i| scenes::slab([i as f32 * 0.2 - 0.8, 0.0, 0.0], [0.003, 1.5, 1.5])).collect::<Vec<_>>()),
+        _ => bail!("--scene: unknown scene {name:?} (sphere, torus, slab, wedge, star, shells, sheet, dome, comb)"),
+    })
+}
+
+pub fn run(args: Vec<OsString>) -> Result<()> {
+    let mut meshes: Vec<PathBuf> = Vec::new();
+    let mut builtin_name: Option<String> = None;
+    let mut build = BuildFlags::default();
+    let mut particles_file: Option<PathBuf> = None;
+    let mut emit: Option<usize> = None;
+    let mut seed = 1u64;
+    let mut steps = 100u32;
+    let mut params = StepParams::default();
+    let mut p = lexopt::Parser::from_args(args);
+    while let Some((name, unexpected)) = flags::next_option(&mut p)? {
+        if build.parse(&name, &mut p)? {
+            continue;
+        }
+        match name.as_str() {
+            "--mesh" => meshes.push(flags::path(&mut p, "--mesh")?),
+            "--scene" => builtin_name = Some(flags::string(&mut p, "--scene")?),
+            "--particles" => particles_file = Some(flags::path(&mut p, "--particles")?),
+            "--emit" => emit = Some(flags::number(&mut p, "--emit")?),
+            "--seed" => seed = flags::number(&mut p, "--seed")?,
+            "--steps" => steps = flags::number(&mut p, "--steps")?,
+            "--restitution" => params.restitution = flags::number(&mut p, "--restitution")?,
+            "--friction" => params.friction = flags::number(&mut p, "--friction")?,
+            "--gravity" => params.gravity = flags::floats::<3>(&mut p, "--gravity")?,
+            "--dt" => params.dt = flags::number(&mut p, "--dt")?,
+            "-h" | "--help" => {
+                println!("{}", help());
+                return Ok(());
+            }
+            _ => return Err(unexpected.into()),
+        }
+    }
+    params.validate()?;
+    if particles_file.is_some() && emit.is_some() {
+        bail!("give either --particles or --emit, not both");
+    }
+    let mesh_list = match (meshes.is_empty(), &builtin_name) {
+        (true, None) => bail!("check needs a scene: --mesh MESH or --scene NAME"),
+        (false, Some(_)) => bail!("give either --mesh or --scene, not both"),
+        (true, Some(name)) => vec![builtin(name)?],
+        (false, None) => scene::load_meshes(&meshes)?,
+    };
+    let mesh = scenes::merge(&mesh_list);
+    let closed = mesh.is_closed();
+    let baked = scene::bake_meshes(mesh_list, &build.params()?)?;
+    let view = baked.view()?;
+    let t = Instant::now();
+    let gt = GroundTruth::new(&mesh.positions, &mesh.triangles);
+    eprintln!(
+        "ground truth: {} triangles, {} mesh ({}), BVH in {:.0} ms",
+        gt.triangle_count(),
+        if closed { "closed" } else { "open" },
+        if closed { "winding numbers and crossing parity" } else { "crossing parity" },
+        t.elapsed().as_secs_f64() * 1e3
+    );
+    let mut particles = match &particles_file {
+        Some(path) => {
+            let cloud = read_particles(path)?;
+            let mut ps = cloud.particles;
+            if !cloud.has_side {
+                for q in &mut ps {
+                    q.side = octoproxy_core::initial_side(&view, q.position);
+                }
+            }
+            ps
+        }
+        None => {
+            let leaf = view.finest_leaf_size();
+            let size = view.header().root_size;
+            let speeds: Vec<f32> =
+                [0.1 * leaf, leaf, 5.0 * leaf, 0.25 * size, size].iter().map(|d| d / params.dt).collect();
+            random_particles(&view, &gt, emit.unwrap_or(20_000), &speeds, seed)
+        }
+    };
+    let t = Instant::now();
+    let report = run_check(&view, &gt, &mut particles, steps, &params, closed);
+    let secs = t.elapsed().as_secs_f64();
+    println!(
+        "{} particles × {steps} steps = {} particle-steps in {secs:.1} s ({:.2} µs per checked particle-step)",
+        report.particles,
+        report.particle_steps,
+        secs * 1e6 / report.particle_steps.max(1) as f64
+    );
+    println!(
+        "penetrations: {} ({:.3} per million particle-steps){}",
+        report.penetrations,
+        report.per_million(),
+        if closed { format!(", of which {} escaped from inside", report.escapes) } else { String::new() }
+    );
+    println!("NaN or infinite: {}", report.non_finite);
+    println!(
+        "collisions: {}; steps stopped by the shell rule: {}; by the leaf bound: {}",
+        report.collisions, report.blocked_steps, report.bound_hits
+    );
+    for (i, a, b) in &report.examples {
+        println!("  e.g. particle {i}: {a:?} -> {b:?}");
+    }
+    if report.penetrations > 0 || report.non_finite > 0 {
+        bail!("{} penetrations and {} NaN particles", report.penetrations, report.non_finite);
+    }
+    Ok(())
+}

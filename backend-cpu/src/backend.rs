@@ -1,6 +1,6 @@
 //! [`CpuBackend`]: the core step run over particles in parallel with rayon.
 
-use octoproxy_core::{step_particle, Backend, FormatError, Particle, ProxyView, StepParams};
+use octoproxy_core::{step_particle, Backend, FormatError, OwnedProxy, Particle, StepParams};
 use rayon::prelude::*;
 
 /// What the CPU backend can report.
@@ -29,10 +29,9 @@ pub enum CpuError {
 /// Steps particles on the CPU, in parallel over particles. Stepping allocates nothing.
 #[derive(Debug, Default)]
 pub struct CpuBackend {
-    proxy: Vec<u32>,
+    proxy: Option<OwnedProxy>,
     particles: Vec<Particle>,
     use_lut: bool,
-    has_proxy: bool,
 }
 
 impl CpuBackend {
@@ -75,10 +74,8 @@ impl Backend for CpuBackend {
     }
 
     fn upload_proxy(&mut self, words: &[u32]) -> Result<(), CpuError> {
-        ProxyView::new(words)?;
-        self.proxy.clear();
-        self.proxy.extend_from_slice(words);
-        self.has_proxy = true;
+        // Validated once here; every step after reuses it.
+        self.proxy = Some(OwnedProxy::new(words.to_vec())?);
         Ok(())
     }
 
@@ -102,12 +99,9 @@ impl Backend for CpuBackend {
 
     fn step(&mut self, params: &StepParams, steps: u32) -> Result<(), CpuError> {
         params.validate()?;
-        if !self.has_proxy {
-            return Err(CpuError::NoProxy);
-        }
-        // Validation is linear in the proxy: once per call, not per step.
-        let Self { proxy, particles, use_lut, .. } = self;
-        let view = ProxyView::new(proxy)?;
+        let Self { proxy, particles, use_lut } = self;
+        let Some(proxy) = proxy else { return Err(CpuError::NoProxy) };
+        let view = proxy.view();
         let view = if *use_lut { view } else { view.without_lut() };
         for _ in 0..steps {
             particles.par_iter_mut().with_min_len(1024).for_each(|p| {

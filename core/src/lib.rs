@@ -27,6 +27,8 @@ pub use step::{
     MAX_LEAVES_PER_STEP,
 };
 pub use view::{lut_target, ulp, FormatError, Header, ProxyView};
+#[cfg(feature = "alloc")]
+pub use view::OwnedProxy;
 
 #[cfg(test)]
 mod tests;

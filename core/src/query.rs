@@ -2,12 +2,12 @@
 //!
 //! A point that lies exactly on a cell plane belongs to the cell its direction of travel
 //! enters: the upper cell when the direction's component is `>= 0`, the lower one otherwise.
-//! Every plane coordinate comes from [`grid_plane`], so the box a query returns and the
+//! Every plane coordinate comes from [`grid_plane`](crate::format::grid_plane), so the box a query returns and the
 //! planes the next query compares against are the very same floats.
 
 use glam::{UVec3, Vec3};
 
-use crate::format::{grid_plane, Label, LUT_DEPTH_SHIFT, LUT_INDEX_MASK, MAX_DEPTH};
+use crate::format::{Label, LUT_DEPTH_SHIFT, LUT_INDEX_MASK, MAX_DEPTH};
 use crate::math;
 use crate::view::ProxyView;
 
@@ -73,12 +73,6 @@ fn upper(p: f32, plane: f32, dir: f32) -> bool {
 }
 
 impl ProxyView<'_> {
-    /// Coordinate of grid plane `i` (on the `2^MAX_DEPTH` grid) along `axis`.
-    #[inline]
-    pub fn plane(&self, axis: usize, i: u32) -> f32 {
-        grid_plane(self.header().root_min[axis], self.cell_unit(), i)
-    }
-
     /// The root cube.
     pub fn root_aabb(&self) -> Aabb {
         let n = 1u32 << MAX_DEPTH;
@@ -137,6 +131,7 @@ impl ProxyView<'_> {
             (0, 0, UVec3::ZERO)
         };
         let nodes = self.nodes();
+        let (pa, da) = (p.to_array(), dir.to_array());
         loop {
             let rec = nodes[index as usize];
             if rec.is_leaf() {
@@ -158,9 +153,10 @@ impl ProxyView<'_> {
             }
             let s = MAX_DEPTH - depth - 1;
             let mut octant = 0;
+            let c = cell.to_array();
             for a in 0..3 {
-                let mid = self.plane(a, (2 * cell[a] + 1) << s);
-                if upper(p[a], mid, dir[a]) {
+                let mid = self.plane(a, (2 * c[a] + 1) << s);
+                if upper(pa[a], mid, da[a]) {
                     octant |= 1 << a;
                 }
             }
@@ -192,11 +188,14 @@ impl ProxyView<'_> {
     fn cell_at_depth(&self, p: Vec3, dir: Vec3, depth: u32) -> UVec3 {
         let n = 1u32 << depth;
         let s = MAX_DEPTH - depth;
-        let root_min = self.header().root_min;
+        let root_min = self.header().root_min.to_array();
         let scale = n as f32 / self.header().root_size;
-        let mut c = UVec3::ZERO;
+        // Arrays, not `Vec3` indexing: this is the hottest loop of a step.
+        let (p, dir) = (p.to_array(), dir.to_array());
+        let mut c = [0u32; 3];
         for a in 0..3 {
-            let est = math::floor((p[a] - root_min[a]) * scale);
+            // Truncation is the floor here: negative estimates clamp to 0 either way.
+            let est = (p[a] - root_min[a]) * scale;
             let mut i = if est >= (n - 1) as f32 {
                 n - 1
             } else if est > 0.0 {
@@ -216,6 +215,6 @@ impl ProxyView<'_> {
             }
             c[a] = i;
         }
-        c
+        UVec3::from_array(c)
     }
 }

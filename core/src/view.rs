@@ -158,6 +158,8 @@ pub struct ProxyView<'a> {
     lut: &'a [u32],
     header: Header,
     cell_unit: f32,
+    /// `header.root_min` as an array: indexed by axis in the hottest loops.
+    root_min: [f32; 3],
     use_lut: bool,
 }
 
@@ -251,6 +253,7 @@ impl<'a> ProxyView<'a> {
             lut,
             header,
             cell_unit: root_size * (1.0 / (1u32 << MAX_DEPTH) as f32),
+            root_min: root_min.to_array(),
             use_lut: lut_depth > 0,
         };
         view.validate_lut()?;
@@ -295,6 +298,12 @@ impl<'a> ProxyView<'a> {
     /// Edge length of a cell of the `2^MAX_DEPTH` grid.
     pub fn cell_unit(&self) -> f32 {
         self.cell_unit
+    }
+
+    /// Coordinate of grid plane `i` (on the `2^MAX_DEPTH` grid) along `axis` (0, 1 or 2).
+    #[inline]
+    pub fn plane(&self, axis: usize, i: u32) -> f32 {
+        format::grid_plane(self.root_min[axis], self.cell_unit, i)
     }
 
     /// Whether queries enter through the lookup table.
@@ -463,4 +472,52 @@ fn validate_nodes(nodes: &[NodeRecord], tree_depth: u32, root_size: f32) -> Resu
         return Err(FormatError::Orphan { node: next });
     }
     Ok(())
+}
+
+/// A validated proxy that owns its words: [`OwnedProxy::view`] is free, because the words
+/// were validated once by [`OwnedProxy::new`] and cannot change afterwards.
+#[cfg(feature = "alloc")]
+#[derive(Clone, Debug)]
+pub struct OwnedProxy {
+    words: alloc::vec::Vec<u32>,
+    header: Header,
+    cell_unit: f32,
+    nodes: core::ops::Range<usize>,
+    lut: core::ops::Range<usize>,
+}
+
+#[cfg(feature = "alloc")]
+impl OwnedProxy {
+    /// Validates `words` (as [`ProxyView::new`]) and keeps them.
+    pub fn new(words: alloc::vec::Vec<u32>) -> Result<Self, FormatError> {
+        let view = ProxyView::new(&words)?;
+        let nodes_start = HEADER_WORDS;
+        let nodes_end = nodes_start + view.nodes.len() * NODE_WORDS;
+        let lut = nodes_end..nodes_end + view.lut.len();
+        let (header, cell_unit) = (view.header, view.cell_unit);
+        Ok(Self { words, header, cell_unit, nodes: nodes_start..nodes_end, lut })
+    }
+
+    /// A view of the words, with no second validation.
+    pub fn view(&self) -> ProxyView<'_> {
+        ProxyView {
+            words: &self.words,
+            nodes: bytemuck::cast_slice(&self.words[self.nodes.clone()]),
+            lut: &self.words[self.lut.clone()],
+            header: self.header,
+            cell_unit: self.cell_unit,
+            root_min: self.header.root_min.to_array(),
+            use_lut: self.header.lut_depth > 0,
+        }
+    }
+
+    /// The words, exactly as validated.
+    pub fn words(&self) -> &[u32] {
+        &self.words
+    }
+
+    /// Gives the words back.
+    pub fn into_words(self) -> alloc::vec::Vec<u32> {
+        self.words
+    }
 }

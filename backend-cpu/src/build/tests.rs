@@ -246,3 +246,23 @@ fn particles_starting_inside_big_surface_leaves_get_the_plane_side() {
     }
     assert!(checked >= 6, "only {checked} points fell in surface leaves");
 }
+
+#[test]
+fn owned_proxy_views_like_a_fresh_validation() {
+    let (p, t) = cube([-1.0; 3], [1.0; 3]);
+    let (words, _) = bake_one(&p, &t, &BuildParams { dmin: 2, dmax: 5, ..BuildParams::default() });
+    let owned = OwnedProxy::new(words.clone()).expect("valid");
+    let fresh = ProxyView::new(&words).unwrap();
+    let view = owned.view();
+    assert_eq!(view.header(), fresh.header());
+    assert_eq!(view.words(), fresh.words());
+    assert_eq!(view.lut(), fresh.lut());
+    let mut rng = crate::emit::Rng::new(4);
+    for _ in 0..2000 {
+        let q = Vec3::new(rng.range(-1.3, 1.3), rng.range(-1.3, 1.3), rng.range(-1.3, 1.3));
+        assert_eq!(view.locate_leaf(q), fresh.locate_leaf(q));
+    }
+    let mut bad = words;
+    bad[1] = 99;
+    assert_eq!(OwnedProxy::new(bad).unwrap_err(), FormatError::UnsupportedVersion { found: 99 });
+}

@@ -64,7 +64,8 @@ fn cell_at_depth(p: vec3<f32>, dir: vec3<f32>, depth: u32) -> vec3<u32> {
     let scale = f32(n) / header.root_size;
     var c = vec3<u32>(0u);
     for (var a = 0u; a < 3u; a++) {
-        let est = floor((p[a] - header.root_min[a]) * scale);
+        // Truncation is the floor here: negative estimates clamp to 0 either way.
+        let est = (p[a] - header.root_min[a]) * scale;
         var i = 0u;
         if est >= f32(n - 1u) {
             i = n - 1u;

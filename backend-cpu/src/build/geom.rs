@@ -91,6 +91,10 @@ impl Poly {
 pub fn clip_triangle(v: &[DVec3; 3], min: DVec3, max: DVec3) -> Poly {
     let mut poly = Poly { pts: [DVec3::ZERO; 12], len: 3 };
     poly.pts[..3].copy_from_slice(v);
+    // Most triangles of a fine mesh lie wholly inside the box: nothing to clip.
+    if v.iter().all(|p| p.cmpge(min).all() && p.cmple(max).all()) {
+        return poly;
+    }
     for a in 0..3 {
         poly = clip_plane(&poly, a, min[a], 1.0);
         poly = clip_plane(&poly, a, max[a], -1.0);

@@ -154,8 +154,18 @@ fn view_visible(pe: DVec3, pb: DVec3, own: u32, list: &[u32], tris: &[Tri]) -> O
     let mut best = f64::INFINITY;
     let mut n = DVec3::ZERO;
     let mut closed = false;
+    // The segment's box: a triangle whose box misses it cannot be hit (a conservative
+    // filter, so the votes are exactly those of testing every triangle).
+    let (slo, shi) = (pe.min(pb), pe.max(pb));
     for &t in list {
         let tri = &tris[t as usize];
+        let misses = (0..3).any(|a| {
+            let (x, y, z) = (tri.v[0][a], tri.v[1][a], tri.v[2][a]);
+            x.min(y).min(z) > shi[a] || x.max(y).max(z) < slo[a]
+        });
+        if misses && t != own {
+            continue;
+        }
         let Some(s) = geom::segment_triangle(pe, pb, &tri.v).or((t == own).then_some(1.0)) else { continue };
         if s < best - TIE {
             best = s;

@@ -532,23 +532,50 @@ impl Subdiv<'_> {
             self.over.store(true, Ordering::Relaxed);
             return Node::Surface { tris: list };
         }
-        let child = |o: u32| -> Node {
+        let subs = self.split(&list, cell, depth);
+        drop(list);
+        let child = |(o, sub): (u32, Vec<u32>)| -> Node {
             let c = cell * 2 + UVec3::new(o & 1, (o >> 1) & 1, (o >> 2) & 1);
-            let (lo, hi) = self.grid.cell_box(c, depth + 1);
-            let sub: Vec<u32> = list
-                .iter()
-                .copied()
-                .filter(|&t| geom::triangle_overlaps_box(&self.tris[t as usize].v, lo, hi))
-                .collect();
             self.build(sub, c, depth + 1)
         };
-        let children: Vec<Node> = if list.len() > 1024 {
-            (0..8u32).into_par_iter().map(child).collect()
+        let large = subs.iter().map(Vec::len).sum::<usize>() > 1024;
+        let subs = (0u32..).zip(subs);
+        let children: Vec<Node> = if large {
+            subs.collect::<Vec<_>>().into_par_iter().map(child).collect()
         } else {
-            (0..8u32).map(child).collect()
+            subs.map(child).collect()
         };
         let mut it = children.into_iter();
         Node::Internal { children: Box::new(std::array::from_fn(|_| it.next().unwrap_or(Node::Empty))) }
+    }
+
+    /// The triangles of `list` that overlap each child of `cell`, in `list` order. A
+    /// triangle whose bounding box lies strictly on one side of every mid-plane overlaps
+    /// exactly one child (it overlaps the parent, and the child is the parent's part on that
+    /// side), so only triangles that straddle a mid-plane pay for the exact test, and only
+    /// against the children their box touches.
+    fn split(&self, list: &[u32], cell: UVec3, depth: u32) -> [Vec<u32>; 8] {
+        let (mid, _) = self.grid.cell_box(cell * 2 + UVec3::ONE, depth + 1);
+        let boxes: [(DVec3, DVec3); 8] = std::array::from_fn(|o| {
+            let o = o as u32;
+            self.grid.cell_box(cell * 2 + UVec3::new(o & 1, (o >> 1) & 1, (o >> 2) & 1), depth + 1)
+        });
+        let mut subs: [Vec<u32>; 8] = Default::default();
+        for &t in list {
+            let v = &self.tris[t as usize].v;
+            let lo = v[0].min(v[1]).min(v[2]);
+            let hi = v[0].max(v[1]).max(v[2]);
+            // Per axis: bit 0 = may touch the lower half, bit 1 = the upper half.
+            let sides = [0, 1, 2].map(|a| (lo[a] <= mid[a]) as u32 | ((hi[a] >= mid[a]) as u32) << 1);
+            let straddles = sides.iter().any(|&s| s == 3);
+            for o in 0..8u32 {
+                let fits = (0..3).all(|a| sides[a] & (1 << ((o >> a) & 1)) != 0);
+                if fits && (!straddles || geom::triangle_overlaps_box(v, boxes[o as usize].0, boxes[o as usize].1)) {
+                    subs[o as usize].push(t);
+                }
+            }
+        }
+        subs
     }
 
     /// Equations (1)–(2), divided by the total area: Σ aᵢ‖nᵢ − n̄‖² / Σ aᵢ with n̄ the

@@ -8,7 +8,6 @@
 use glam::{UVec3, Vec3};
 
 use crate::format::{Label, LUT_DEPTH_SHIFT, LUT_INDEX_MASK, MAX_DEPTH};
-use crate::math;
 use crate::view::ProxyView;
 
 /// An axis-aligned box.

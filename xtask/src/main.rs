@@ -4,14 +4,17 @@
 //! - `bake`: meshes → proxy file.
 //! - `sim`: a proxy (or meshes) and particles → stepped particles, optionally every frame.
 //! - `check`: the penetration harness against exact ground truth.
+//! - `bench`: octoproxy against the alternatives, with a table, plots and JSON.
 //!
 //! Errors print as one line and exit non-zero.
 
 mod backends;
 mod bake;
+mod bench;
 mod check;
 mod demo;
 mod flags;
+mod plot;
 mod progress;
 mod render;
 mod scene;
@@ -27,6 +30,7 @@ commands:
   bake   --mesh MESH [--mesh MESH...] -o FILE [--dmin N --dmax N --epsilon X --lut-depth N]
   sim    (--mesh MESH... | --proxy FILE) (--particles IN.ply | --emit N ...) -o OUT.ply [options]
   check  (--mesh MESH... | --scene NAME) [options]: count penetrations against exact ground truth
+  bench  [--quick] [--backends cpu,wgpu] [--scenes ...] [--particles ...]: speed, memory, leaks
 
 run `cargo xtask <command> --help` for a command's options";
 
@@ -42,12 +46,13 @@ fn main() -> ExitCode {
         Some("bake") => bake::run(rest),
         Some("sim") => sim::run(rest),
         Some("check") => check::run(rest),
+        Some("bench") => bench::run(rest),
         Some("-h" | "--help" | "help") => {
             println!("{USAGE}");
             return ExitCode::SUCCESS;
         }
         _ => {
-            eprintln!("error: unknown command {cmd:?} (commands: demo, bake, sim, check; see `cargo xtask --help`)");
+            eprintln!("error: unknown command {cmd:?} (commands: demo, bake, sim, check, bench; see `cargo xtask --help`)");
             return ExitCode::from(2);
         }
     };

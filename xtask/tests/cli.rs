@@ -157,3 +157,34 @@ fn sim_on_wgpu_writes_the_same_file_as_on_cpu() {
         assert!(a == b, "{name} differs");
     }
 }
+
+#[test]
+fn bench_writes_json_table_and_plots_with_every_method() {
+    let meshes = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/meshes/stanford-bunny.obj.gz");
+    if !meshes.exists() {
+        assert_ne!(std::env::var("CI").as_deref(), Ok("true"), "CI=true requires ../shared/meshes");
+        eprintln!("skipped: {} not found", meshes.display());
+        return;
+    }
+    let dir = scratch("bench");
+    let out = xtask(
+        &["bench", "--scenes", "bunny", "--particles", "3000", "--steps", "2", "--samples", "100", "--backends", "cpu", "--out", "b"],
+        &dir,
+    );
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let json = std::fs::read_to_string(dir.join("b/results.json")).unwrap();
+    for key in ["\"machine\"", "\"date\"", "\"rows\"", "\"build_ms\"", "\"memory_bytes\"", "\"ns_per_particle_step\"", "\"penetrations_per_million_particle_steps\""] {
+        assert!(json.contains(key), "results.json lacks {key}");
+    }
+    for method in ["octoproxy-cpu", "octoproxy-cpu-nolut", "triangle-octree", "parry3d", "sdf-grid", "floor"] {
+        assert!(json.contains(&format!("\"method\": \"{method}\"")), "results.json lacks {method}");
+    }
+    let table = std::fs::read_to_string(dir.join("b/results.md")).unwrap();
+    assert!(table.contains("| bunny | 69451 | 3000 | octoproxy-cpu |"), "{table}");
+    for png in ["b/particles.png", "b/triangles.png"] {
+        assert_eq!(&std::fs::read(dir.join(png)).unwrap()[..8], b"\x89PNG\r\n\x1a\n");
+    }
+    // Bad options are one readable line.
+    assert_one_line_error(&xtask(&["bench", "--scenes", "moon"], &dir), "unknown scene");
+    assert_one_line_error(&xtask(&["bench", "--particles", "0"], &dir), "out of range");
+}

@@ -423,9 +423,9 @@ fn validate_nodes(nodes: &[NodeRecord], tree_depth: u32, root_size: f32) -> Resu
             level_end = next;
         }
         if rec.is_leaf() {
-            if rec.a & !(format::LEAF_BIT | format::TWO_SIDED_BIT | ((1 << (2 * format::OCT_BITS)) - 1)) != 0 {
-                return Err(FormatError::BadNode { node: i });
-            }
+            // Every bit of a surface leaf's first word means something (leaf, two-sided, two
+            // 15-bit normal components), and every pattern decodes to a unit normal.
+            const _: () = assert!(format::LEAF_BIT | format::TWO_SIDED_BIT | ((1 << (2 * format::OCT_BITS)) - 1) == u32::MAX);
             if depth == 0 || depth > tree_depth {
                 return Err(FormatError::TooDeep { node: i });
             }

@@ -35,6 +35,10 @@ commands:
 run `cargo xtask <command> --help` for a command's options";
 
 fn main() -> ExitCode {
+    // The Vulkan loader complains on every start without it; the value does not matter to us.
+    if std::env::var_os("XDG_RUNTIME_DIR").is_none() {
+        std::env::set_var("XDG_RUNTIME_DIR", std::env::temp_dir());
+    }
     let mut args = std::env::args_os().skip(1);
     let Some(cmd) = args.next() else {
         eprintln!("{USAGE}");

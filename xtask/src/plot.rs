@@ -145,7 +145,8 @@ pub fn line_chart(path: &Path, title: &str, x_label: &str, y_label: &str, series
     }
     img.line((left, top), (left, top + ph), 2, ink);
     img.line((left, top + ph), (left + pw, top + ph), 2, ink);
-    img.text((w / 2) as i64, 8, title, 2, 1, ink);
+    let title_scale = if title.chars().count() * 16 + 20 > w { 1 } else { 2 };
+    img.text((w / 2) as i64, 8, title, title_scale, 1, ink);
     img.text((left + pw / 2.0) as i64, (h - 35) as i64, x_label, 2, 1, ink);
     img.text(10, (top - 16.0) as i64, y_label, 1, 0, ink);
     for (i, s) in series.iter().enumerate() {

@@ -127,6 +127,10 @@ pub enum BuildError {
         /// Triangles skipped for zero area.
         degenerate: usize,
     },
+    /// No child of the root cube keeps any triangle: the exact overlap tests disagree at the
+    /// scene's magnitudes (coordinates near the limits of `f32`).
+    #[error("no triangle fits a cell of the octree (coordinates too extreme for exact overlap tests); scale the scene down")]
+    Unsplittable,
     /// The scene is too far from the origin for its size: cells would collapse in `f32`.
     #[error("the scene is too small for its distance from the origin at dmax {dmax} (cells of {cell} at coordinates up to {magnitude}); move it nearer the origin or lower dmax")]
     Resolution {
@@ -287,6 +291,9 @@ pub fn bake(meshes: &[MeshRef<'_>], params: &BuildParams, progress: &dyn BuildPr
         let root = ctx.build(all, UVec3::ZERO, 0);
         if ctx.over.load(Ordering::Relaxed) {
             return Err(BuildError::TooManyNodes { max_nodes: params.max_nodes });
+        }
+        if !matches!(root, Node::Internal { .. }) {
+            return Err(BuildError::Unsplittable);
         }
         report.timings.push(("subdivide", t.elapsed()));
 
@@ -533,6 +540,12 @@ impl Subdiv<'_> {
             return Node::Surface { tris: list };
         }
         let subs = self.split(&list, cell, depth);
+        if subs.iter().all(Vec::is_empty) {
+            // The parent's exact test kept triangles that no child's test keeps (rounding at
+            // extreme magnitudes): the node stays a surface leaf rather than an internal node
+            // with no children, which no valid proxy has.
+            return Node::Surface { tris: list };
+        }
         drop(list);
         let child = |(o, sub): (u32, Vec<u32>)| -> Node {
             let c = cell * 2 + UVec3::new(o & 1, (o >> 1) & 1, (o >> 2) & 1);

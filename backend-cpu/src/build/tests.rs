@@ -266,3 +266,26 @@ fn owned_proxy_views_like_a_fresh_validation() {
     bad[1] = 99;
     assert_eq!(OwnedProxy::new(bad).unwrap_err(), FormatError::UnsupportedVersion { found: 99 });
 }
+
+/// Fuzzing found scenes near 1e30 whose triangles pass the parent's exact overlap test but no
+/// child's (rounding), which left internal nodes with no children: an invalid proxy. Such a
+/// node now stays a surface leaf, and every bake validates.
+#[test]
+fn extreme_coordinates_bake_to_a_valid_proxy_or_an_error() {
+    let p = [
+        [-2.5763879e29, 7.5514705e29, -9.525689e29],
+        [3.3367426e29, -2.3047377e29, 4.8999003e29],
+        [-5.0081777e29, 8.359352e29, -1e30],
+        [-1e30, -1e30, -1e30],
+        [-1e30, 1.686274e29, 1.686274e29],
+        [1.686274e29, 1.686274e29, 1.686274e29],
+    ];
+    let mut rng = crate::emit::Rng::new(11);
+    for _ in 0..300 {
+        let t: Vec<[u32; 3]> = (0..1 + rng.next_u64() % 9).map(|_| [0, 1, 2].map(|_| (rng.next_u64() % 6) as u32)).collect();
+        let params = BuildParams { dmin: 3, dmax: 4, epsilon: 0.0, lut_depth: 0, ..BuildParams::default() };
+        if let Ok((words, _)) = bake(&[MeshRef { positions: &p, triangles: &t }], &params, &()) {
+            ProxyView::new(&words).expect("a bake always validates");
+        }
+    }
+}

@@ -156,9 +156,10 @@ fn face_normal(axes: u32, signs: Vec3) -> Vec3 {
 /// enters through. Empty when `x` is strictly inside.
 #[inline]
 fn entry_faces(b: &Aabb, x: Vec3, v: Vec3) -> u32 {
+    let (bmin, bmax, xa, va) = (b.min.to_array(), b.max.to_array(), x.to_array(), v.to_array());
     let mut axes = 0;
     for a in 0..3 {
-        if (x[a] == b.min[a] && v[a] > 0.0) || (x[a] == b.max[a] && v[a] < 0.0) {
+        if (xa[a] == bmin[a] && va[a] > 0.0) || (xa[a] == bmax[a] && va[a] < 0.0) {
             axes |= 1 << a;
         }
     }
@@ -169,13 +170,15 @@ fn entry_faces(b: &Aabb, x: Vec3, v: Vec3) -> u32 {
 /// axes whose face it leaves through. The exit point lies exactly on those faces.
 #[inline]
 fn exit_box(b: &Aabb, x: Vec3, v: Vec3) -> (f32, Vec3, u32) {
+    // Arrays, not `Vec3` indexing, in this hot loop; the operations are the same.
+    let (bmin, bmax, xa, va) = (b.min.to_array(), b.max.to_array(), x.to_array(), v.to_array());
     let mut t = f32::INFINITY;
     let mut ts = [f32::INFINITY; 3];
     for a in 0..3 {
-        let ta = if v[a] > 0.0 {
-            (b.max[a] - x[a]) / v[a]
-        } else if v[a] < 0.0 {
-            (b.min[a] - x[a]) / v[a]
+        let ta = if va[a] > 0.0 {
+            (bmax[a] - xa[a]) / va[a]
+        } else if va[a] < 0.0 {
+            (bmin[a] - xa[a]) / va[a]
         } else {
             f32::INFINITY
         };
@@ -185,16 +188,16 @@ fn exit_box(b: &Aabb, x: Vec3, v: Vec3) -> (f32, Vec3, u32) {
         }
     }
     let mut axes = 0;
-    let mut p = x;
+    let mut p = xa;
     for a in 0..3 {
         if ts[a] == t && t.is_finite() {
             axes |= 1 << a;
-            p[a] = if v[a] > 0.0 { b.max[a] } else { b.min[a] };
+            p[a] = if va[a] > 0.0 { bmax[a] } else { bmin[a] };
         } else {
-            p[a] = (x[a] + v[a] * t).clamp(b.min[a], b.max[a]);
+            p[a] = (xa[a] + va[a] * t).clamp(bmin[a], bmax[a]);
         }
     }
-    (t, p, axes)
+    (t, Vec3::from_array(p), axes)
 }
 
 /// Time and point at which a ray from `x` (outside `b`) with velocity `v` enters `b` within

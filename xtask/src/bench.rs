@@ -28,7 +28,8 @@ usage: cargo xtask bench [--quick] [--backends cpu,wgpu] [--scenes S,S...] [--pa
   --backends L     which of cpu, wgpu to run (default: both; wgpu only when an adapter exists)
   --scenes L       of bunny, nefertiti, ogre, beast, nefertiti-1.6m, nefertiti-6.4m
                    (default: all)
-  --particles L    particle counts (default 10000,100000,1000000,4000000; suffixes k and m work)
+  --particles L    particle counts (default 10000,100000,1000000,4000000, and 3M and 10M on a
+                   hardware GPU; suffixes k and m work)
   --steps N        timed steps per case (default: about 4M particle-steps per case, 2..50)
   --samples N      particles in each penetration check (default 2000; 60 steps each)
   --out DIR        where results go (default target/bench)
@@ -50,6 +51,8 @@ struct Opts {
     steps: Option<u32>,
     samples: usize,
     out: PathBuf,
+    /// Particle counts run on a hardware GPU only.
+    gpu_only: Vec<usize>,
 }
 
 fn parse_count(s: &str) -> Result<usize> {
@@ -79,6 +82,7 @@ fn parse(args: Vec<std::ffi::OsString>) -> Result<Option<Opts>> {
         steps: None,
         samples: 2000,
         out: PathBuf::from("target/bench"),
+        gpu_only: Vec::new(),
     };
     let mut p = lexopt::Parser::from_args(args);
     while let Some((name, _)) = flags::next_option(&mut p)? {
@@ -131,6 +135,10 @@ fn parse(args: Vec<std::ffi::OsString>) -> Result<Option<Opts>> {
     }
     if o.particles.is_empty() {
         o.particles = if o.quick { vec![100_000] } else { vec![10_000, 100_000, 1_000_000, 4_000_000] };
+        if !o.quick {
+            // A hardware GPU also runs the sizes it is made for (not the CPU methods).
+            o.gpu_only = vec![3_000_000, 10_000_000];
+        }
     }
     if o.quick && o.samples == 2000 {
         o.samples = 500;
@@ -309,7 +317,11 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
     } else {
         None
     };
-    let total_cases = o.scenes.len() * (o.particles.len() + 2);
+    let gpu_extra = if gpu.as_ref().is_some_and(|g| !g.is_software()) { o.gpu_only.len() } else { 0 };
+    if gpu.as_ref().is_some_and(|g| g.is_software()) && !o.gpu_only.is_empty() {
+        eprintln!("wgpu: a software adapter; skipping the GPU-only sizes (3M, 10M particles)");
+    }
+    let total_cases = o.scenes.len() * (o.particles.len() + gpu_extra + 2);
     let bar = crate::progress::bar(total_cases as u64, "bench");
     let mut rows: Vec<Row> = Vec::new();
     for name in &o.scenes {
@@ -368,12 +380,16 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
             g.upload_proxy(&words)?;
         }
         let largest = *o.particles.iter().max().unwrap_or(&0);
-        for &n in &o.particles {
+        let hardware = gpu.as_ref().is_some_and(|g| !g.is_software());
+        let gpu_only: Vec<usize> = if hardware { o.gpu_only.clone() } else { Vec::new() };
+        let counts: Vec<(usize, bool)> =
+            o.particles.iter().map(|&n| (n, o.cpu)).chain(gpu_only.iter().map(|&n| (n, false))).collect();
+        for (n, run_cpu) in counts {
             bar.set_message(format!("{name}: {n} particles"));
             let steps = o.steps.unwrap_or(((4_000_000 / n.max(1)) as u32).clamp(2, 50));
             // The mixed case, then (at the largest count) each speed band alone.
             let mut cases: Vec<(&'static str, Vec<(f32, f32)>)> = vec![("mixed", all_bands.clone())];
-            if n == largest {
+            if n == largest && run_cpu {
                 cases.extend(BANDS.iter().map(|b| (b.0, vec![(b.1, b.2)])));
             }
             for (band, bands) in cases {
@@ -392,7 +408,7 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
                     band,
                 };
                 let mut case_rows = Vec::new();
-                if o.cpu {
+                if run_cpu {
                     cpu.upload_particles(&particles)?;
                     let t = Instant::now();
                     cpu.integrate_only(&params, steps)?;

@@ -374,7 +374,7 @@ impl WgpuBackend {
             return Err(WgpuError::BadBuffer("it needs STORAGE usage".into()));
         }
         let align = self.device.limits().min_storage_buffer_offset_alignment as u64;
-        if offset % align != 0 {
+        if !offset.is_multiple_of(align) {
             return Err(WgpuError::BadBuffer(format!("offset {offset} is not a multiple of {align}")));
         }
         let end = (count as u64).checked_mul(PARTICLE_BYTES).and_then(|bytes| offset.checked_add(bytes));

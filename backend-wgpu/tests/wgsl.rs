@@ -101,7 +101,9 @@ fn proxy_binding_is_the_word_array() {
 fn uniform_layouts_match_rust() {
     let module = whole();
     let layouter = layouter(&module);
-    let cases: [(&str, Vec<(String, u32)>, usize); 3] = [
+    // (WGSL struct, its Rust twin's (member, offset) pairs, the twin's size)
+    type Case<'a> = (&'a str, Vec<(String, u32)>, usize);
+    let cases: [Case; 3] = [
         (
             "StepParams",
             owned(&[

@@ -439,8 +439,8 @@ fn edge_classes(m: &MeshRef<'_>) -> (Vec<bool>, Vec<bool>, Vec<u32>) {
         i = j;
     }
     let mut comp_open = vec![false; n];
-    for t in 0..n {
-        if open[t] || !valid(&m.triangles[t]) {
+    for (t, &is_open) in open.iter().enumerate() {
+        if is_open || !valid(&m.triangles[t]) {
             let r = find(&mut parent, t as u32);
             comp_open[r as usize] = true;
         }
@@ -580,7 +580,7 @@ impl Subdiv<'_> {
             let hi = v[0].max(v[1]).max(v[2]);
             // Per axis: bit 0 = may touch the lower half, bit 1 = the upper half.
             let sides = [0, 1, 2].map(|a| (lo[a] <= mid[a]) as u32 | ((hi[a] >= mid[a]) as u32) << 1);
-            let straddles = sides.iter().any(|&s| s == 3);
+            let straddles = sides.contains(&3);
             for o in 0..8u32 {
                 let fits = (0..3).all(|a| sides[a] & (1 << ((o >> a) & 1)) != 0);
                 if fits && (!straddles || geom::triangle_overlaps_box(v, boxes[o as usize].0, boxes[o as usize].1)) {

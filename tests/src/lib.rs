@@ -2,6 +2,7 @@
 //! penetration harness, and the shared test meshes.
 
 pub mod baselines;
+pub mod fuzz;
 pub mod ground_truth;
 pub mod harness;
 pub mod meshes;

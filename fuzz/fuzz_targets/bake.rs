@@ -1,0 +1,6 @@
+//! libFuzzer target `bake` (cargo forbids a binary named `build`): the body is
+//! `octoproxy_tests::fuzz::build`, which `tests/tests/fuzz.rs` also runs over
+//! `fuzz/corpus/bake/` in `cargo test`.
+#![no_main]
+
+libfuzzer_sys::fuzz_target!(|data: &[u8]| octoproxy_tests::fuzz::build(data));

@@ -10,9 +10,9 @@ use crate::math;
 /// First word of every proxy: the bytes `OCTP` read as a little-endian `u32`.
 pub const MAGIC: u32 = u32::from_le_bytes(*b"OCTP");
 /// Bumped whenever the meaning of any word or bit changes.
-pub const FORMAT_VERSION: u32 = 2;
+pub const FORMAT_VERSION: u32 = 3;
 /// Words in the header, before the node array.
-pub const HEADER_WORDS: usize = 16;
+pub const HEADER_WORDS: usize = 17;
 /// Deepest tree the format supports. Cell bounds are computed on a `2^MAX_DEPTH` grid.
 pub const MAX_DEPTH: u32 = 16;
 /// Deepest lookup table the format supports (`8^MAX_LUT_DEPTH` entries).
@@ -53,6 +53,29 @@ pub mod header {
     pub const ROOT_MIN: usize = 12;
     /// Root cube edge length, as `f32` bits.
     pub const ROOT_SIZE: usize = 15;
+    /// [`super::checksum`] of the whole buffer, this word read as zero.
+    pub const CHECKSUM: usize = 16;
+}
+
+/// FNV-1a over the little-endian bytes of every word, [`header::CHECKSUM`] read as zero.
+/// Each step is a bijection of the running hash, so any change of one byte (every bit flip)
+/// changes the result.
+pub fn checksum(words: &[u32]) -> u32 {
+    let mut h = 0x811c_9dc5u32;
+    for (i, &w) in words.iter().enumerate() {
+        let w = if i == header::CHECKSUM { 0 } else { w };
+        for b in w.to_le_bytes() {
+            h = (h ^ b as u32).wrapping_mul(0x0100_0193);
+        }
+    }
+    h
+}
+
+/// Writes [`checksum`] into the header of `words` (the last step of encoding a proxy).
+pub fn seal(words: &mut [u32]) {
+    if words.len() > header::CHECKSUM {
+        words[header::CHECKSUM] = checksum(words);
+    }
 }
 
 /// Internal-node `b` word: bits 0..8, which children have a record (are not empty).

@@ -87,6 +87,7 @@ fn tiny() -> [u32; HEADER_WORDS + 4] {
     let root = NodeRecord::internal(1, 1, 0, 0);
     let leaf = NodeRecord::surface(encode_normal(Vec3::Y), false, 0.0);
     w[HEADER_WORDS..].copy_from_slice(&[root.a, root.b, leaf.a, leaf.b]);
+    crate::format::seal(&mut w);
     w
 }
 

@@ -77,6 +77,13 @@ pub enum FormatError {
         /// Index of the record.
         node: u32,
     },
+    /// The checksum word does not match the buffer (a bit flipped in transit or on disk).
+    BadChecksum {
+        /// The checksum of the buffer.
+        expected: u32,
+        /// The checksum word found.
+        found: u32,
+    },
     /// A lookup-table entry does not point where descending from the root leads.
     BadLookupEntry {
         /// Index of the entry.
@@ -119,6 +126,10 @@ impl fmt::Display for FormatError {
             ),
             FormatError::Orphan { node } => write!(f, "proxy node {node} has no parent"),
             FormatError::TooDeep { node } => write!(f, "proxy node {node} is deeper than allowed"),
+            FormatError::BadChecksum { expected, found } => write!(
+                f,
+                "proxy checksum is {found:#010x}, the data's is {expected:#010x}: the file is corrupt"
+            ),
             FormatError::BadLookupEntry { entry, value } => write!(
                 f,
                 "proxy lookup-table entry {entry} ({value:#010x}) does not match the tree"
@@ -257,6 +268,12 @@ impl<'a> ProxyView<'a> {
             use_lut: lut_depth > 0,
         };
         view.validate_lut()?;
+        // Last, so that structural damage keeps its specific error; what is left (normals,
+        // offsets, labels, root box, informational fields) is caught here.
+        let expected = format::checksum(words);
+        if h(header::CHECKSUM) != expected {
+            return Err(FormatError::BadChecksum { expected, found: h(header::CHECKSUM) });
+        }
         Ok(view)
     }
 

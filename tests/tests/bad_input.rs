@@ -1,7 +1,7 @@
 //! Hostile and bad input, one test each, at the library level: what every bad input gets
 //! (the exact error variant, or the documented behaviour for NaN/inf particles).
 
-use octoproxy_core::format::{header, HEADER_WORDS, LEAF_BIT, MAGIC, NODE_WORDS};
+use octoproxy_core::format::{header, HEADER_WORDS, MAGIC, NODE_WORDS};
 use octoproxy_core::{
     step_particle, FormatError, ParamError, Particle, ProxyView, StepOutcome, StepParams,
     FLAG_INVALID, FORMAT_VERSION,
@@ -121,7 +121,7 @@ fn proxy_bad_magic_is_rejected() {
 #[test]
 fn proxy_version_mismatch_is_unsupported_version() {
     let mut words = cube_proxy();
-    for v in [0, 1, FORMAT_VERSION + 1, u32::MAX] {
+    for v in [0, 1, FORMAT_VERSION - 1, FORMAT_VERSION + 1, u32::MAX] {
         words[header::VERSION] = v;
         assert_eq!(
             ProxyView::new(&words).err(),
@@ -132,43 +132,24 @@ fn proxy_version_mismatch_is_unsupported_version() {
 
 #[test]
 fn proxy_bit_flips_are_rejected_or_harmless() {
-    // Every single-bit flip of a valid proxy gives a FormatError or a proxy that still
-    // validates and steps without panicking. The format has no checksum, so flips in the
-    // payload (root box floats, informational dmin/dmax/epsilon, labels, leaf normals,
-    // two-sided bits, plane offsets) are accepted: a finding reported with issue 5. The
-    // structure (header layout words, internal-node links and masks, lookup table) is
-    // always caught.
+    // Every single-bit flip of a valid proxy is an error: structural damage gets its specific
+    // variant, and what structure cannot catch (root box floats, dmin/dmax/epsilon, labels,
+    // leaf normals, two-sided bits, plane offsets) the checksum does (format v3; fuzzing
+    // found that v2 accepted 1,989 of 2,834 flips of a small proxy silently).
     let words = cube_proxy();
-    let lut_offset = words[header::LUT_OFFSET] as usize;
-    // The `a` words of internal records: first child and nothing else.
-    let internal_a: Vec<usize> = (HEADER_WORDS..lut_offset)
-        .step_by(NODE_WORDS)
-        .filter(|&a| words[a] & LEAF_BIT == 0)
-        .collect();
-    let (mut rejected, mut accepted) = (0, 0);
+    let mut checksum_caught = 0;
     for i in 0..words.len() {
-        let structural = i <= header::TREE_DEPTH || i >= lut_offset || internal_a.contains(&i);
         for b in 0..32 {
             let mut w = words.clone();
             w[i] ^= 1 << b;
             match ProxyView::new(&w) {
-                Ok(view) => {
-                    accepted += 1;
-                    assert!(
-                        !structural,
-                        "a flip of bit {b} of structural word {i} was accepted"
-                    );
-                    // Still usable: step a particle through it.
-                    let c = view.root_aabb();
-                    let mid = (c.min + c.max) * 0.5;
-                    let mut p = Particle::new(mid.to_array(), [1.0, 2.0, 3.0]);
-                    step_particle(&view, &mut p, &StepParams::default());
-                }
-                Err(_) => rejected += 1,
+                Ok(_) => panic!("a flip of bit {b} of word {i} was accepted"),
+                Err(FormatError::BadChecksum { .. }) => checksum_caught += 1,
+                Err(_) => {}
             }
         }
     }
-    assert!(rejected > 0 && rejected + accepted == words.len() * 32);
+    assert!(checksum_caught > 0, "the checksum caught nothing the structure missed");
     // The flips that must be caught, with their exact variants.
     let flip = |i: usize, bit: u32| {
         let mut w = words.clone();

@@ -246,6 +246,7 @@ pub(crate) fn encode(tree: &Flat, labels: &Labels, grid: &Grid, params: &BuildPa
     words.reserve(total - HEADER_WORDS);
     words.extend_from_slice(bytemuck::cast_slice(&records));
     words.extend_from_slice(&lut);
+    octoproxy_core::format::seal(&mut words);
     report.nodes = records.len();
     report.tree_depth = tree_depth;
     report.lut_depth = lut_depth;

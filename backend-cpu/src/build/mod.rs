@@ -392,21 +392,20 @@ fn edge_classes(m: &MeshRef<'_>) -> (Vec<bool>, Vec<bool>, Vec<u32>) {
     }
     let valid = |t: &[u32; 3]| t.iter().all(|&i| (i as usize) < m.positions.len());
     // Directed edges (a, b, triangle), sorted by undirected key.
-    let mut edges: Vec<(u64, bool, u32)> = Vec::with_capacity(n * 3);
-    for (ti, t) in m.triangles.iter().enumerate() {
-        if !valid(t) {
-            continue;
-        }
-        let c = t.map(|i| canon[i as usize]);
-        for k in 0..3 {
-            let (a, b) = (c[k], c[(k + 1) % 3]);
-            if a == b {
-                continue;
-            }
-            let (lo, hi, fwd) = if a < b { (a, b, true) } else { (b, a, false) };
-            edges.push(((lo as u64) << 32 | hi as u64, fwd, ti as u32));
-        }
-    }
+    let mut edges: Vec<(u64, bool, u32)> = m
+        .triangles
+        .par_iter()
+        .enumerate()
+        .filter(|(_, t)| valid(t))
+        .flat_map_iter(|(ti, t)| {
+            let c = t.map(|i| canon[i as usize]);
+            (0..3).filter_map(move |k| {
+                let (a, b) = (c[k], c[(k + 1) % 3]);
+                let (lo, hi, fwd) = if a < b { (a, b, true) } else { (b, a, false) };
+                (a != b).then_some(((lo as u64) << 32 | hi as u64, fwd, ti as u32))
+            })
+        })
+        .collect();
     edges.par_sort_unstable();
     let mut parent: Vec<u32> = (0..n as u32).collect();
     fn find(p: &mut [u32], mut x: u32) -> u32 {

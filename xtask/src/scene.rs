@@ -119,28 +119,3 @@ pub fn bytes(n: usize) -> String {
         format!("{n} B")
     }
 }
-
-/// An open hemispherical dome (upper half of a sphere, normals outward, open at the bottom).
-pub fn dome(radius: f32, segments: u32, rings: u32) -> Mesh {
-    let mut positions = vec![[0.0, radius, 0.0]];
-    for r in 1..=rings {
-        let phi = std::f32::consts::FRAC_PI_2 * r as f32 / rings as f32;
-        for s in 0..segments {
-            let th = std::f32::consts::TAU * s as f32 / segments as f32;
-            positions.push([radius * phi.sin() * th.cos(), radius * phi.cos(), radius * phi.sin() * th.sin()]);
-        }
-    }
-    let idx = |r: u32, s: u32| 1 + (r - 1) * segments + (s % segments);
-    let mut triangles = Vec::new();
-    for s in 0..segments {
-        triangles.push([0, idx(1, s + 1), idx(1, s)]);
-    }
-    for r in 1..rings {
-        for s in 0..segments {
-            let (a, b, c, d) = (idx(r, s), idx(r, s + 1), idx(r + 1, s), idx(r + 1, s + 1));
-            triangles.push([a, b, d]);
-            triangles.push([a, d, c]);
-        }
-    }
-    Mesh { positions, triangles }
-}

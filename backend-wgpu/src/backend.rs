@@ -591,8 +591,9 @@ impl Backend for WgpuBackend {
             }
         } else {
             let cap = self.chunk_capacity() as usize;
-            let same_layout = self.count == particles.len()
-                && self.chunks.iter().all(|c| c.count as usize == cap || c.count as usize == particles.len() % cap);
+            // Reuse the buffers when the chunk sizes are exactly those this upload needs.
+            let same_layout = self.chunks.len() == particles.len().div_ceil(cap)
+                && self.chunks.iter().zip(particles.chunks(cap)).all(|(c, part)| c.count as usize == part.len());
             if !same_layout {
                 let mut chunks = Vec::new();
                 for part in particles.chunks(cap) {

@@ -139,3 +139,26 @@ fn misuse_is_an_error_not_a_panic() {
     gpu.download_particles(&mut out).unwrap();
     assert!(out.iter().all(|p| p.position.iter().all(|c| c.is_finite())));
 }
+
+#[test]
+fn a_new_chunk_size_takes_effect_at_the_next_upload() {
+    let Some((device, queue)) = callers_device() else { return };
+    let mut gpu = WgpuBackend::from_device(&device, &queue).unwrap();
+    gpu.upload_proxy(&proxy()).unwrap();
+    let ps = particles(1000);
+    gpu.set_chunk_particles(128);
+    gpu.upload_particles(&ps).unwrap();
+    assert_eq!(gpu.chunk_count(), 8);
+    // Same particle count, other chunk size: the buffers must be remade, not reused.
+    gpu.set_chunk_particles(256);
+    gpu.upload_particles(&ps).unwrap();
+    assert_eq!(gpu.chunk_count(), 4);
+    gpu.step(&StepParams::default(), 5).unwrap();
+    let mut out = vec![Particle::default(); ps.len()];
+    gpu.download_particles(&mut out).unwrap();
+    let mut cpu = CpuBackend::new();
+    cpu.upload_proxy(&proxy()).unwrap();
+    cpu.upload_particles(&ps).unwrap();
+    cpu.step(&StepParams::default(), 5).unwrap();
+    assert_eq!(bytemuck::cast_slice::<Particle, u8>(&out), bytemuck::cast_slice::<Particle, u8>(cpu.particles()));
+}

@@ -13,7 +13,7 @@
 
 use glam::DVec3;
 use octoproxy_core::{Particle, StepParams};
-use octoproxy_cpu::build::geom::triangle_overlaps_box;
+use octoproxy_cpu::build::geom::{self, triangle_overlaps_box};
 use rayon::prelude::*;
 
 use super::{Hit, Method};
@@ -188,7 +188,8 @@ impl TriangleOctree {
             let list = &self.indices[node.start as usize..(node.start + node.count) as usize];
             for &ti in list {
                 let v = corners(&self.tris[ti as usize]);
-                if let Some(t) = segment_triangle(seg.a, seg.d, &v) {
+                // The baker's Möller–Trumbore (edges count as hits).
+                if let Some(t) = geom::segment_triangle(seg.a, seg.a + seg.d, &v) {
                     if t < best.0 {
                         *best = (t, ti);
                     }
@@ -252,35 +253,6 @@ fn child_min(min: DVec3, half: f64, k: u32) -> DVec3 {
         if k & 2 != 0 { half } else { 0.0 },
         if k & 4 != 0 { half } else { 0.0 },
     )
-}
-
-/// Parameter `t` in `[0, 1]` at which the segment `a + t d` meets the triangle `v` (edges
-/// included, within 1e-12 of the barycentric range), by Möller–Trumbore in `f64`; `None`
-/// when it misses or runs in the triangle's plane.
-#[inline]
-fn segment_triangle(a: DVec3, d: DVec3, v: &[DVec3; 3]) -> Option<f64> {
-    const TOL: f64 = 1e-12;
-    let e1 = v[1] - v[0];
-    let e2 = v[2] - v[0];
-    let p = d.cross(e2);
-    let det = e1.dot(p);
-    let scale2 = e1.length_squared() * d.length_squared() * e2.length_squared();
-    if det * det <= 1e-28 * scale2 || scale2 == 0.0 {
-        return None;
-    }
-    let inv = 1.0 / det;
-    let s = a - v[0];
-    let u = s.dot(p) * inv;
-    if !(-TOL..=1.0 + TOL).contains(&u) {
-        return None;
-    }
-    let q = s.cross(e1);
-    let w = d.dot(q) * inv;
-    if w < -TOL || u + w > 1.0 + TOL {
-        return None;
-    }
-    let t = e2.dot(q) * inv;
-    (-TOL..=1.0 + TOL).contains(&t).then(|| t.clamp(0.0, 1.0))
 }
 
 struct Builder<'a> {

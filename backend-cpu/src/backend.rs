@@ -1,6 +1,6 @@
 //! [`CpuBackend`]: the core step run over particles in parallel with rayon.
 
-use octoproxy_core::{step_particle, Backend, FormatError, OwnedProxy, Particle, StepParams};
+use octoproxy_core::{step_particle_hinted, Backend, FormatError, LeafHint, OwnedProxy, Particle, StepParams};
 use rayon::prelude::*;
 
 /// What the CPU backend can report.
@@ -31,6 +31,9 @@ pub enum CpuError {
 pub struct CpuBackend {
     proxy: Option<OwnedProxy>,
     particles: Vec<Particle>,
+    /// Each particle's last empty leaf, so that its next step starts there (core's
+    /// [`LeafHint`]); reset when the proxy or the particles are replaced.
+    hints: Vec<LeafHint>,
     use_lut: bool,
 }
 
@@ -76,12 +79,16 @@ impl Backend for CpuBackend {
     fn upload_proxy(&mut self, words: &[u32]) -> Result<(), CpuError> {
         // Validated once here; every step after reuses it.
         self.proxy = Some(OwnedProxy::new(words.to_vec())?);
+        // Hints belong to the proxy that made them.
+        self.hints.fill(LeafHint::NONE);
         Ok(())
     }
 
     fn upload_particles(&mut self, particles: &[Particle]) -> Result<(), CpuError> {
         self.particles.clear();
         self.particles.extend_from_slice(particles);
+        self.hints.clear();
+        self.hints.resize(particles.len(), LeafHint::NONE);
         Ok(())
     }
 
@@ -99,13 +106,13 @@ impl Backend for CpuBackend {
 
     fn step(&mut self, params: &StepParams, steps: u32) -> Result<(), CpuError> {
         params.validate()?;
-        let Self { proxy, particles, use_lut } = self;
+        let Self { proxy, particles, hints, use_lut } = self;
         let Some(proxy) = proxy else { return Err(CpuError::NoProxy) };
         let view = proxy.view();
         let view = if *use_lut { view } else { view.without_lut() };
         for _ in 0..steps {
-            particles.par_iter_mut().with_min_len(1024).for_each(|p| {
-                step_particle(&view, p, params);
+            particles.par_iter_mut().zip(hints.par_iter_mut()).with_min_len(1024).for_each(|(p, hint)| {
+                step_particle_hinted(&view, p, params, hint);
             });
         }
         Ok(())

@@ -5,12 +5,15 @@ use std::sync::mpsc;
 use std::sync::{Arc, Mutex};
 
 use bytemuck::{Pod, Zeroable};
-use octoproxy_core::{Backend, FormatError, ParamError, Particle, ProxyView, StepParams};
+use octoproxy_core::{Backend, FormatError, LeafHint, ParamError, Particle, ProxyView, StepParams};
 
 use crate::shader::{self, WORKGROUP_SIZE};
 
 /// Bytes of one particle record, on both sides.
 pub const PARTICLE_BYTES: u64 = core::mem::size_of::<Particle>() as u64;
+
+/// Bytes of one particle's leaf hint (core's `LeafHint`), kept on the GPU beside it.
+pub const HINT_BYTES: u64 = core::mem::size_of::<LeafHint>() as u64;
 
 /// Steps recorded in one command buffer. Each step is one dispatch per chunk (one step per
 /// invocation), and nothing is read back between steps.
@@ -124,6 +127,8 @@ struct Chunk {
     offset: u64,
     count: u32,
     params: wgpu::Buffer,
+    /// The chunk's particles' `LeafHint`s (8 bytes each), kept between steps.
+    hints: wgpu::Buffer,
     bind_group: Option<wgpu::BindGroup>,
 }
 
@@ -261,6 +266,7 @@ impl WgpuBackend {
                 uniform(2, core::mem::size_of::<StepParams>() as u64),
                 uniform(3, core::mem::size_of::<RunParams>() as u64),
                 uniform(4, core::mem::size_of::<ChunkParams>() as u64),
+                storage(5, false),
             ],
         });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -408,7 +414,27 @@ impl WgpuBackend {
         });
         let values = ChunkParams { count, ..Default::default() };
         self.queue.write_buffer(&params, 0, bytemuck::bytes_of(&values));
-        Chunk { buffer, offset, count, params, bind_group: None }
+        // New buffers start zeroed: no hints.
+        let hints = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("octoproxy leaf hints"),
+            size: (count as u64 * HINT_BYTES).max(HINT_BYTES),
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        Chunk { buffer, offset, count, params, hints, bind_group: None }
+    }
+
+    /// Forgets every particle's leaf hint (a hint belongs to the proxy that made it).
+    fn clear_hints(&self) {
+        if self.chunks.is_empty() {
+            return;
+        }
+        let mut encoder =
+            self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("octoproxy hint reset") });
+        for chunk in &self.chunks {
+            encoder.clear_buffer(&chunk.hints, 0, None);
+        }
+        self.queue.submit([encoder.finish()]);
     }
 
     /// (Re)builds every chunk's bind group once both a proxy and particles are present.
@@ -432,6 +458,7 @@ impl WgpuBackend {
                     wgpu::BindGroupEntry { binding: 2, resource: self.kernel.params.as_entire_binding() },
                     wgpu::BindGroupEntry { binding: 3, resource: self.kernel.run.as_entire_binding() },
                     wgpu::BindGroupEntry { binding: 4, resource: chunk.params.as_entire_binding() },
+                    wgpu::BindGroupEntry { binding: 5, resource: chunk.hints.as_entire_binding() },
                 ],
             }));
         }
@@ -565,6 +592,7 @@ impl Backend for WgpuBackend {
             mapped_at_creation: false,
         });
         self.queue.write_buffer(&buffer, 0, bytes);
+        self.clear_hints();
         scope.pop().map_err(WgpuError::Gpu)?;
         self.proxy = Some(buffer);
         self.bind();
@@ -613,6 +641,9 @@ impl Backend for WgpuBackend {
                 self.queue.write_buffer(&chunk.buffer, 0, bytemuck::cast_slice(part));
             }
         }
+        // Not needed for correctness (a step checks that a particle is inside its hinted
+        // leaf), but new particles start with no history.
+        self.clear_hints();
         scope.pop().map_err(WgpuError::Gpu)
     }
 

@@ -84,6 +84,11 @@ pub fn shared_constants() -> Vec<(&'static str, SharedValue)> {
         ("STEP_BOUND_HIT", U32(outcome_code(StepOutcome::BoundHit))),
         ("STEP_INVALID", U32(outcome_code(StepOutcome::Invalid))),
         ("NO_LEAF", U32(u32::MAX)),
+        ("HINT_VALID", U32(LeafHint::VALID)),
+        ("HINT_CELL_MASK", U32(LeafHint::CELL_MASK)),
+        ("HINT_Y_SHIFT", U32(LeafHint::Y_SHIFT)),
+        ("HINT_DEPTH_SHIFT", U32(LeafHint::DEPTH_SHIFT)),
+        ("HINT_LABEL_SHIFT", U32(LeafHint::LABEL_SHIFT)),
         ("WORKGROUP_SIZE", U32(WORKGROUP_SIZE)),
     ]
 }

@@ -17,12 +17,12 @@
 //! is hit the particle is left at its last safe point.
 
 use bytemuck::{Pod, Zeroable};
-use glam::Vec3;
+use glam::{UVec3, Vec3};
 
 use crate::format::{Label, MAX_DEPTH};
 use crate::math;
 use crate::particle::*;
-use crate::query::{Aabb, LeafKind};
+use crate::query::{Aabb, LeafInfo, LeafKind};
 use crate::view::ProxyView;
 
 /// Bound on the leaves one step visits in a tree of depth `tree_depth`: a straight path
@@ -253,12 +253,104 @@ fn side_of(label: Label) -> u32 {
 
 const NO_LEAF: u32 = u32::MAX;
 
+/// The empty leaf a particle ended its last step in, kept by a backend beside the particle so
+/// that the next step can start there instead of descending the tree. Two words, zero when
+/// there is none ([`LeafHint::NONE`], also `LeafHint::default()`).
+///
+/// A hint only saves work: a step uses it only when the particle lies strictly inside the
+/// hinted leaf's box, where the descent would find that very leaf, so a step gives the same
+/// bits with or without it. A hint belongs to the proxy that made it: reset hints to
+/// [`LeafHint::NONE`] whenever the proxy changes (moving or reordering particles needs no
+/// reset; the box check catches it).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
+pub struct LeafHint {
+    /// `cell.x | cell.y << 16`.
+    pub xy: u32,
+    /// `cell.z | depth << DEPTH_SHIFT | label bits << LABEL_SHIFT | VALID`.
+    pub z_depth_label: u32,
+}
+
+const _: () = assert!(core::mem::size_of::<LeafHint>() == 8);
+
+impl LeafHint {
+    /// No hint: the step descends from the lookup table (or the root).
+    pub const NONE: LeafHint = LeafHint { xy: 0, z_depth_label: 0 };
+    /// Set in `z_depth_label` when the hint holds a leaf.
+    pub const VALID: u32 = 1 << 31;
+    /// Mask of one cell coordinate (a leaf is at most [`MAX_DEPTH`] = 16 deep).
+    pub const CELL_MASK: u32 = 0xffff;
+    /// Shift of the cell's `y` in `xy`.
+    pub const Y_SHIFT: u32 = 16;
+    /// Shift of the 5-bit depth in `z_depth_label`.
+    pub const DEPTH_SHIFT: u32 = 16;
+    /// Shift of the 2 label bits in `z_depth_label`.
+    pub const LABEL_SHIFT: u32 = 21;
+
+    /// The hint for `leaf`: its cell, depth and label if it is empty; none for a surface leaf.
+    fn of(leaf: &LeafInfo) -> LeafHint {
+        if leaf.kind != LeafKind::Empty {
+            return LeafHint::NONE;
+        }
+        LeafHint {
+            xy: leaf.cell.x | leaf.cell.y << Self::Y_SHIFT,
+            z_depth_label: leaf.cell.z
+                | leaf.depth << Self::DEPTH_SHIFT
+                | leaf.label.bits() << Self::LABEL_SHIFT
+                | Self::VALID,
+        }
+    }
+
+    /// The hinted leaf, if the hint is well formed and `x` lies strictly inside its box.
+    #[inline]
+    fn leaf(self, view: &ProxyView<'_>, x: Vec3) -> Option<LeafInfo> {
+        let w = self.z_depth_label;
+        let depth = (w >> Self::DEPTH_SHIFT) & 0x1f;
+        if w & Self::VALID == 0 || depth > MAX_DEPTH {
+            return None;
+        }
+        let cell = UVec3::new(self.xy & Self::CELL_MASK, self.xy >> Self::Y_SHIFT, w & Self::CELL_MASK);
+        if (cell.x | cell.y | cell.z) >> depth != 0 {
+            return None;
+        }
+        let label = Label::from_bits((w >> Self::LABEL_SHIFT) & 3)?;
+        let aabb = view.cell_aabb(cell, depth);
+        if !(x.cmpgt(aabb.min).all() && x.cmplt(aabb.max).all()) {
+            return None;
+        }
+        Some(LeafInfo {
+            aabb,
+            kind: LeafKind::Empty,
+            normal: Vec3::ZERO,
+            two_sided: false,
+            plane_offset: 0.0,
+            label,
+            node: NO_LEAF,
+            depth,
+            cell,
+        })
+    }
+}
+
 /// Advances one particle by `params.dt`: integrates gravity (semi-implicit Euler), then
 /// marches the path through the proxy, colliding as the module documentation says.
 /// Allocates nothing; visits at most `view.max_leaves_per_step()` leaves.
 #[inline]
 pub fn step_particle(view: &ProxyView<'_>, p: &mut Particle, params: &StepParams) -> StepOutcome {
-    step_particle_traced(view, p, params, &mut |_, _| {})
+    march(view, p, params, &mut LeafHint::default(), &mut |_, _| {})
+}
+
+/// [`step_particle`], starting from the leaf in `hint` when the particle is still strictly
+/// inside it, and leaving in `hint` the empty leaf the step ended in (or [`LeafHint::NONE`]).
+/// The result is [`step_particle`]'s, bit for bit; only the work differs.
+#[inline]
+pub fn step_particle_hinted(
+    view: &ProxyView<'_>,
+    p: &mut Particle,
+    params: &StepParams,
+    hint: &mut LeafHint,
+) -> StepOutcome {
+    march(view, p, params, hint, &mut |_, _| {})
 }
 
 /// [`step_particle`], calling `trace(from, to)` for every straight piece of the particle's
@@ -270,6 +362,19 @@ pub fn step_particle_traced<F: FnMut(Vec3, Vec3)>(
     params: &StepParams,
     trace: &mut F,
 ) -> StepOutcome {
+    march(view, p, params, &mut LeafHint::default(), trace)
+}
+
+/// The step itself, for every public entry point above.
+#[inline(always)]
+fn march<F: FnMut(Vec3, Vec3)>(
+    view: &ProxyView<'_>,
+    p: &mut Particle,
+    params: &StepParams,
+    hint: &mut LeafHint,
+    trace: &mut F,
+) -> StepOutcome {
+    let start_hint = core::mem::take(hint);
     let x0 = Vec3::from_array(p.position);
     let v0 = Vec3::from_array(p.velocity);
     if !x0.is_finite() || !v0.is_finite() {
@@ -301,27 +406,33 @@ pub fn step_particle_traced<F: FnMut(Vec3, Vec3)>(
             }
             break;
         }
+        // Only the first leaf of a step can come from the hint: the particle has not moved yet.
+        let hinted = if visited == 0 { start_hint.leaf(view, x) } else { None };
         visited += 1;
-        if !view.root_contains(x, v) {
-            match enter_box(&root, x, v, remaining) {
-                Some((t, entry, axes)) => {
-                    trace(x, entry);
-                    x = entry;
-                    remaining -= t;
-                    cross_axes = axes;
-                    cross_signs = v;
-                    last_collided = NO_LEAF;
-                    continue;
-                }
-                None => {
-                    let end = x + v * remaining;
-                    trace(x, end);
-                    x = end;
-                    break;
+        let mut leaf = if let Some(leaf) = hinted {
+            leaf
+        } else {
+            if !view.root_contains(x, v) {
+                match enter_box(&root, x, v, remaining) {
+                    Some((t, entry, axes)) => {
+                        trace(x, entry);
+                        x = entry;
+                        remaining -= t;
+                        cross_axes = axes;
+                        cross_signs = v;
+                        last_collided = NO_LEAF;
+                        continue;
+                    }
+                    None => {
+                        let end = x + v * remaining;
+                        trace(x, end);
+                        x = end;
+                        break;
+                    }
                 }
             }
-        }
-        let mut leaf = view.locate_inside(x, v);
+            view.locate_inside(x, v)
+        };
         if leaf.two_sided && entry_faces(&leaf.aabb, x, v) == 0 {
             // A particle sliding along a face of a solid leaf (no velocity across it), and not
             // entering through another, is not in the leaf: locate it on the face's outer side.
@@ -382,6 +493,7 @@ pub fn step_particle_traced<F: FnMut(Vec3, Vec3)>(
             let end = (x + v * remaining).clamp(leaf.aabb.min, leaf.aabb.max);
             trace(x, end);
             x = end;
+            *hint = LeafHint::of(&leaf);
             break;
         }
         trace(x, exit);

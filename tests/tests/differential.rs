@@ -13,7 +13,7 @@
 //! and positions within `POSITION_TOLERANCE_LEAVES` of a finest leaf.
 
 use glam::Vec3;
-use octoproxy_core::{Backend, Particle, ProxyView, StepParams, FLAG_INVALID, MAX_DEPTH};
+use octoproxy_core::{step_particle, Backend, Particle, ProxyView, StepParams, FLAG_INVALID, MAX_DEPTH};
 use octoproxy_cpu::emit::Rng;
 use octoproxy_cpu::{bake, BuildParams, CpuBackend, MeshRef};
 use octoproxy_tests::ground_truth::GroundTruth;
@@ -189,6 +189,18 @@ fn differential(name: &str, mesh: &Mesh, build: &BuildParams, steps: u32, chunk:
         gpu.step(&params, steps).unwrap();
         let mut from_gpu = vec![Particle::default(); particles.len()];
         gpu.download_particles(&mut from_gpu).unwrap();
+        // The backends keep each particle's leaf between steps (`LeafHint`); a step without
+        // hints must give the same bits.
+        let plain_view = if use_lut { view } else { view.without_lut() };
+        let mut plain = particles.clone();
+        for _ in 0..steps {
+            plain.iter_mut().for_each(|p| {
+                step_particle(&plain_view, p, &params);
+            });
+        }
+        let unhinted_differ =
+            plain.iter().zip(cpu.particles()).filter(|(a, b)| bytemuck::bytes_of(*a) != bytemuck::bytes_of(*b)).count();
+        assert_eq!(unhinted_differ, 0, "{name}: stepping with leaf hints changed {unhinted_differ} particles");
         let a = compare(cpu.particles(), &from_gpu, leaf);
         eprintln!(
             "{name}{}: {} particles x {steps} steps, {} collisions; bit-identical {}; differ: collisions {}, side {}, flags {}; worst position {:.2e} leaf (particle {}), worst velocity {:.2e} relative",
@@ -257,4 +269,56 @@ fn nested_shells_in_small_chunks() {
     // a folded 3 x 2 grid whose last two workgroups have no particles.
     let mesh = scenes::nested_shells(1.0, 0.02);
     differential("nested shells, chunked", &mesh, &build(6), 100, Some(256));
+}
+
+#[test]
+fn leaf_hints_are_forgotten_when_the_proxy_changes() {
+    // Steps with one proxy, then swaps in another with a sheet across the middle, where the
+    // first is empty. Every particle then holds a hint to a large empty leaf of the first
+    // proxy; used with the second, it would carry particles through the sheet. Both backends
+    // must give what stepping without hints gives. (The first proxy's sheet, high up and
+    // facing down, only makes both proxies stamp the particles' side the same: front.)
+    let cubes = [scenes::cube([-1.0, -1.0, -1.0], [-0.9, -0.9, -0.9]), scenes::cube([0.9, 0.9, 0.9], [1.0, 1.0, 1.0])];
+    let mut ceiling = scenes::flat_sheet([0.0, 0.95, 0.0], 1.8, 4);
+    ceiling.triangles.iter_mut().for_each(|t| t.swap(1, 2));
+    let corner = scenes::merge(&[cubes[0].clone(), cubes[1].clone(), ceiling]);
+    let sheet = scenes::merge(&[cubes[0].clone(), cubes[1].clone(), scenes::flat_sheet([0.0, 0.0, 0.0], 1.8, 4)]);
+    let (a, _) = bake(&[MeshRef::from(&corner)], &build(6), &()).expect("bakes");
+    let (b, _) = bake(&[MeshRef::from(&sheet)], &build(6), &()).expect("bakes");
+    let (view_a, view_b) = (ProxyView::new(&a).unwrap(), ProxyView::new(&b).unwrap());
+    assert_eq!(view_a.root_aabb(), view_b.root_aabb(), "the test needs the same root box");
+    // Falling particles above the sheet, slow enough to stay in their leaf for a while.
+    let mut rng = Rng::new(11);
+    let particles: Vec<Particle> = (0..2000)
+        .map(|_| Particle::new([rng.range(-0.8, 0.8), rng.range(0.3, 0.6), rng.range(-0.8, 0.8)], [0.0, -0.5, 0.0]))
+        .collect();
+    let params = StepParams { gravity: [0.0, -2.0, 0.0], dt: DT, restitution: 0.0, friction: 0.5, _pad: [0; 2] };
+    let mut expected = particles.clone();
+    for (view, steps) in [(&view_a, 10), (&view_b, 60)] {
+        for _ in 0..steps {
+            expected.iter_mut().for_each(|p| {
+                step_particle(view, p, &params);
+            });
+        }
+    }
+    let below: Vec<_> = expected.iter().filter(|p| p.position[1] < 0.0).collect();
+    assert!(below.is_empty(), "without hints, {} particles fell through the sheet, e.g. {:?}", below.len(), below[0]);
+    fn swapped<B: Backend>(mut backend: B, a: &[u32], b: &[u32], particles: &[Particle], params: &StepParams) -> Vec<Particle> {
+        backend.upload_proxy(a).unwrap();
+        backend.upload_particles(particles).unwrap();
+        backend.step(params, 10).unwrap();
+        backend.upload_proxy(b).unwrap();
+        backend.step(params, 60).unwrap();
+        let mut out = vec![Particle::default(); particles.len()];
+        backend.download_particles(&mut out).unwrap();
+        out
+    }
+    let mut results = vec![("cpu", swapped(CpuBackend::new(), &a, &b, &particles, &params))];
+    if let Some(gpu) = gpu() {
+        results.push(("wgpu", swapped(gpu, &a, &b, &particles, &params)));
+    }
+    for (backend, got) in results {
+        let differ = got.iter().zip(&expected).filter(|(g, e)| bytemuck::bytes_of(*g) != bytemuck::bytes_of(*e)).count();
+        assert_eq!(differ, 0, "{backend}: {differ} particles differ from stepping without hints");
+    }
 }

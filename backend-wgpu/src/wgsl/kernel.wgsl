@@ -22,6 +22,9 @@ struct ChunkParams {
 @group(0) @binding(2) var<uniform> params: StepParams;
 @group(0) @binding(3) var<uniform> run: RunParams;
 @group(0) @binding(4) var<uniform> chunk: ChunkParams;
+// Each particle's `LeafHint` (core), kept between steps; zeroed when the proxy or the
+// particles are replaced.
+@group(0) @binding(5) var<storage, read_write> hints: array<vec2<u32>>;
 
 fn particle_index(wg: vec3<u32>, groups: vec3<u32>, local: u32) -> u32 {
     return (wg.y * groups.x + wg.x) * WORKGROUP_SIZE + local;
@@ -39,8 +42,10 @@ fn step_kernel(
     }
     load_header(run.use_lut != 0u);
     var p = particles[i];
-    step_particle(&p, params);
+    var hint = hints[i];
+    step_particle(&p, params, &hint);
     particles[i] = p;
+    hints[i] = hint;
 }
 
 // The floor: the same particles, integrated with no collision at all (semi-implicit Euler,

@@ -159,6 +159,50 @@ fn enter_box(b: Aabb, x: vec3<f32>, v: vec3<f32>, limit: f32) -> BoxCrossing {
     return BoxCrossing(near, p, axes, true);
 }
 
+// core's `LeafHint`, as `vec2<u32>(xy, z_depth_label)`: the empty leaf a particle ended its
+// last step in, or zero.
+fn hint_of(leaf: LeafInfo) -> vec2<u32> {
+    if leaf.kind != LEAF_EMPTY {
+        return vec2<u32>(0u);
+    }
+    return vec2<u32>(
+        leaf.cell.x | (leaf.cell.y << HINT_Y_SHIFT),
+        leaf.cell.z | (leaf.depth << HINT_DEPTH_SHIFT) | (leaf.label << HINT_LABEL_SHIFT) | HINT_VALID,
+    );
+}
+
+struct HintedLeaf {
+    leaf: LeafInfo,
+    hit: bool,
+}
+
+// core's `LeafHint::leaf`: the hinted leaf, if the hint is well formed and `x` lies strictly
+// inside its box.
+fn hint_leaf(hint: vec2<u32>, x: vec3<f32>) -> HintedLeaf {
+    var out: HintedLeaf;
+    out.hit = false;
+    let w = hint.y;
+    let depth = (w >> HINT_DEPTH_SHIFT) & 0x1fu;
+    if (w & HINT_VALID) == 0u || depth > MAX_DEPTH {
+        return out;
+    }
+    let cell = vec3<u32>(hint.x & HINT_CELL_MASK, hint.x >> HINT_Y_SHIFT, w & HINT_CELL_MASK);
+    if ((cell.x | cell.y | cell.z) >> depth) != 0u {
+        return out;
+    }
+    let label = (w >> HINT_LABEL_SHIFT) & 3u;
+    if label > LABEL_BACK {
+        return out;
+    }
+    let aabb = cell_aabb(cell, depth);
+    if !(all(x > aabb.min) && all(x < aabb.max)) {
+        return out;
+    }
+    out.leaf = LeafInfo(aabb, LEAF_EMPTY, vec3<f32>(0.0), false, label, NO_LEAF, depth, cell);
+    out.hit = true;
+    return out;
+}
+
 fn side_of(label: u32) -> u32 {
     if label == LABEL_BACK {
         return SIDE_BACK;
@@ -175,8 +219,12 @@ fn collisions(p: Particle) -> u32 {
 }
 
 // Advances one particle by params.dt; returns the outcome (STEP_DONE, STEP_BLOCKED,
-// STEP_BOUND_HIT or STEP_INVALID). `load_header` must have run.
-fn step_particle(p: ptr<function, Particle>, params: StepParams) -> u32 {
+// STEP_BOUND_HIT or STEP_INVALID). `load_header` must have run. Starts from the leaf in
+// `hint` when the particle is still strictly inside it, and leaves in `hint` the empty leaf
+// the step ended in (core's `step_particle_hinted`).
+fn step_particle(p: ptr<function, Particle>, params: StepParams, hint: ptr<function, vec2<u32>>) -> u32 {
+    let start_hint = *hint;
+    *hint = vec2<u32>(0u);
     let x0 = (*p).position;
     let v0 = (*p).velocity;
     if !is_finite3(x0) || !is_finite3(v0) {
@@ -211,21 +259,32 @@ fn step_particle(p: ptr<function, Particle>, params: StepParams) -> u32 {
             }
             break;
         }
-        visited += 1u;
-        if !root_contains(x, v) {
-            let entry = enter_box(root, x, v, remaining);
-            if entry.hit {
-                x = entry.p;
-                remaining -= entry.t;
-                cross_axes = entry.axes;
-                cross_signs = v;
-                last_collided = NO_LEAF;
-                continue;
-            }
-            x = x + v * remaining;
-            break;
+        // Only the first leaf of a step can come from the hint: the particle has not moved yet.
+        var hinted: HintedLeaf;
+        hinted.hit = false;
+        if visited == 0u {
+            hinted = hint_leaf(start_hint, x);
         }
-        var leaf = locate_inside(x, v);
+        visited += 1u;
+        var leaf: LeafInfo;
+        if hinted.hit {
+            leaf = hinted.leaf;
+        } else {
+            if !root_contains(x, v) {
+                let entry = enter_box(root, x, v, remaining);
+                if entry.hit {
+                    x = entry.p;
+                    remaining -= entry.t;
+                    cross_axes = entry.axes;
+                    cross_signs = v;
+                    last_collided = NO_LEAF;
+                    continue;
+                }
+                x = x + v * remaining;
+                break;
+            }
+            leaf = locate_inside(x, v);
+        }
         if leaf.two_sided && entry_faces(leaf.aabb, x, v) == 0u {
             // A particle sliding along a face of a solid leaf (no velocity across it), and not
             // entering through another, is not in the leaf: locate it on the face's outer side.
@@ -279,6 +338,7 @@ fn step_particle(p: ptr<function, Particle>, params: StepParams) -> u32 {
         let exit = exit_box(leaf.aabb, x, v);
         if exit.t >= remaining {
             x = clamp(x + v * remaining, leaf.aabb.min, leaf.aabb.max);
+            *hint = hint_of(leaf);
             break;
         }
         x = exit.p;

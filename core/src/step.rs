@@ -382,7 +382,6 @@ fn march<F: FnMut(Vec3, Vec3)>(
         return StepOutcome::Invalid;
     }
     let (e, mu) = (params.restitution, params.friction);
-    let root = view.root_aabb();
     let mut v = v0 + Vec3::from_array(params.gravity) * params.dt;
     let mut x = x0;
     let mut side = if p.side == SIDE_BACK { SIDE_BACK } else { SIDE_FRONT };
@@ -413,7 +412,7 @@ fn march<F: FnMut(Vec3, Vec3)>(
             leaf
         } else {
             if !view.root_contains(x, v) {
-                match enter_box(&root, x, v, remaining) {
+                match enter_box(&view.root_aabb(), x, v, remaining) {
                     Some((t, entry, axes)) => {
                         trace(x, entry);
                         x = entry;
@@ -487,6 +486,15 @@ fn march<F: FnMut(Vec3, Vec3)>(
                     }
                 }
             }
+        }
+        // Most steps end in the leaf they start in: an end point strictly inside the box
+        // settles it without the exit time (the segment stays in the convex box).
+        let end = x + v * remaining;
+        if end.cmpgt(leaf.aabb.min).all() && end.cmplt(leaf.aabb.max).all() {
+            trace(x, end);
+            x = end;
+            *hint = LeafHint::of(&leaf);
+            break;
         }
         let (t_exit, exit, axes) = exit_box(&leaf.aabb, x, v);
         if t_exit >= remaining {

@@ -233,7 +233,6 @@ fn step_particle(p: ptr<function, Particle>, params: StepParams, hint: ptr<funct
     }
     let e = params.restitution;
     let mu = params.friction;
-    let root = root_aabb();
     var v = v0 + params.gravity * params.dt;
     var x = x0;
     var side = SIDE_FRONT;
@@ -271,7 +270,7 @@ fn step_particle(p: ptr<function, Particle>, params: StepParams, hint: ptr<funct
             leaf = hinted.leaf;
         } else {
             if !root_contains(x, v) {
-                let entry = enter_box(root, x, v, remaining);
+                let entry = enter_box(root_aabb(), x, v, remaining);
                 if entry.hit {
                     x = entry.p;
                     remaining -= entry.t;
@@ -334,6 +333,14 @@ fn step_particle(p: ptr<function, Particle>, params: StepParams, hint: ptr<funct
                     continue;
                 }
             }
+        }
+        // Most steps end in the leaf they start in: an end point strictly inside the box
+        // settles it without the exit time (the segment stays in the convex box).
+        let end = x + v * remaining;
+        if all(end > leaf.aabb.min) && all(end < leaf.aabb.max) {
+            x = end;
+            *hint = hint_of(leaf);
+            break;
         }
         let exit = exit_box(leaf.aabb, x, v);
         if exit.t >= remaining {

@@ -385,6 +385,26 @@ fn march<F: FnMut(Vec3, Vec3)>(
     let mut v = v0 + Vec3::from_array(params.gravity) * params.dt;
     let mut x = x0;
     let mut side = if p.side == SIDE_BACK { SIDE_BACK } else { SIDE_FRONT };
+    // The common case, settled before the march is set up: the particle stays strictly inside
+    // its hinted empty leaf for the whole step. This is what the march below does for it, in
+    // the same operations (its first leaf, the label, the end-point test, the flags).
+    let mut hinted = start_hint.leaf(view, x0);
+    if let Some(leaf) = &hinted {
+        let end = x0 + v * params.dt;
+        if end.cmpgt(leaf.aabb.min).all() && end.cmplt(leaf.aabb.max).all() && v.is_finite() {
+            trace(x0, end);
+            p.position = end.to_array();
+            p.velocity = v.to_array();
+            if leaf.label != Label::None {
+                p.side = side_of(leaf.label);
+            } else {
+                p.side = side;
+            }
+            p.flags &= !FLAG_STEP_STATUS;
+            *hint = start_hint;
+            return StepOutcome::Done;
+        }
+    }
     let mut remaining = params.dt;
     let mut collisions = 0u32;
     let mut in_shell = false;
@@ -405,10 +425,9 @@ fn march<F: FnMut(Vec3, Vec3)>(
             }
             break;
         }
-        // Only the first leaf of a step can come from the hint: the particle has not moved yet.
-        let hinted = if visited == 0 { start_hint.leaf(view, x) } else { None };
         visited += 1;
-        let mut leaf = if let Some(leaf) = hinted {
+        // Only the first leaf of a step can come from the hint: the particle has not moved yet.
+        let mut leaf = if let Some(leaf) = hinted.take() {
             leaf
         } else {
             if !view.root_contains(x, v) {

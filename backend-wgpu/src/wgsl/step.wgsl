@@ -239,6 +239,25 @@ fn step_particle(p: ptr<function, Particle>, params: StepParams, hint: ptr<funct
     if (*p).side == SIDE_BACK {
         side = SIDE_BACK;
     }
+    // The common case, settled before the march is set up: the particle stays strictly inside
+    // its hinted empty leaf for the whole step. This is what the march below does for it, in
+    // the same operations (its first leaf, the label, the end-point test, the flags).
+    var hinted = hint_leaf(start_hint, x0);
+    if hinted.hit {
+        let end = x0 + v * params.dt;
+        if all(end > hinted.leaf.aabb.min) && all(end < hinted.leaf.aabb.max) && is_finite3(v) {
+            (*p).position = end;
+            (*p).velocity = v;
+            if hinted.leaf.label != LABEL_NONE {
+                (*p).side = side_of(hinted.leaf.label);
+            } else {
+                (*p).side = side;
+            }
+            (*p).flags &= ~FLAG_STEP_STATUS;
+            *hint = start_hint;
+            return STEP_DONE;
+        }
+    }
     var remaining = params.dt;
     var n_collisions = 0u;
     var in_shell = false;
@@ -258,16 +277,12 @@ fn step_particle(p: ptr<function, Particle>, params: StepParams, hint: ptr<funct
             }
             break;
         }
-        // Only the first leaf of a step can come from the hint: the particle has not moved yet.
-        var hinted: HintedLeaf;
-        hinted.hit = false;
-        if visited == 0u {
-            hinted = hint_leaf(start_hint, x);
-        }
         visited += 1u;
+        // Only the first leaf of a step can come from the hint: the particle has not moved yet.
         var leaf: LeafInfo;
         if hinted.hit {
             leaf = hinted.leaf;
+            hinted.hit = false;
         } else {
             if !root_contains(x, v) {
                 let entry = enter_box(root_aabb(), x, v, remaining);

@@ -1,5 +1,5 @@
 //! Unit tests of core: the normal encoding, exact planes, record accessors, validation of
-//! hand-made buffers, and the collision response.
+//! hand-made buffers, the collision response and leaf hints.
 
 use glam::Vec3;
 
@@ -153,4 +153,47 @@ fn the_leaf_bound_covers_a_straight_crossing() {
     assert!(StepParams { restitution: 1.5, ..p }.validate().is_err());
     assert!(StepParams { friction: -1.0, ..p }.validate().is_err());
     assert!(StepParams { gravity: [0.0, f32::INFINITY, 0.0], ..p }.validate().is_err());
+}
+
+#[test]
+fn leaf_hints_change_nothing_but_the_work() {
+    let w = tiny();
+    let view = ProxyView::new(&w).unwrap();
+    let params = StepParams { gravity: [0.0; 3], ..StepParams::default() };
+    let slow = Particle::new([0.75, 0.75, 0.75], [0.6, 0.0, 0.0]);
+    // A step that ends in an empty leaf leaves it as the hint; one that ends in a surface leaf
+    // leaves none.
+    let mut hint = LeafHint::NONE;
+    let mut p = slow;
+    step_particle_hinted(&view, &mut p, &params, &mut hint);
+    assert_eq!(hint.xy, 1 | 1 << LeafHint::Y_SHIFT);
+    assert_eq!(hint.z_depth_label, 1 | 1 << LeafHint::DEPTH_SHIFT | LeafHint::VALID);
+    let mut q = Particle::new([0.25, 0.3, 0.25], [0.0, 0.6, 0.0]);
+    let mut none = hint;
+    step_particle_hinted(&view, &mut q, &params, &mut none);
+    assert_eq!(none, LeafHint::NONE, "a surface leaf is not hinted");
+    // Every hint that is malformed, or whose leaf does not hold the particle, gives what no
+    // hint gives; so does the right one.
+    let (good_xy, good_z) = (hint.xy, hint.z_depth_label);
+    let mut hints = vec![
+        hint,
+        LeafHint { xy: good_xy, z_depth_label: good_z & !LeafHint::VALID },
+        LeafHint { xy: good_xy, z_depth_label: good_z | 3 << LeafHint::LABEL_SHIFT },
+        LeafHint { xy: 2, z_depth_label: good_z },
+        LeafHint { xy: 0, z_depth_label: 1 << LeafHint::DEPTH_SHIFT | LeafHint::VALID },
+        LeafHint { xy: u32::MAX, z_depth_label: u32::MAX },
+    ];
+    for depth in 17..32 {
+        hints.push(LeafHint { xy: 0, z_depth_label: depth << LeafHint::DEPTH_SHIFT | LeafHint::VALID });
+    }
+    for start in [slow, Particle::new([0.75, 0.75, 0.75], [-40.0, -40.0, -40.0]), Particle::new([0.5, 0.75, 0.75], [1.0, 0.0, 0.0])] {
+        let mut expected = start;
+        step_particle(&view, &mut expected, &params);
+        for h in &hints {
+            let mut got = start;
+            let mut h = *h;
+            step_particle_hinted(&view, &mut got, &params, &mut h);
+            assert_eq!(bytemuck::bytes_of(&got), bytemuck::bytes_of(&expected), "hint {h:?}");
+        }
+    }
 }

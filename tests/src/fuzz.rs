@@ -13,7 +13,7 @@ use arbitrary::{Arbitrary, Result, Unstructured};
 use glam::Vec3;
 use octoproxy_core::format::{HEADER_WORDS, MAX_DEPTH, MAX_LUT_DEPTH};
 use octoproxy_core::{
-    initial_side, step_particle, step_particle_traced, Particle, ProxyView, StepOutcome,
+    initial_side, step_particle, step_particle_hinted, step_particle_traced, LeafHint, Particle, ProxyView, StepOutcome,
     StepParams, FLAG_INVALID, SIDE_BACK, SIDE_FRONT,
 };
 use octoproxy_cpu::build::{bake, BuildError, BuildParams, MeshRef};
@@ -1029,9 +1029,17 @@ fn penetration_inner(u: &mut Unstructured<'_>) -> Result<()> {
         let inside = gt.is_inside(p.position);
         let start = p;
         let steps = u.int_in_range(1u32..=12)?;
+        // The same particle stepped with a leaf hint, as the backends step it: same bits.
+        let (mut hinted, mut hint) = (p, LeafHint::NONE);
         for s in 0..steps {
             let before = p;
             step_particle_traced(&view, &mut p, &step, &mut |_, _| {});
+            step_particle_hinted(&view, &mut hinted, &step, &mut hint);
+            assert_eq!(
+                bits(&hinted),
+                bits(&p),
+                "a leaf hint changed step {s}: {before:?} -> {p:?} without, {hinted:?} with ({step:?})"
+            );
             assert!(
                 p.flags & FLAG_INVALID == 0 && finite(p.position) && finite(p.velocity),
                 "finite particle became invalid at step {s}: {before:?} -> {p:?} ({step:?})"

@@ -85,6 +85,22 @@ fn particle_layout_matches_core() {
 }
 
 #[test]
+fn hint_binding_is_core_leaf_hints() {
+    // core's `LeafHint { xy, z_depth_label }` is WGSL's `vec2<u32>`: two words, in that order.
+    assert_eq!(offset_of!(octoproxy_core::LeafHint, xy), 0);
+    assert_eq!(offset_of!(octoproxy_core::LeafHint, z_depth_label), 4);
+    let module = whole();
+    let (_, var) = module.global_variables.iter().find(|(_, v)| v.name.as_deref() == Some("hints")).expect("hints");
+    let TypeInner::Array { base, stride, .. } = module.types[var.ty].inner else { panic!("hints is not an array") };
+    assert_eq!(stride as usize, size_of::<octoproxy_core::LeafHint>());
+    assert_eq!(stride as u64, octoproxy_wgpu::HINT_BYTES);
+    assert!(matches!(
+        module.types[base].inner,
+        TypeInner::Vector { size: naga::VectorSize::Bi, scalar } if scalar == naga::Scalar::U32
+    ));
+}
+
+#[test]
 fn proxy_binding_is_the_word_array() {
     let module = whole();
     let (_, var) = module.global_variables.iter().find(|(_, v)| v.name.as_deref() == Some("proxy")).expect("proxy");

@@ -262,6 +262,11 @@ const NO_LEAF: u32 = u32::MAX;
 /// bits with or without it. A hint belongs to the proxy that made it: reset hints to
 /// [`LeafHint::NONE`] whenever the proxy changes (moving or reordering particles needs no
 /// reset; the box check catches it).
+///
+/// Give a step only [`LeafHint::NONE`] or a hint a step left with the same proxy. A hint made
+/// up by hand is checked for shape (depth, cell range, label) and for holding the particle,
+/// never against the tree: one that names a cell which is not an empty leaf is memory-safe,
+/// but the step believes it, and may miss the surface there.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
 pub struct LeafHint {
@@ -306,7 +311,8 @@ impl LeafHint {
     fn leaf(self, view: &ProxyView<'_>, x: Vec3) -> Option<LeafInfo> {
         let w = self.z_depth_label;
         let depth = (w >> Self::DEPTH_SHIFT) & 0x1f;
-        if w & Self::VALID == 0 || depth > MAX_DEPTH {
+        // Depth 0 would be the root, which is never a leaf.
+        if w & Self::VALID == 0 || depth == 0 || depth > MAX_DEPTH {
             return None;
         }
         let cell = UVec3::new(self.xy & Self::CELL_MASK, self.xy >> Self::Y_SHIFT, w & Self::CELL_MASK);
@@ -342,7 +348,8 @@ pub fn step_particle(view: &ProxyView<'_>, p: &mut Particle, params: &StepParams
 
 /// [`step_particle`], starting from the leaf in `hint` when the particle is still strictly
 /// inside it, and leaving in `hint` the empty leaf the step ended in (or [`LeafHint::NONE`]).
-/// The result is [`step_particle`]'s, bit for bit; only the work differs.
+/// With [`LeafHint::NONE`] or a hint this function left with the same proxy, the result is
+/// [`step_particle`]'s, bit for bit; only the work differs (see [`LeafHint`]).
 #[inline]
 pub fn step_particle_hinted(
     view: &ProxyView<'_>,
@@ -391,7 +398,9 @@ fn march<F: FnMut(Vec3, Vec3)>(
     let mut hinted = start_hint.leaf(view, x0);
     if let Some(leaf) = &hinted {
         let end = x0 + v * params.dt;
-        if end.cmpgt(leaf.aabb.min).all() && end.cmplt(leaf.aabb.max).all() && v.is_finite() {
+        let inside = end.cmpgt(leaf.aabb.min).all() && end.cmplt(leaf.aabb.max).all();
+        // (`dt > 0` as the loop's condition: unvalidated parameters take the loop.)
+        if params.dt > 0.0 && inside && v.is_finite() {
             trace(x0, end);
             p.position = end.to_array();
             p.velocity = v.to_array();

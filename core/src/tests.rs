@@ -183,6 +183,8 @@ fn leaf_hints_change_nothing_but_the_work() {
         LeafHint { xy: 0, z_depth_label: 1 << LeafHint::DEPTH_SHIFT | LeafHint::VALID },
         LeafHint { xy: u32::MAX, z_depth_label: u32::MAX },
     ];
+    // The root is never a leaf.
+    hints.push(LeafHint { xy: 0, z_depth_label: LeafHint::VALID });
     for depth in 17..32 {
         hints.push(LeafHint { xy: 0, z_depth_label: depth << LeafHint::DEPTH_SHIFT | LeafHint::VALID });
     }
@@ -196,4 +198,24 @@ fn leaf_hints_change_nothing_but_the_work() {
             assert_eq!(bytemuck::bytes_of(&got), bytemuck::bytes_of(&expected), "hint {h:?}");
         }
     }
+    // Unvalidated parameters (dt <= 0) take the march, which does not move the particle; so
+    // does the hinted step.
+    for dt in [0.0, -1.0 / 60.0] {
+        let bad = StepParams { dt, ..params };
+        let start = Particle::new([0.75, 0.75, 0.75], [0.6, 0.0, 0.0]);
+        let mut expected = start;
+        step_particle(&view, &mut expected, &bad);
+        let (mut got, mut h) = (start, hint);
+        step_particle_hinted(&view, &mut got, &bad, &mut h);
+        assert_eq!(bytemuck::bytes_of(&got), bytemuck::bytes_of(&expected), "dt {dt}");
+    }
+    // A hint is believed once it passes those checks: one made up by hand that calls the
+    // surface leaf's cell empty hides the surface (so the test above did use the good hint).
+    let falling = Particle::new([0.25, 0.3, 0.25], [0.0, -1.0, 0.0]);
+    let mut plain = falling;
+    step_particle(&view, &mut plain, &params);
+    assert_eq!(plain.collisions(), 1);
+    let (mut fooled, mut made_up) = (falling, LeafHint { xy: 0, z_depth_label: 1 << LeafHint::DEPTH_SHIFT | LeafHint::VALID });
+    step_particle_hinted(&view, &mut fooled, &params, &mut made_up);
+    assert_eq!(fooled.collisions(), 0);
 }

@@ -391,6 +391,8 @@ fn exercise_view(view: &ProxyView<'_>, u: &mut Unstructured<'_>) -> Result<()> {
             continue;
         }
         let steps = u.int_in_range(1u8..=4)?;
+        // The same particle stepped with a leaf hint, as the backends step it.
+        let (mut hinted, mut hint) = (particle, LeafHint::NONE);
         for _ in 0..steps {
             let before = particle;
             let mut pieces = 0u64;
@@ -402,6 +404,12 @@ fn exercise_view(view: &ProxyView<'_>, u: &mut Unstructured<'_>) -> Result<()> {
                 bits(&particle),
                 bits(&again),
                 "the step differs with and without the lookup table from {before:?}, {params:?}"
+            );
+            step_particle_hinted(view, &mut hinted, &params, &mut hint);
+            assert_eq!(
+                bits(&hinted),
+                bits(&particle),
+                "the step differs with and without a leaf hint from {before:?}, {params:?}"
             );
             assert!(
                 pieces <= bound as u64 + 2,

@@ -147,10 +147,11 @@ fn hand_placed(view: &ProxyView<'_>, n: usize, seed: u64) -> Vec<Particle> {
     out
 }
 
-/// Steps the same particles on both backends and checks the agreement.
+/// Steps the same particles on both backends and checks the agreement. Without an adapter
+/// (and not under CI) only the CPU backend's agreement with unhinted stepping is checked.
 fn differential(name: &str, mesh: &Mesh, build: &BuildParams, steps: u32, chunk: Option<u32>) {
-    let Some(mut gpu) = gpu() else { return };
-    if let Some(n) = chunk {
+    let mut gpu = gpu();
+    if let (Some(gpu), Some(n)) = (gpu.as_mut(), chunk) {
         gpu.set_chunk_particles(n);
         gpu.set_fold_width(3);
     }
@@ -162,14 +163,16 @@ fn differential(name: &str, mesh: &Mesh, build: &BuildParams, steps: u32, chunk:
     let speeds: Vec<f32> = [0.1 * leaf, leaf, 5.0 * leaf, 0.5 * scene].iter().map(|d| d / DT).collect();
     let mut particles = random_particles(&view, &gt, 3000, &speeds, 5);
     particles.extend(hand_placed(&view, 2000, 6));
-    if let Some(n) = chunk {
+    if let (Some(gpu), Some(n)) = (gpu.as_mut(), chunk) {
         gpu.upload_particles(&particles).unwrap();
         assert_eq!(gpu.chunk_count(), particles.len().div_ceil(n as usize), "{name}: chunks");
         assert!(gpu.dispatch_size(n).1 > 1, "{name}: the dispatch is not folded");
     }
     let mut cpu = CpuBackend::new();
     cpu.upload_proxy(&words).unwrap();
-    gpu.upload_proxy(&words).unwrap();
+    if let Some(gpu) = gpu.as_mut() {
+        gpu.upload_proxy(&words).unwrap();
+    }
     let mut worst = 0f32;
     for (k, params) in [
         StepParams { dt: DT, ..StepParams::default() },
@@ -182,13 +185,8 @@ fn differential(name: &str, mesh: &Mesh, build: &BuildParams, steps: u32, chunk:
         // The last run descends from the root on both sides instead of using the table.
         let use_lut = k < 2;
         cpu.set_use_lut(use_lut);
-        gpu.set_use_lut(use_lut);
         cpu.upload_particles(&particles).unwrap();
-        gpu.upload_particles(&particles).unwrap();
         cpu.step(&params, steps).unwrap();
-        gpu.step(&params, steps).unwrap();
-        let mut from_gpu = vec![Particle::default(); particles.len()];
-        gpu.download_particles(&mut from_gpu).unwrap();
         // The backends keep each particle's leaf between steps (`LeafHint`); a step without
         // hints must give the same bits.
         let plain_view = if use_lut { view } else { view.without_lut() };
@@ -201,6 +199,12 @@ fn differential(name: &str, mesh: &Mesh, build: &BuildParams, steps: u32, chunk:
         let unhinted_differ =
             plain.iter().zip(cpu.particles()).filter(|(a, b)| bytemuck::bytes_of(*a) != bytemuck::bytes_of(*b)).count();
         assert_eq!(unhinted_differ, 0, "{name}: stepping with leaf hints changed {unhinted_differ} particles");
+        let Some(gpu) = gpu.as_mut() else { continue };
+        gpu.set_use_lut(use_lut);
+        gpu.upload_particles(&particles).unwrap();
+        gpu.step(&params, steps).unwrap();
+        let mut from_gpu = vec![Particle::default(); particles.len()];
+        gpu.download_particles(&mut from_gpu).unwrap();
         let a = compare(cpu.particles(), &from_gpu, leaf);
         eprintln!(
             "{name}{}: {} particles x {steps} steps, {} collisions; bit-identical {}; differ: collisions {}, side {}, flags {}; worst position {:.2e} leaf (particle {}), worst velocity {:.2e} relative",
@@ -227,7 +231,11 @@ fn differential(name: &str, mesh: &Mesh, build: &BuildParams, steps: u32, chunk:
         );
         worst = worst.max(a.worst_leaves);
     }
-    eprintln!("{name}: worst position difference {worst:.2e} of a finest leaf");
+    if gpu.is_some() {
+        eprintln!("{name}: worst position difference {worst:.2e} of a finest leaf");
+    } else {
+        eprintln!("{name}: hinted CPU steps equal unhinted ones; no GPU to compare with");
+    }
 }
 
 fn build(dmax: u32) -> BuildParams {
@@ -313,12 +321,21 @@ fn leaf_hints_are_forgotten_when_the_proxy_changes() {
         backend.download_particles(&mut out).unwrap();
         out
     }
-    let mut results = vec![("cpu", swapped(CpuBackend::new(), &a, &b, &particles, &params))];
+    // The CPU runs the very code of `step_particle`: the same bits.
+    let got = swapped(CpuBackend::new(), &a, &b, &particles, &params);
+    let differ = got.iter().zip(&expected).filter(|(g, e)| bytemuck::bytes_of(*g) != bytemuck::bytes_of(*e)).count();
+    assert_eq!(differ, 0, "cpu: {differ} particles differ from stepping without hints");
+    // The GPU within the tolerances of the module documentation; a stale hint would carry
+    // particles through the sheet, collisions and all.
     if let Some(gpu) = gpu() {
-        results.push(("wgpu", swapped(gpu, &a, &b, &particles, &params)));
-    }
-    for (backend, got) in results {
-        let differ = got.iter().zip(&expected).filter(|(g, e)| bytemuck::bytes_of(*g) != bytemuck::bytes_of(*e)).count();
-        assert_eq!(differ, 0, "{backend}: {differ} particles differ from stepping without hints");
+        let got = swapped(gpu, &a, &b, &particles, &params);
+        let agreement = compare(&expected, &got, view_b.finest_leaf_size());
+        assert!(agreement.collisions > 0, "nothing collided with the sheet");
+        assert_eq!(
+            (agreement.collisions_differ, agreement.side_differs, agreement.flags_differ),
+            (0, 0, 0),
+            "wgpu differs from stepping without hints: {agreement:?}"
+        );
+        assert!(agreement.worst_leaves <= POSITION_TOLERANCE_LEAVES, "wgpu: {agreement:?}");
     }
 }

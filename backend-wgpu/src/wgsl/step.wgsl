@@ -183,7 +183,8 @@ fn hint_leaf(hint: vec2<u32>, x: vec3<f32>) -> HintedLeaf {
     out.hit = false;
     let w = hint.y;
     let depth = (w >> HINT_DEPTH_SHIFT) & 0x1fu;
-    if (w & HINT_VALID) == 0u || depth > MAX_DEPTH {
+    // Depth 0 would be the root, which is never a leaf.
+    if (w & HINT_VALID) == 0u || depth == 0u || depth > MAX_DEPTH {
         return out;
     }
     let cell = vec3<u32>(hint.x & HINT_CELL_MASK, hint.x >> HINT_Y_SHIFT, w & HINT_CELL_MASK);
@@ -245,7 +246,9 @@ fn step_particle(p: ptr<function, Particle>, params: StepParams, hint: ptr<funct
     var hinted = hint_leaf(start_hint, x0);
     if hinted.hit {
         let end = x0 + v * params.dt;
-        if all(end > hinted.leaf.aabb.min) && all(end < hinted.leaf.aabb.max) && is_finite3(v) {
+        let inside = all(end > hinted.leaf.aabb.min) && all(end < hinted.leaf.aabb.max);
+        // (`dt > 0` as the loop's condition: unvalidated parameters take the loop.)
+        if params.dt > 0.0 && inside && is_finite3(v) {
             (*p).position = end;
             (*p).velocity = v;
             if hinted.leaf.label != LABEL_NONE {

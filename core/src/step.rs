@@ -320,21 +320,11 @@ impl LeafHint {
             return None;
         }
         let label = Label::from_bits((w >> Self::LABEL_SHIFT) & 3)?;
-        let aabb = view.cell_aabb(cell, depth);
-        if !(x.cmpgt(aabb.min).all() && x.cmplt(aabb.max).all()) {
+        let leaf = view.empty_leaf(cell, depth, NO_LEAF, label);
+        if !(x.cmpgt(leaf.aabb.min).all() && x.cmplt(leaf.aabb.max).all()) {
             return None;
         }
-        Some(LeafInfo {
-            aabb,
-            kind: LeafKind::Empty,
-            normal: Vec3::ZERO,
-            two_sided: false,
-            plane_offset: 0.0,
-            label,
-            node: NO_LEAF,
-            depth,
-            cell,
-        })
+        Some(leaf)
     }
 }
 

@@ -195,11 +195,11 @@ fn hint_leaf(hint: vec2<u32>, x: vec3<f32>) -> HintedLeaf {
     if label > LABEL_BACK {
         return out;
     }
-    let aabb = cell_aabb(cell, depth);
-    if !(all(x > aabb.min) && all(x < aabb.max)) {
+    let leaf = empty_leaf(cell, depth, NO_LEAF, label);
+    if !(all(x > leaf.aabb.min) && all(x < leaf.aabb.max)) {
         return out;
     }
-    out.leaf = LeafInfo(aabb, LEAF_EMPTY, vec3<f32>(0.0), false, label, NO_LEAF, depth, cell);
+    out.leaf = leaf;
     out.hit = true;
     return out;
 }

@@ -89,6 +89,7 @@ pub fn shared_constants() -> Vec<(&'static str, SharedValue)> {
         ("HINT_Y_SHIFT", U32(LeafHint::Y_SHIFT)),
         ("HINT_DEPTH_SHIFT", U32(LeafHint::DEPTH_SHIFT)),
         ("HINT_LABEL_SHIFT", U32(LeafHint::LABEL_SHIFT)),
+        ("HINT_DEPTH_MASK", U32(LeafHint::DEPTH_MASK)),
         ("WORKGROUP_SIZE", U32(WORKGROUP_SIZE)),
     ]
 }

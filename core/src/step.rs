@@ -15,6 +15,11 @@
 //!
 //! The number of leaves a step visits is bounded by [`max_leaves_per_step`]; when the bound
 //! is hit the particle is left at its last safe point.
+//!
+//! Most steps start and end inside one empty leaf. [`step_particle_hinted`] takes the leaf a
+//! particle's last step ended in ([`LeafHint`]) and, while the particle is strictly inside it,
+//! starts there instead of descending the tree; a step that also ends strictly inside it is
+//! settled before the march is set up. The backends keep a hint beside every particle.
 
 use bytemuck::{Pod, Zeroable};
 use glam::{UVec3, Vec3};
@@ -291,6 +296,8 @@ impl LeafHint {
     pub const DEPTH_SHIFT: u32 = 16;
     /// Shift of the 2 label bits in `z_depth_label`.
     pub const LABEL_SHIFT: u32 = 21;
+    /// Mask of the depth, after shifting.
+    pub const DEPTH_MASK: u32 = 0x1f;
 
     /// The hint for `leaf`: its cell, depth and label if it is empty; none for a surface leaf.
     fn of(leaf: &LeafInfo) -> LeafHint {
@@ -310,7 +317,7 @@ impl LeafHint {
     #[inline]
     fn leaf(self, view: &ProxyView<'_>, x: Vec3) -> Option<LeafInfo> {
         let w = self.z_depth_label;
-        let depth = (w >> Self::DEPTH_SHIFT) & 0x1f;
+        let depth = (w >> Self::DEPTH_SHIFT) & Self::DEPTH_MASK;
         // Depth 0 would be the root, which is never a leaf.
         if w & Self::VALID == 0 || depth == 0 || depth > MAX_DEPTH {
             return None;

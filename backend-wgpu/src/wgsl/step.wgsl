@@ -182,7 +182,7 @@ fn hint_leaf(hint: vec2<u32>, x: vec3<f32>) -> HintedLeaf {
     var out: HintedLeaf;
     out.hit = false;
     let w = hint.y;
-    let depth = (w >> HINT_DEPTH_SHIFT) & 0x1fu;
+    let depth = (w >> HINT_DEPTH_SHIFT) & HINT_DEPTH_MASK;
     // Depth 0 would be the root, which is never a leaf.
     if (w & HINT_VALID) == 0u || depth == 0u || depth > MAX_DEPTH {
         return out;

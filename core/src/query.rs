@@ -169,6 +169,7 @@ impl ProxyView<'_> {
         }
     }
 
+    #[inline]
     pub(crate) fn empty_leaf(&self, cell: UVec3, depth: u32, parent: u32, label: Label) -> LeafInfo {
         LeafInfo {
             aabb: self.cell_aabb(cell, depth),

@@ -175,32 +175,30 @@ fn entry_faces(b: &Aabb, x: Vec3, v: Vec3) -> u32 {
 /// axes whose face it leaves through. The exit point lies exactly on those faces.
 #[inline]
 fn exit_box(b: &Aabb, x: Vec3, v: Vec3) -> (f32, Vec3, u32) {
-    // Arrays, not `Vec3` indexing, in this hot loop; the operations are the same.
+    // Selects, not branches: the signs of a velocity are coin tosses for the branch
+    // predictor. Per axis this is `(bmax - x) / v` for `v > 0`, `(bmin - x) / v` for `v < 0`
+    // and infinity for `v == 0`, clamped below at 0, exactly as written out with `if`s.
     let (bmin, bmax, xa, va) = (b.min.to_array(), b.max.to_array(), x.to_array(), v.to_array());
-    let mut t = f32::INFINITY;
     let mut ts = [f32::INFINITY; 3];
+    let mut far = [0.0f32; 3];
     for a in 0..3 {
-        let ta = if va[a] > 0.0 {
-            (bmax[a] - xa[a]) / va[a]
-        } else if va[a] < 0.0 {
-            (bmin[a] - xa[a]) / va[a]
-        } else {
-            f32::INFINITY
-        };
-        ts[a] = if ta > 0.0 { ta } else { 0.0 };
-        if ts[a] < t {
-            t = ts[a];
-        }
+        far[a] = if va[a] > 0.0 { bmax[a] } else { bmin[a] };
+        let ta = (far[a] - xa[a]) / va[a];
+        let ta = if ta > 0.0 { ta } else { 0.0 };
+        ts[a] = if va[a] == 0.0 { f32::INFINITY } else { ta };
     }
+    let mut t = f32::INFINITY;
+    for &ta in &ts {
+        t = if ta < t { ta } else { t };
+    }
+    let finite = t.is_finite();
     let mut axes = 0;
     let mut p = xa;
     for a in 0..3 {
-        if ts[a] == t && t.is_finite() {
-            axes |= 1 << a;
-            p[a] = if va[a] > 0.0 { bmax[a] } else { bmin[a] };
-        } else {
-            p[a] = (xa[a] + va[a] * t).clamp(bmin[a], bmax[a]);
-        }
+        let on_face = (ts[a] == t) & finite;
+        axes |= (on_face as u32) << a;
+        let along = (xa[a] + va[a] * t).clamp(bmin[a], bmax[a]);
+        p[a] = if on_face { far[a] } else { along };
     }
     (t, Vec3::from_array(p), axes)
 }
@@ -354,6 +352,91 @@ pub fn step_particle_hinted(
     params: &StepParams,
     hint: &mut LeafHint,
 ) -> StepOutcome {
+    if settle_in_hinted_leaf(view, p, params, *hint) {
+        return StepOutcome::Done;
+    }
+    // A particle outside the root has no hint; one moving away from the root stays outside.
+    if *hint == LeafHint::NONE && settle_leaving_root(view, p, params) {
+        return StepOutcome::Done;
+    }
+    march_from_hint(view, p, params, hint)
+}
+
+/// The other common case of [`step_particle_hinted`]: a particle outside the root cube, beyond
+/// one of its faces and not moving back toward it (particles that fly off a scene keep going).
+/// The segment stays in the half-space beyond that face, so the march would find that it
+/// never enters the root and move the particle to the end point; this does the same in the
+/// same operations. `true` when settled; the hint stays [`LeafHint::NONE`].
+#[inline(always)]
+fn settle_leaving_root(view: &ProxyView<'_>, p: &mut Particle, params: &StepParams) -> bool {
+    let x0 = Vec3::from_array(p.position);
+    let v = Vec3::from_array(p.velocity) + Vec3::from_array(params.gravity) * params.dt;
+    let end = x0 + v * params.dt;
+    let root = view.root_aabb();
+    let zero = Vec3::ZERO;
+    // Strictly beyond a face, so that the tie rule of `root_contains` cannot put it inside.
+    let leaving = (x0.cmplt(root.min) & v.cmple(zero)) | (x0.cmpgt(root.max) & v.cmpge(zero));
+    // A finite `v` means a finite starting velocity too; a non-finite end would be
+    // `Invalid` in the march; `dt > 0` is the march's loop condition.
+    let settled = leaving.any() & x0.is_finite() & v.is_finite() & end.is_finite() & (params.dt > 0.0);
+    if !settled {
+        return false;
+    }
+    p.position = end.to_array();
+    p.velocity = v.to_array();
+    p.side = (p.side == SIDE_BACK) as u32;
+    p.flags &= !FLAG_STEP_STATUS;
+    true
+}
+
+/// The common case of [`step_particle_hinted`], settled before the march is set up: the
+/// particle stays strictly inside its hinted empty leaf for the whole step. It does what the
+/// march does for such a particle, in the same operations (the integration, the leaf's box,
+/// the end-point test, the label, the flags), with one branch where the march has many: the
+/// label and the checks are folded into values, not tested one by one. `true` when settled;
+/// the hint is then still the particle's.
+#[inline(always)]
+fn settle_in_hinted_leaf(view: &ProxyView<'_>, p: &mut Particle, params: &StepParams, hint: LeafHint) -> bool {
+    let w = hint.z_depth_label;
+    let depth = (w >> LeafHint::DEPTH_SHIFT) & LeafHint::DEPTH_MASK;
+    let label_bits = (w >> LeafHint::LABEL_SHIFT) & 3;
+    let cell = UVec3::new(hint.xy & LeafHint::CELL_MASK, hint.xy >> LeafHint::Y_SHIFT, w & LeafHint::CELL_MASK);
+    // `LeafHint::leaf`'s shape checks; `depth - 1 < MAX_DEPTH` is `1 <= depth <= MAX_DEPTH`.
+    let shape_ok = (w & LeafHint::VALID != 0)
+        & (depth.wrapping_sub(1) < MAX_DEPTH)
+        & ((cell.x | cell.y | cell.z) >> depth == 0)
+        & (label_bits != 3);
+    if !shape_ok {
+        return false;
+    }
+    let b = view.cell_aabb(cell, depth);
+    let x0 = Vec3::from_array(p.position);
+    let v = Vec3::from_array(p.velocity) + Vec3::from_array(params.gravity) * params.dt;
+    let end = x0 + v * params.dt;
+    // A start strictly inside the box is finite; a finite `v` with `dt > 0` (the march's loop
+    // condition: unvalidated parameters take the march) and an end strictly inside is the
+    // march's first leaf ending the step.
+    let settled = (x0.cmpgt(b.min) & x0.cmplt(b.max) & end.cmpgt(b.min) & end.cmplt(b.max)).all()
+        & v.is_finite()
+        & (params.dt > 0.0);
+    if !settled {
+        return false;
+    }
+    p.position = end.to_array();
+    p.velocity = v.to_array();
+    // An unlabelled leaf keeps the side (normalised as the march does); a labelled one stamps
+    // it: label bits 1 (front) and 2 (back) are sides 0 and 1.
+    const _: () = assert!(SIDE_FRONT == Label::Front.bits() - 1 && SIDE_BACK == Label::Back.bits() - 1);
+    let kept = (p.side == SIDE_BACK) as u32;
+    p.side = if label_bits == 0 { kept } else { label_bits - 1 };
+    p.flags &= !FLAG_STEP_STATUS;
+    true
+}
+
+/// The march of [`step_particle_hinted`], out of line: the settled case above is the hot
+/// loop's, and stays small without it.
+#[inline(never)]
+fn march_from_hint(view: &ProxyView<'_>, p: &mut Particle, params: &StepParams, hint: &mut LeafHint) -> StepOutcome {
     march(view, p, params, hint, &mut |_, _| {})
 }
 
@@ -389,28 +472,7 @@ fn march<F: FnMut(Vec3, Vec3)>(
     let mut v = v0 + Vec3::from_array(params.gravity) * params.dt;
     let mut x = x0;
     let mut side = if p.side == SIDE_BACK { SIDE_BACK } else { SIDE_FRONT };
-    // The common case, settled before the march is set up: the particle stays strictly inside
-    // its hinted empty leaf for the whole step. This is what the march below does for it, in
-    // the same operations (its first leaf, the label, the end-point test, the flags).
     let mut hinted = start_hint.leaf(view, x0);
-    if let Some(leaf) = &hinted {
-        let end = x0 + v * params.dt;
-        let inside = end.cmpgt(leaf.aabb.min).all() && end.cmplt(leaf.aabb.max).all();
-        // (`dt > 0` as the loop's condition: unvalidated parameters take the loop.)
-        if params.dt > 0.0 && inside && v.is_finite() {
-            trace(x0, end);
-            p.position = end.to_array();
-            p.velocity = v.to_array();
-            if leaf.label != Label::None {
-                p.side = side_of(leaf.label);
-            } else {
-                p.side = side;
-            }
-            p.flags &= !FLAG_STEP_STATUS;
-            *hint = start_hint;
-            return StepOutcome::Done;
-        }
-    }
     let mut remaining = params.dt;
     let mut collisions = 0u32;
     let mut in_shell = false;

@@ -219,3 +219,47 @@ fn leaf_hints_change_nothing_but_the_work() {
     step_particle_hinted(&view, &mut fooled, &params, &mut made_up);
     assert_eq!(fooled.collisions(), 0);
 }
+
+#[test]
+fn particles_leaving_the_root_step_as_the_march_steps_them() {
+    let w = tiny();
+    let view = ProxyView::new(&w).unwrap();
+    let side = |p: [f32; 3], v: [f32; 3], s: u32, flags: u32| Particle { side: s, flags, ..Particle::new(p, v) };
+    let mut starts = vec![
+        // Beyond a face and moving away, or along it: settled without the march.
+        side([-0.5, 0.5, 0.5], [-1.0, 0.0, 0.0], SIDE_BACK, FLAG_BLOCKED | 3 << COLLISION_SHIFT),
+        side([0.5, 1.5, 0.5], [0.0, 0.0, 2.0], 7, FLAG_BOUND_HIT),
+        side([0.5, 0.5, -2.0], [0.3, -0.2, -0.1], SIDE_FRONT, FLAG_INVALID),
+        // Coming back, on the face itself (inside by the tie rule), or a corner away from one
+        // face and toward another: the march.
+        side([-0.5, 0.5, 0.5], [40.0, 0.0, 0.0], SIDE_FRONT, 0),
+        side([1.0, 0.5, 0.5], [1.0, 0.0, 0.0], SIDE_FRONT, 0),
+        side([0.0, 0.5, 0.5], [-1.0, 0.0, 0.0], SIDE_FRONT, 0),
+        side([-0.5, -0.5, 0.5], [-1.0, 60.0, 0.0], SIDE_FRONT, 0),
+        // Steps that overflow or carry NaN are invalid there and here.
+        side([-0.5, 0.5, 0.5], [-3e38, 0.0, 0.0], SIDE_FRONT, 0),
+        side([-0.5, 0.5, 0.5], [-1.0, f32::NAN, 0.0], SIDE_FRONT, 0),
+        side([-f32::INFINITY, 0.5, 0.5], [-1.0, 0.0, 0.0], SIDE_FRONT, 0),
+    ];
+    starts.push(side([2.0, 2.0, 2.0], [1.0, 1.0, 1.0], SIDE_BACK, 0));
+    for params in [
+        StepParams { gravity: [0.0; 3], ..StepParams::default() },
+        StepParams::default(),
+        StepParams { gravity: [0.0, 1e38, 0.0], ..StepParams::default() },
+        // Unvalidated: the march does not move a particle for dt <= 0, nor does this.
+        StepParams { dt: 0.0, ..StepParams::default() },
+        StepParams { dt: -1.0, ..StepParams::default() },
+    ] {
+        for start in &starts {
+            let mut expected = *start;
+            let want = step_particle(&view, &mut expected, &params);
+            let (mut got, mut hint) = (*start, LeafHint::NONE);
+            let outcome = step_particle_hinted(&view, &mut got, &params, &mut hint);
+            assert_eq!(outcome, want, "{start:?} {params:?}");
+            assert_eq!(bytemuck::bytes_of(&got), bytemuck::bytes_of(&expected), "{start:?} {params:?}");
+            if !view.root_contains(Vec3::from_array(got.position), Vec3::from_array(got.velocity)) {
+                assert_eq!(hint, LeafHint::NONE);
+            }
+        }
+    }
+}

@@ -261,6 +261,21 @@ fn step_particle(p: ptr<function, Particle>, params: StepParams, hint: ptr<funct
             return STEP_DONE;
         }
     }
+    // Core's `settle_leaving_root`: a particle with no hint, outside the root beyond one of
+    // its faces and not moving back toward it, never enters the root this step.
+    if all(start_hint == vec2<u32>(0u)) {
+        let end = x0 + v * params.dt;
+        let root = root_aabb();
+        let zero = vec3<f32>(0.0);
+        let leaving = ((x0 < root.min) & (v <= zero)) | ((x0 > root.max) & (v >= zero));
+        if any(leaving) && is_finite3(v) && is_finite3(end) && params.dt > 0.0 {
+            (*p).position = end;
+            (*p).velocity = v;
+            (*p).side = side;
+            (*p).flags &= ~FLAG_STEP_STATUS;
+            return STEP_DONE;
+        }
+    }
     var remaining = params.dt;
     var n_collisions = 0u;
     var in_shell = false;

@@ -76,7 +76,13 @@ fn upper(p: f32, plane: f32, dir: f32) -> bool {
 
 impl ProxyView<'_> {
     /// The root cube.
+    #[inline]
     pub fn root_aabb(&self) -> Aabb {
+        self.root
+    }
+
+    /// The root cube from its planes, once, when the view is made.
+    pub(crate) fn compute_root_aabb(&self) -> Aabb {
         let n = 1u32 << MAX_DEPTH;
         Aabb {
             min: Vec3::new(self.plane(0, 0), self.plane(1, 0), self.plane(2, 0)),
@@ -101,8 +107,8 @@ impl ProxyView<'_> {
     /// Whether `p`, travelling along `dir`, is inside the root cube (ties as the module says).
     #[inline]
     pub fn root_contains(&self, p: Vec3, dir: Vec3) -> bool {
-        let n = 1u32 << MAX_DEPTH;
-        (0..3).all(|a| upper(p[a], self.plane(a, 0), dir[a]) && !upper(p[a], self.plane(a, n), dir[a]))
+        let (lo, hi) = (self.root_aabb().min, self.root_aabb().max);
+        (0..3).fold(true, |inside, a| inside & upper(p[a], lo[a], dir[a]) & !upper(p[a], hi[a], dir[a]))
     }
 
     /// The leaf holding `p` (ties go to the upper cell), or `None` outside the root cube.
@@ -120,7 +126,7 @@ impl ProxyView<'_> {
     }
 
     /// [`Self::locate_leaf_toward`] for a point known to be inside the root cube.
-    #[inline]
+    #[inline(always)]
     pub(crate) fn locate_inside(&self, p: Vec3, dir: Vec3) -> LeafInfo {
         let (mut index, mut depth, mut cell) = if self.uses_lut() {
             let d = self.header().lut_depth;
@@ -188,6 +194,7 @@ impl ProxyView<'_> {
     }
 
     /// Integer cell of `p` at `depth`, consistent with the plane comparisons of a descent.
+    #[inline(always)]
     fn cell_at_depth(&self, p: Vec3, dir: Vec3, depth: u32) -> UVec3 {
         let n = 1u32 << depth;
         let s = MAX_DEPTH - depth;

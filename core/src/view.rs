@@ -6,6 +6,8 @@ use core::fmt;
 
 use glam::Vec3;
 
+use crate::query::Aabb;
+
 use crate::format::{
     self, header, Label, NodeRecord, FORMAT_VERSION, HEADER_WORDS, LUT_INDEX_MASK, MAGIC, MAX_DEPTH, MAX_LUT_DEPTH, NODE_WORDS,
 };
@@ -171,6 +173,9 @@ pub struct ProxyView<'a> {
     cell_unit: f32,
     /// `header.root_min` as an array: indexed by axis in the hottest loops.
     root_min: [f32; 3],
+    /// The root cube's planes (`plane(a, 0)` and `plane(a, 2^MAX_DEPTH)`), computed once:
+    /// every step that leaves a leaf tests them.
+    pub(crate) root: Aabb,
     use_lut: bool,
 }
 
@@ -265,8 +270,10 @@ impl<'a> ProxyView<'a> {
             header,
             cell_unit: root_size * (1.0 / (1u32 << MAX_DEPTH) as f32),
             root_min: root_min.to_array(),
+            root: Aabb { min: Vec3::ZERO, max: Vec3::ZERO },
             use_lut: lut_depth > 0,
         };
+        let view = ProxyView { root: view.compute_root_aabb(), ..view };
         view.validate_lut()?;
         // Last, so that structural damage keeps its specific error; what is left (normals,
         // offsets, labels, root box, informational fields) is caught here.
@@ -499,6 +506,7 @@ pub struct OwnedProxy {
     words: alloc::vec::Vec<u32>,
     header: Header,
     cell_unit: f32,
+    root: Aabb,
     nodes: core::ops::Range<usize>,
     lut: core::ops::Range<usize>,
 }
@@ -511,8 +519,8 @@ impl OwnedProxy {
         let nodes_start = HEADER_WORDS;
         let nodes_end = nodes_start + view.nodes.len() * NODE_WORDS;
         let lut = nodes_end..nodes_end + view.lut.len();
-        let (header, cell_unit) = (view.header, view.cell_unit);
-        Ok(Self { words, header, cell_unit, nodes: nodes_start..nodes_end, lut })
+        let (header, cell_unit, root) = (view.header, view.cell_unit, view.root);
+        Ok(Self { words, header, cell_unit, root, nodes: nodes_start..nodes_end, lut })
     }
 
     /// A view of the words, with no second validation.
@@ -524,6 +532,7 @@ impl OwnedProxy {
             header: self.header,
             cell_unit: self.cell_unit,
             root_min: self.header.root_min.to_array(),
+            root: self.root,
             use_lut: self.header.lut_depth > 0,
         }
     }

@@ -81,15 +81,6 @@ impl ProxyView<'_> {
         self.root
     }
 
-    /// The root cube from its planes, once, when the view is made.
-    pub(crate) fn compute_root_aabb(&self) -> Aabb {
-        let n = 1u32 << MAX_DEPTH;
-        Aabb {
-            min: Vec3::new(self.plane(0, 0), self.plane(1, 0), self.plane(2, 0)),
-            max: Vec3::new(self.plane(0, n), self.plane(1, n), self.plane(2, n)),
-        }
-    }
-
     /// The box of the cell `cell` at `depth`.
     #[inline]
     pub fn cell_aabb(&self, cell: UVec3, depth: u32) -> Aabb {

@@ -263,17 +263,19 @@ impl<'a> ProxyView<'a> {
         let lut = &words[lut_offset..total];
         let header = Header { node_count, lut_depth, tree_depth, dmin, dmax, epsilon, root_min, root_size };
         validate_nodes(nodes, tree_depth, root_size)?;
+        let cell_unit = root_size * (1.0 / (1u32 << MAX_DEPTH) as f32);
+        // The root cube's planes, by the one formula every other plane comes from.
+        let root_plane = |i: u32| Vec3::from_array(core::array::from_fn(|a| format::grid_plane(root_min[a], cell_unit, i)));
         let view = ProxyView {
             words,
             nodes,
             lut,
             header,
-            cell_unit: root_size * (1.0 / (1u32 << MAX_DEPTH) as f32),
+            cell_unit,
             root_min: root_min.to_array(),
-            root: Aabb { min: Vec3::ZERO, max: Vec3::ZERO },
+            root: Aabb { min: root_plane(0), max: root_plane(1 << MAX_DEPTH) },
             use_lut: lut_depth > 0,
         };
-        let view = ProxyView { root: view.compute_root_aabb(), ..view };
         view.validate_lut()?;
         // Last, so that structural damage keeps its specific error; what is left (normals,
         // offsets, labels, root box, informational fields) is caught here.

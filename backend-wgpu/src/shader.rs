@@ -84,6 +84,7 @@ pub fn shared_constants() -> Vec<(&'static str, SharedValue)> {
         ("STEP_BOUND_HIT", U32(outcome_code(StepOutcome::BoundHit))),
         ("STEP_INVALID", U32(outcome_code(StepOutcome::Invalid))),
         ("NO_LEAF", U32(u32::MAX)),
+        ("PINCH_PARALLEL", F32(PINCH_PARALLEL)),
         ("HINT_VALID", U32(LeafHint::VALID)),
         ("HINT_CELL_MASK", U32(LeafHint::CELL_MASK)),
         ("HINT_Y_SHIFT", U32(LeafHint::Y_SHIFT)),

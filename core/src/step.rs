@@ -11,7 +11,12 @@
 //! - **shell rule:** a particle that went into the shell of surface leaves from its own side
 //!   may come out only into an empty leaf of that side. Coming out into a leaf labelled with
 //!   the other side means it crossed the surface; it is put back where it entered the shell,
-//!   its velocity reflected off the face it tried to cross, and the step ends.
+//!   its velocity reflected off the face it tried to cross, and the step ends;
+//! - **pinch rule:** a collision at the very point of the previous one whose response still
+//!   points into the previous surface (facing surfaces across a narrow gap, a sharp crease)
+//!   keeps only the velocity along both surfaces ([`pinch`]); a second such collision at that
+//!   point stops the particle there. Without it the particle reflected off each surface in
+//!   turn, halving its speed across them each time, until the leaf bound stopped the step.
 //!
 //! The number of leaves a step visits is bounded by [`max_leaves_per_step`]; when the bound
 //! is hit the particle is left at its last safe point.
@@ -137,6 +142,28 @@ pub fn respond(v: Vec3, n: Vec3, restitution: f32, friction: f32) -> Vec3 {
     let impulse = friction * (1.0 + restitution) * -vn;
     let keep = if t_len > impulse { 1.0 - impulse / t_len } else { 0.0 };
     v_t * keep - v_n * restitution
+}
+
+/// Below this squared length of `n × m`, [`pinch`] takes two unit normals as parallel (the
+/// surfaces face each other or lie in one plane): about 0.06 degrees.
+pub const PINCH_PARALLEL: f32 = 1e-6;
+
+/// The velocity of a particle pinched between two surfaces with unit normals `n` and `m`: a
+/// second collision at the very point of the last one whose response still points into the
+/// last surface (a thin gap between facing surfaces, a sharp crease). Reflecting off each in
+/// turn would only halve the velocity across them, some 300 times over, until the leaf bound
+/// stopped the step; instead the velocity keeps only its part along both surfaces: along the
+/// crease where they meet, or in their common plane when they face each other.
+#[inline]
+pub fn pinch(v: Vec3, n: Vec3, m: Vec3) -> Vec3 {
+    // `n × m`, written out so that WGSL's mirror does the same operations.
+    let c = Vec3::new(n.y * m.z - m.y * n.z, n.z * m.x - m.z * n.x, n.x * m.y - m.x * n.y);
+    let cc = c.dot(c);
+    if cc > PINCH_PARALLEL {
+        c * (v.dot(c) / cc)
+    } else {
+        v - n * v.dot(n)
+    }
 }
 
 /// Unit normal of the face(s) in `axes` that a particle moving with signs `signs` crossed,
@@ -478,6 +505,8 @@ fn march<F: FnMut(Vec3, Vec3)>(
     let mut in_shell = false;
     let mut shell_entry = x0;
     let mut last_collided = NO_LEAF;
+    // Where the last collision was and the normal it used, and whether it pinched (`pinch`).
+    let (mut has_hit, mut hit_x, mut hit_n, mut pinched) = (false, x0, Vec3::ZERO, false);
     // The face the particle last crossed (axes) and the signs of its velocity then.
     let mut cross_axes = 0u32;
     let mut cross_signs = Vec3::ZERO;
@@ -567,6 +596,15 @@ fn march<F: FnMut(Vec3, Vec3)>(
                     };
                     if v.dot(n) < 0.0 {
                         v = respond(v, n, e, mu);
+                        if has_hit && x == hit_x && v.dot(hit_n) < 0.0 {
+                            // Pinched; pinched again at the same point (rounding left the
+                            // velocity a hair into a surface), it stops there.
+                            v = if pinched { Vec3::ZERO } else { pinch(v, n, hit_n) };
+                            pinched = true;
+                        } else {
+                            pinched = false;
+                        }
+                        (has_hit, hit_x, hit_n) = (true, x, n);
                         collisions += 1;
                         last_collided = leaf.node;
                         continue;

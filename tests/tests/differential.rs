@@ -255,6 +255,28 @@ fn nefertiti_closed_scan() {
 }
 
 #[test]
+fn fandisk_creases_at_a_coarse_depth() {
+    // At dmax 6 the CAD part's narrow grooves put surface leaves that face each other side
+    // by side: particles are pinched between them (the step's `pinch`).
+    let Some(mesh) = meshes::load("fandisk.obj.gz") else { return };
+    differential("fandisk", &mesh, &build(6), 120, None);
+}
+
+#[test]
+fn narrow_gaps_between_facing_surfaces() {
+    // Slabs stacked with gaps from about half a leaf to two leaves: the surfaces across a gap
+    // face each other from neighbouring leaves, and particles are pinched between them.
+    let mut slabs = Vec::new();
+    let mut y = -0.9;
+    for gap in [0.015, 0.025, 0.035, 0.05, 0.07] {
+        slabs.push(scenes::slab([0.0, y + 0.05, 0.0], [1.8, 0.1, 1.8]));
+        y += 0.1 + gap;
+    }
+    slabs.push(scenes::slab([0.0, y + 0.05, 0.0], [1.8, 0.1, 1.8]));
+    differential("narrow gaps", &scenes::merge(&slabs), &build(6), 120, None);
+}
+
+#[test]
 fn thin_plates() {
     // Plates far thinner than a leaf, crossing each other.
     let mesh = scenes::merge(&[

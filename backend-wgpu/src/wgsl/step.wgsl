@@ -35,6 +35,15 @@ fn respond(v: vec3<f32>, n: vec3<f32>, restitution: f32, friction: f32) -> vec3<
     return v_t * keep - v_n * restitution;
 }
 
+fn pinch(v: vec3<f32>, n: vec3<f32>, m: vec3<f32>) -> vec3<f32> {
+    let c = vec3<f32>(n.y * m.z - m.y * n.z, n.z * m.x - m.z * n.x, n.x * m.y - m.x * n.y);
+    let cc = dot3(c, c);
+    if cc > PINCH_PARALLEL {
+        return c * (dot3(v, c) / cc);
+    }
+    return v - n * dot3(v, n);
+}
+
 fn face_normal(axes: u32, signs: vec3<f32>) -> vec3<f32> {
     var n = vec3<f32>(0.0);
     for (var a = 0u; a < 3u; a++) {
@@ -281,6 +290,11 @@ fn step_particle(p: ptr<function, Particle>, params: StepParams, hint: ptr<funct
     var in_shell = false;
     var shell_entry = x0;
     var last_collided = NO_LEAF;
+    // Where the last collision was and the normal it used, and whether it pinched (`pinch`).
+    var has_hit = false;
+    var hit_x = x0;
+    var hit_n = vec3<f32>(0.0);
+    var pinched = false;
     // The face the particle last crossed (axes) and the signs of its velocity then.
     var cross_axes = 0u;
     var cross_signs = vec3<f32>(0.0);
@@ -361,6 +375,20 @@ fn step_particle(p: ptr<function, Particle>, params: StepParams, hint: ptr<funct
                 }
                 if dot3(v, n) < 0.0 {
                     v = respond(v, n, e, mu);
+                    if has_hit && all(x == hit_x) && dot3(v, hit_n) < 0.0 {
+                        // Pinched; pinched again at the same point, it stops there.
+                        if pinched {
+                            v = vec3<f32>(0.0);
+                        } else {
+                            v = pinch(v, n, hit_n);
+                        }
+                        pinched = true;
+                    } else {
+                        pinched = false;
+                    }
+                    has_hit = true;
+                    hit_x = x;
+                    hit_n = n;
                     n_collisions += 1u;
                     last_collided = leaf.node;
                     continue;

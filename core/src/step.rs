@@ -505,8 +505,9 @@ fn march<F: FnMut(Vec3, Vec3)>(
     let mut in_shell = false;
     let mut shell_entry = x0;
     let mut last_collided = NO_LEAF;
-    // Where the last collision was and the normal it used, and whether it pinched (`pinch`).
-    let (mut has_hit, mut hit_x, mut hit_n, mut pinched) = (false, x0, Vec3::ZERO, false);
+    // Where the last collision was (when `collisions > 0`) and the normal it used, and
+    // whether it pinched (`pinch`).
+    let (mut hit_x, mut hit_n, mut pinched) = (x0, Vec3::ZERO, false);
     // The face the particle last crossed (axes) and the signs of its velocity then.
     let mut cross_axes = 0u32;
     let mut cross_signs = Vec3::ZERO;
@@ -596,7 +597,7 @@ fn march<F: FnMut(Vec3, Vec3)>(
                     };
                     if v.dot(n) < 0.0 {
                         v = respond(v, n, e, mu);
-                        if has_hit && x == hit_x && v.dot(hit_n) < 0.0 {
+                        if collisions > 0 && x == hit_x && v.dot(hit_n) < 0.0 {
                             // Pinched; pinched again at the same point (rounding left the
                             // velocity a hair into a surface), it stops there.
                             v = if pinched { Vec3::ZERO } else { pinch(v, n, hit_n) };
@@ -604,7 +605,7 @@ fn march<F: FnMut(Vec3, Vec3)>(
                         } else {
                             pinched = false;
                         }
-                        (has_hit, hit_x, hit_n) = (true, x, n);
+                        (hit_x, hit_n) = (x, n);
                         collisions += 1;
                         last_collided = leaf.node;
                         continue;

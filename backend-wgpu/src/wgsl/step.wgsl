@@ -290,8 +290,8 @@ fn step_particle(p: ptr<function, Particle>, params: StepParams, hint: ptr<funct
     var in_shell = false;
     var shell_entry = x0;
     var last_collided = NO_LEAF;
-    // Where the last collision was and the normal it used, and whether it pinched (`pinch`).
-    var has_hit = false;
+    // Where the last collision was (when `n_collisions > 0`) and the normal it used, and
+    // whether it pinched (`pinch`).
     var hit_x = x0;
     var hit_n = vec3<f32>(0.0);
     var pinched = false;
@@ -375,7 +375,7 @@ fn step_particle(p: ptr<function, Particle>, params: StepParams, hint: ptr<funct
                 }
                 if dot3(v, n) < 0.0 {
                     v = respond(v, n, e, mu);
-                    if has_hit && all(x == hit_x) && dot3(v, hit_n) < 0.0 {
+                    if n_collisions > 0u && all(x == hit_x) && dot3(v, hit_n) < 0.0 {
                         // Pinched; pinched again at the same point, it stops there.
                         if pinched {
                             v = vec3<f32>(0.0);
@@ -386,7 +386,6 @@ fn step_particle(p: ptr<function, Particle>, params: StepParams, hint: ptr<funct
                     } else {
                         pinched = false;
                     }
-                    has_hit = true;
                     hit_x = x;
                     hit_n = n;
                     n_collisions += 1u;

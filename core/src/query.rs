@@ -5,7 +5,7 @@
 //! Every plane coordinate comes from [`grid_plane`](crate::format::grid_plane), so the box a query returns and the
 //! planes the next query compares against are the very same floats.
 
-use glam::{UVec3, Vec3};
+use glam::{UVec3, Vec3, Vec3A};
 
 use crate::format::{Label, LUT_DEPTH_SHIFT, LUT_INDEX_MASK, MAX_DEPTH};
 use crate::view::ProxyView;
@@ -84,15 +84,23 @@ impl ProxyView<'_> {
     /// The box of the cell `cell` at `depth`.
     #[inline]
     pub fn cell_aabb(&self, cell: UVec3, depth: u32) -> Aabb {
-        let s = MAX_DEPTH - depth;
-        Aabb {
-            min: Vec3::new(self.plane(0, cell.x << s), self.plane(1, cell.y << s), self.plane(2, cell.z << s)),
-            max: Vec3::new(
-                self.plane(0, (cell.x + 1) << s),
-                self.plane(1, (cell.y + 1) << s),
-                self.plane(2, (cell.z + 1) << s),
-            ),
-        }
+        let (min, max) = self.cell_box(cell, depth);
+        Aabb { min: min.into(), max: max.into() }
+    }
+
+    /// [`Self::cell_aabb`] as SIMD vectors, `(min, max)`: the planes `plane(a, cell[a] << s)`
+    /// and `plane(a, (cell[a] + 1) << s)` with `s = MAX_DEPTH - depth`, the very same floats,
+    /// in a few vector operations instead of a dozen scalar ones (the settled step computes
+    /// one box per particle). A plane is `root_min + i * cell_unit` with an exact product
+    /// ([`grid_plane`](crate::format::grid_plane)); here `i * cell_unit` is
+    /// `cell * (cell_unit * 2^s)`, where scaling the normal `cell_unit` by a power of two is
+    /// exact and the product is exact for the same reason, so the sum rounds the same.
+    #[inline(always)]
+    pub(crate) fn cell_box(&self, cell: UVec3, depth: u32) -> (Vec3A, Vec3A) {
+        let size = Vec3A::splat(self.cell_unit() * (1u32 << (MAX_DEPTH - depth)) as f32);
+        let c = Vec3A::new(cell.x as f32, cell.y as f32, cell.z as f32);
+        let root_min = Vec3A::from(self.root.min);
+        (root_min + c * size, root_min + (c + Vec3A::ONE) * size)
     }
 
     /// Whether `p`, travelling along `dir`, is inside the root cube (ties as the module says).

@@ -27,7 +27,7 @@
 //! settled before the march is set up. The backends keep a hint beside every particle.
 
 use bytemuck::{Pod, Zeroable};
-use glam::{UVec3, Vec3};
+use glam::{UVec3, Vec3, Vec3A};
 
 use crate::format::{Label, MAX_DEPTH};
 use crate::math;
@@ -372,7 +372,7 @@ pub fn step_particle(view: &ProxyView<'_>, p: &mut Particle, params: &StepParams
 /// inside it, and leaving in `hint` the empty leaf the step ended in (or [`LeafHint::NONE`]).
 /// With [`LeafHint::NONE`] or a hint this function left with the same proxy, the result is
 /// [`step_particle`]'s, bit for bit; only the work differs (see [`LeafHint`]).
-#[inline]
+#[inline(always)]
 pub fn step_particle_hinted(
     view: &ProxyView<'_>,
     p: &mut Particle,
@@ -436,14 +436,15 @@ fn settle_in_hinted_leaf(view: &ProxyView<'_>, p: &mut Particle, params: &StepPa
     if !shape_ok {
         return false;
     }
-    let b = view.cell_aabb(cell, depth);
-    let x0 = Vec3::from_array(p.position);
-    let v = Vec3::from_array(p.velocity) + Vec3::from_array(params.gravity) * params.dt;
+    // SIMD vectors: lane for lane the march's scalar operations, so the same floats.
+    let (bmin, bmax) = view.cell_box(cell, depth);
+    let x0 = Vec3A::from_array(p.position);
+    let v = Vec3A::from_array(p.velocity) + Vec3A::from_array(params.gravity) * params.dt;
     let end = x0 + v * params.dt;
     // A start strictly inside the box is finite; a finite `v` with `dt > 0` (the march's loop
     // condition: unvalidated parameters take the march) and an end strictly inside is the
     // march's first leaf ending the step.
-    let settled = (x0.cmpgt(b.min) & x0.cmplt(b.max) & end.cmpgt(b.min) & end.cmplt(b.max)).all()
+    let settled = (x0.cmpgt(bmin) & x0.cmplt(bmax) & end.cmpgt(bmin) & end.cmplt(bmax)).all()
         & v.is_finite()
         & (params.dt > 0.0);
     if !settled {

@@ -92,6 +92,43 @@ fn tiny() -> [u32; HEADER_WORDS + 4] {
 }
 
 #[test]
+fn cell_boxes_are_the_grid_planes_at_every_depth() {
+    // The settled step computes a cell's box in vector operations; it must be the very floats
+    // of the planes that the march and the descent compare against, for any valid root.
+    let mut s = 99u64;
+    let mut r = || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        s >> 16
+    };
+    let roots = [([0.0f32; 3], 1.0f32), ([-3.25, 17.0, -0.001], 2.2), ([1.0e5, -7.5e4, 3.0], 495.3), ([-1.0e-3, 2.0e-3, 5.0e-4], 3.7e-3)];
+    for (min, size) in roots {
+        let mut w = tiny();
+        for a in 0..3 {
+            w[header::ROOT_MIN + a] = min[a].to_bits();
+        }
+        w[header::ROOT_SIZE] = quantize_root_size(size).to_bits();
+        crate::format::seal(&mut w);
+        let view = ProxyView::new(&w).unwrap();
+        for depth in 1..=MAX_DEPTH {
+            let n = 1u64 << depth;
+            for k in 0..64u64 {
+                // The corners of the grid, then random cells.
+                let c = if k < 8 { [k & 1, k >> 1 & 1, k >> 2].map(|b| b * (n - 1)) } else { [r() % n, r() % n, r() % n] };
+                let cell = glam::UVec3::new(c[0] as u32, c[1] as u32, c[2] as u32);
+                let b = view.cell_aabb(cell, depth);
+                let sh = MAX_DEPTH - depth;
+                for a in 0..3 {
+                    assert_eq!(b.min[a].to_bits(), view.plane(a, cell[a] << sh).to_bits(), "{min:?} {size} {depth} {cell}");
+                    assert_eq!(b.max[a].to_bits(), view.plane(a, (cell[a] + 1) << sh).to_bits(), "{min:?} {size} {depth} {cell}");
+                }
+            }
+        }
+    }
+}
+
+#[test]
 fn validation_of_hand_made_buffers() {
     let w = tiny();
     let view = ProxyView::new(&w).expect("the tiny proxy is valid");

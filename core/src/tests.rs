@@ -6,15 +6,18 @@ use glam::Vec3;
 use crate::format::*;
 use crate::*;
 
+/// The next value of a xorshift generator: the tests' reproducible randomness.
+fn xorshift(s: &mut u64) -> u64 {
+    *s ^= *s << 13;
+    *s ^= *s >> 7;
+    *s ^= *s << 17;
+    *s
+}
+
 #[test]
 fn normal_encoding_round_trips_within_three_hundredths_of_a_degree() {
     let mut s = 12345u64;
-    let mut r = || {
-        s ^= s << 13;
-        s ^= s >> 7;
-        s ^= s << 17;
-        (s >> 40) as f32 / (1u64 << 24) as f32 * 2.0 - 1.0
-    };
+    let mut r = || (xorshift(&mut s) >> 40) as f32 / (1u64 << 24) as f32 * 2.0 - 1.0;
     let mut worst = 0.0f32;
     for _ in 0..20000 {
         let n = Vec3::new(r(), r(), r());
@@ -96,12 +99,7 @@ fn cell_boxes_are_the_grid_planes_at_every_depth() {
     // The settled step computes a cell's box in vector operations; it must be the very floats
     // of the planes that the march and the descent compare against, for any valid root.
     let mut s = 99u64;
-    let mut r = || {
-        s ^= s << 13;
-        s ^= s >> 7;
-        s ^= s << 17;
-        s >> 16
-    };
+    let mut r = || xorshift(&mut s) >> 16;
     let roots = [([0.0f32; 3], 1.0f32), ([-3.25, 17.0, -0.001], 2.2), ([1.0e5, -7.5e4, 3.0], 495.3), ([-1.0e-3, 2.0e-3, 5.0e-4], 3.7e-3)];
     for (min, size) in roots {
         let mut w = tiny();

@@ -124,21 +124,88 @@ impl ProxyView<'_> {
         Some(self.locate_inside(p, dir))
     }
 
+    /// [`Self::locate_leaf_toward`] for a point `p` on the closed box of a leaf `from` that
+    /// this proxy returned (a walker that moved from inside `from` to its boundary): the same
+    /// answer, with `p`'s cell found from `from`'s in integers instead of estimated from `p`
+    /// and settled on the planes. When `p` is not on `from`'s box, or that box is not the
+    /// cell of this proxy's grid that `from.cell` and `from.depth` name, it is
+    /// [`Self::locate_leaf_toward`] itself.
+    pub fn locate_leaf_from(&self, from: &LeafInfo, p: Vec3, dir: Vec3) -> Option<LeafInfo> {
+        let depth_ok = from.depth >= 1 && from.depth <= MAX_DEPTH;
+        let on_box = depth_ok
+            && (from.cell.x | from.cell.y | from.cell.z) >> from.depth == 0
+            && from.aabb == self.cell_aabb(from.cell, from.depth)
+            && p.is_finite()
+            && from.aabb.min.cmple(p).all()
+            && p.cmple(from.aabb.max).all();
+        if on_box {
+            self.locate_next(from, p, dir)
+        } else {
+            self.locate_leaf_toward(p, dir)
+        }
+    }
+
     /// [`Self::locate_leaf_toward`] for a point known to be inside the root cube.
     #[inline(always)]
     pub(crate) fn locate_inside(&self, p: Vec3, dir: Vec3) -> LeafInfo {
-        let (mut index, mut depth, mut cell) = if self.uses_lut() {
+        if self.uses_lut() {
             let d = self.header().lut_depth;
-            let c = self.cell_at_depth(p, dir, d);
+            self.locate_in_cell(self.cell_at_depth(p, dir, d), d, p, dir)
+        } else {
+            self.descend(0, 0, UVec3::ZERO, (UVec3::ZERO, 0), p, dir)
+        }
+    }
+
+    /// The leaf that `p`, travelling along `dir`, is in, for a point on the closed box of the
+    /// leaf `from`: the exit point of the leaf a march just left, or the point where it
+    /// collided in `from`. On each axis `p` is either strictly between `from`'s planes, in
+    /// `from`'s cell, or on one of them, where the tie rule picks `from`'s cell or its
+    /// neighbour by the sign of `dir`: the cell of `p` at `from`'s depth, found in integers,
+    /// with no float estimate to settle. `None` when that cell is outside the root cube.
+    #[inline(always)]
+    pub(crate) fn locate_next(&self, from: &LeafInfo, p: Vec3, dir: Vec3) -> Option<LeafInfo> {
+        let (lo, hi) = (from.aabb.min.to_array(), from.aabb.max.to_array());
+        let (pa, da) = (p.to_array(), dir.to_array());
+        let mut c = from.cell.to_array();
+        for a in 0..3 {
+            // `upper`'s tie rule, negated as written there (a NaN direction is not `>= 0`).
+            let up = (pa[a] == hi[a]) & (da[a] >= 0.0);
+            let down = (pa[a] == lo[a]) & !(da[a] >= 0.0);
+            c[a] = c[a].wrapping_add(up as u32).wrapping_sub(down as u32);
+        }
+        // Below zero wraps to a huge value: one test for both sides of the root.
+        if (c[0] | c[1] | c[2]) >> from.depth != 0 {
+            return None;
+        }
+        Some(self.locate_in_cell(UVec3::from_array(c), from.depth, p, dir))
+    }
+
+    /// The leaf holding `p` (travelling along `dir`), given `p`'s cell at `depth`: entered
+    /// through the lookup table when it is no deeper than `depth`, from the root otherwise.
+    #[inline(always)]
+    fn locate_in_cell(&self, cell: UVec3, depth: u32, p: Vec3, dir: Vec3) -> LeafInfo {
+        let d = self.header().lut_depth;
+        if self.uses_lut() && depth >= d {
+            let c = cell >> (depth - d);
             let n = 1u32 << d;
             let entry = self.lut()[((c.z * n + c.y) * n + c.x) as usize];
-            let depth = entry >> LUT_DEPTH_SHIFT;
-            (entry & LUT_INDEX_MASK, depth, c >> (d - depth))
+            let (index, at) = (entry & LUT_INDEX_MASK, entry >> LUT_DEPTH_SHIFT);
+            self.descend(index, at, cell >> (depth - at), (cell, depth), p, dir)
         } else {
-            (0, 0, UVec3::ZERO)
-        };
+            self.descend(0, 0, UVec3::ZERO, (cell, depth), p, dir)
+        }
+    }
+
+    /// Descends from the record `index` of the cell `cell` at `depth` to the leaf holding `p`
+    /// (travelling along `dir`). Down to the depth of `known`, `p`'s cell there, each octant is
+    /// read from `known`'s bits; below it, from comparisons with the cell planes. The two
+    /// agree: every plane is the same float wherever it is computed, and the tie rule puts a
+    /// point on a plane on one side of it at every depth.
+    #[inline(always)]
+    fn descend(&self, mut index: u32, mut depth: u32, mut cell: UVec3, known: (UVec3, u32), p: Vec3, dir: Vec3) -> LeafInfo {
         let nodes = self.nodes();
         let (pa, da) = (p.to_array(), dir.to_array());
+        let (known_cell, known_depth) = (known.0.to_array(), known.1);
         loop {
             let rec = nodes[index as usize];
             if rec.is_leaf() {
@@ -161,10 +228,17 @@ impl ProxyView<'_> {
             let s = MAX_DEPTH - depth - 1;
             let mut octant = 0;
             let c = cell.to_array();
-            for a in 0..3 {
-                let mid = self.plane(a, (2 * c[a] + 1) << s);
-                if upper(pa[a], mid, da[a]) {
-                    octant |= 1 << a;
+            if depth < known_depth {
+                let k = known_depth - depth - 1;
+                for a in 0..3 {
+                    octant |= ((known_cell[a] >> k) & 1) << a;
+                }
+            } else {
+                for a in 0..3 {
+                    let mid = self.plane(a, (2 * c[a] + 1) << s);
+                    if upper(pa[a], mid, da[a]) {
+                        octant |= 1 << a;
+                    }
                 }
             }
             cell = cell * 2 + UVec3::new(octant & 1, (octant >> 1) & 1, (octant >> 2) & 1);

@@ -512,6 +512,8 @@ fn march<F: FnMut(Vec3, Vec3)>(
     // The face the particle last crossed (axes) and the signs of its velocity then.
     let mut cross_axes = 0u32;
     let mut cross_signs = Vec3::ZERO;
+    // The leaf the particle was last in, while it is on that leaf's closed box.
+    let mut last_leaf: Option<LeafInfo> = None;
     let mut outcome = StepOutcome::Done;
     let budget = view.max_leaves_per_step();
     let mut visited = 0u32;
@@ -526,7 +528,15 @@ fn march<F: FnMut(Vec3, Vec3)>(
         }
         visited += 1;
         // Only the first leaf of a step can come from the hint: the particle has not moved yet.
+        // After it, the particle is on the closed box of the leaf it was last in, and the next
+        // leaf is found from that leaf's cell.
+        let next = match &last_leaf {
+            Some(from) => view.locate_next(from, x, v),
+            None => None,
+        };
         let mut leaf = if let Some(leaf) = hinted.take() {
+            leaf
+        } else if let Some(leaf) = next {
             leaf
         } else {
             if !view.root_contains(x, v) {
@@ -538,6 +548,7 @@ fn march<F: FnMut(Vec3, Vec3)>(
                         cross_axes = axes;
                         cross_signs = v;
                         last_collided = NO_LEAF;
+                        last_leaf = None;
                         continue;
                     }
                     None => {
@@ -565,6 +576,7 @@ fn march<F: FnMut(Vec3, Vec3)>(
                 leaf = view.locate_inside(x, dir);
             }
         }
+        last_leaf = Some(leaf);
         match leaf.kind {
             LeafKind::Empty => {
                 if leaf.label != Label::None {

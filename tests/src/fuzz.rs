@@ -352,6 +352,20 @@ fn exercise_view(view: &ProxyView<'_>, u: &mut Unstructured<'_>) -> Result<()> {
                 "locate_leaf_toward({p:?}, {dir:?}) returned a leaf whose box {:?} does not hold the point",
                 leaf.aabb
             );
+            // The march's way to the next leaf: from this one, to a point on its box.
+            let mut q = p;
+            for k in 0..3 {
+                q[k] = match u.int_in_range(0u8..=2)? {
+                    0 => leaf.aabb.min[k],
+                    1 => leaf.aabb.max[k],
+                    _ => p[k],
+                };
+            }
+            assert_eq!(
+                format!("{:?}", view.locate_leaf_from(&leaf, q, dir)),
+                format!("{:?}", view.locate_leaf_toward(q, dir)),
+                "locate_leaf_from({leaf:?}, {q:?}, {dir:?}) differs from locate_leaf_toward"
+            );
         }
         let side = initial_side(view, p.to_array());
         assert!(

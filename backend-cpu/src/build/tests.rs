@@ -289,3 +289,51 @@ fn extreme_coordinates_bake_to_a_valid_proxy_or_an_error() {
         }
     }
 }
+
+#[test]
+fn locating_from_the_last_leaf_agrees_with_locating_from_scratch() {
+    // The march finds each next leaf from the one it leaves, in integers; that must be the leaf
+    // a descent finds for every point on a leaf's box (faces, edges, corners), in every
+    // direction (zero, either sign, NaN), with and without the lookup table.
+    let (mut p, mut t) = cube([-1.0, -0.5, -0.25], [1.0, 0.7, 0.3]);
+    // A tilted second box, so that leaves of many depths meet.
+    let (q, u) = cube([-0.3, -0.9, -0.8], [0.9, -0.2, 0.6]);
+    let off = p.len() as u32;
+    p.extend(q.iter().map(|v| [v[0] + 0.3 * v[1], v[1] - 0.2 * v[2], v[2] + 0.25 * v[0]]));
+    t.extend(u.iter().map(|tri| tri.map(|i| i + off)));
+    let (words, _) = bake_one(&p, &t, &BuildParams { dmin: 1, dmax: 7, lut_depth: 3, ..BuildParams::default() });
+    let view = ProxyView::new(&words).unwrap();
+    let mut s = 7u64;
+    let mut r = || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        s >> 40
+    };
+    let (mut on_faces, mut moved) = (0, 0);
+    for v in [view.clone(), view.without_lut()] {
+        let root = v.root_aabb();
+        for _ in 0..3000 {
+            let f = |k: u64| k as f32 / (1u64 << 24) as f32;
+            let x = root.min + (root.max - root.min) * Vec3::new(f(r()), f(r()), f(r()));
+            let Some(from) = v.locate_leaf(x) else { continue };
+            // Per axis: the lower plane, the upper one, or a point between them.
+            let mut q = x;
+            for a in 0..3 {
+                q[a] = match r() % 3 {
+                    0 => from.aabb.min[a],
+                    1 => from.aabb.max[a],
+                    _ => q[a],
+                };
+            }
+            let pick = |k: u64| [0.0, 1.0, -1.0, -0.0, f32::NAN][(k % 5) as usize];
+            let dir = Vec3::new(pick(r()), pick(r()), pick(r()));
+            let expected = v.locate_leaf_toward(q, dir);
+            assert_eq!(v.locate_leaf_from(&from, q, dir), expected, "from {from:?} at {q:?} toward {dir:?}");
+            on_faces += (q != x) as u32;
+            moved += expected.is_some_and(|l| l.cell != from.cell || l.depth != from.depth) as u32;
+        }
+    }
+    // Most points were put on a face, and many of those are in another leaf.
+    assert!(on_faces > 4000 && moved > 1500, "{on_faces} points on faces, {moved} in another leaf");
+}

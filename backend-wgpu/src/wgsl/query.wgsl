@@ -88,18 +88,54 @@ fn cell_at_depth(p: vec3<f32>, dir: vec3<f32>, depth: u32) -> vec3<u32> {
 }
 
 fn locate_inside(p: vec3<f32>, dir: vec3<f32>) -> LeafInfo {
-    var index = 0u;
-    var depth = 0u;
-    var cell = vec3<u32>(0u);
     if header.use_lut {
         let d = header.lut_depth;
-        let c = cell_at_depth(p, dir, d);
+        return locate_in_cell(cell_at_depth(p, dir, d), d, p, dir);
+    }
+    return descend(0u, 0u, vec3<u32>(0u), vec3<u32>(0u), 0u, p, dir);
+}
+
+// core's `locate_next` answers an `Option`: `hit` false (None) when the cell is outside the root.
+struct NextLeaf {
+    leaf: LeafInfo,
+    hit: bool,
+}
+
+// core's `locate_next`: the leaf of a point on the closed box of the leaf `last`, found from
+// `last`'s cell in integers.
+fn locate_next(last: LeafInfo, p: vec3<f32>, dir: vec3<f32>) -> NextLeaf {
+    var c = last.cell;
+    for (var a = 0u; a < 3u; a++) {
+        let up = p[a] == last.aabb.max[a] && dir[a] >= 0.0;
+        let down = p[a] == last.aabb.min[a] && !(dir[a] >= 0.0);
+        c[a] = c[a] + select(0u, 1u, up) - select(0u, 1u, down);
+    }
+    // Below zero wraps to a huge value: one test for both sides of the root.
+    if ((c.x | c.y | c.z) >> last.depth) != 0u {
+        return NextLeaf(last, false);
+    }
+    return NextLeaf(locate_in_cell(c, last.depth, p, dir), true);
+}
+
+// core's `locate_in_cell`.
+fn locate_in_cell(cell: vec3<u32>, depth: u32, p: vec3<f32>, dir: vec3<f32>) -> LeafInfo {
+    let d = header.lut_depth;
+    if header.use_lut && depth >= d {
+        let c = cell >> vec3<u32>(depth - d);
         let n = 1u << d;
         let entry = proxy[header.lut_offset + (c.z * n + c.y) * n + c.x];
-        depth = entry >> LUT_DEPTH_SHIFT;
-        index = entry & LUT_INDEX_MASK;
-        cell = c >> vec3<u32>(d - depth);
+        let at = entry >> LUT_DEPTH_SHIFT;
+        return descend(entry & LUT_INDEX_MASK, at, cell >> vec3<u32>(depth - at), cell, depth, p, dir);
     }
+    return descend(0u, 0u, vec3<u32>(0u), cell, depth, p, dir);
+}
+
+// core's `descend`: octants read from `known_cell`'s bits down to `known_depth`, from the
+// cell planes below it.
+fn descend(start: u32, start_depth: u32, start_cell: vec3<u32>, known_cell: vec3<u32>, known_depth: u32, p: vec3<f32>, dir: vec3<f32>) -> LeafInfo {
+    var index = start;
+    var depth = start_depth;
+    var cell = start_cell;
     // A descent takes at most MAX_DEPTH + 1 records; the bound keeps the loop visibly finite.
     for (var guard = 0u; guard <= MAX_DEPTH; guard++) {
         let rec = node_record(index);
@@ -112,10 +148,17 @@ fn locate_inside(p: vec3<f32>, dir: vec3<f32>) -> LeafInfo {
         }
         let s = MAX_DEPTH - depth - 1u;
         var octant = 0u;
-        for (var a = 0u; a < 3u; a++) {
-            let mid = plane(a, (2u * cell[a] + 1u) << s);
-            if upper(p[a], mid, dir[a]) {
-                octant |= 1u << a;
+        if depth < known_depth {
+            let k = known_depth - depth - 1u;
+            for (var a = 0u; a < 3u; a++) {
+                octant |= ((known_cell[a] >> k) & 1u) << a;
+            }
+        } else {
+            for (var a = 0u; a < 3u; a++) {
+                let mid = plane(a, (2u * cell[a] + 1u) << s);
+                if upper(p[a], mid, dir[a]) {
+                    octant |= 1u << a;
+                }
             }
         }
         cell = cell * 2u + vec3<u32>(octant & 1u, (octant >> 1u) & 1u, (octant >> 2u) & 1u);

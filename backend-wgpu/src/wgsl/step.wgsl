@@ -298,6 +298,9 @@ fn step_particle(p: ptr<function, Particle>, params: StepParams, hint: ptr<funct
     // The face the particle last crossed (axes) and the signs of its velocity then.
     var cross_axes = 0u;
     var cross_signs = vec3<f32>(0.0);
+    // The leaf the particle was last in, while it is on that leaf's closed box.
+    var last_leaf = empty_leaf(vec3<u32>(0u), 0u, NO_LEAF, LABEL_NONE);
+    var has_last_leaf = false;
     var outcome = STEP_DONE;
     let budget = max_leaves_per_step(header.tree_depth);
     var visited = 0u;
@@ -311,10 +314,18 @@ fn step_particle(p: ptr<function, Particle>, params: StepParams, hint: ptr<funct
         }
         visited += 1u;
         // Only the first leaf of a step can come from the hint: the particle has not moved yet.
+        // After it, the particle is on the closed box of the leaf it was last in, and the next
+        // leaf is found from that leaf's cell.
+        var next = NextLeaf(last_leaf, false);
+        if has_last_leaf {
+            next = locate_next(last_leaf, x, v);
+        }
         var leaf: LeafInfo;
         if hinted.hit {
             leaf = hinted.leaf;
             hinted.hit = false;
+        } else if next.hit {
+            leaf = next.leaf;
         } else {
             if !root_contains(x, v) {
                 let entry = enter_box(root_aabb(), x, v, remaining);
@@ -324,6 +335,7 @@ fn step_particle(p: ptr<function, Particle>, params: StepParams, hint: ptr<funct
                     cross_axes = entry.axes;
                     cross_signs = v;
                     last_collided = NO_LEAF;
+                    has_last_leaf = false;
                     continue;
                 }
                 x = x + v * remaining;
@@ -346,6 +358,8 @@ fn step_particle(p: ptr<function, Particle>, params: StepParams, hint: ptr<funct
                 leaf = locate_inside(x, dir);
             }
         }
+        last_leaf = leaf;
+        has_last_leaf = true;
         if leaf.kind == LEAF_EMPTY {
             if leaf.label != LABEL_NONE {
                 let label_side = side_of(leaf.label);

@@ -530,13 +530,9 @@ fn march<F: FnMut(Vec3, Vec3)>(
         // Only the first leaf of a step can come from the hint: the particle has not moved yet.
         // After it, the particle is on the closed box of the leaf it was last in, and the next
         // leaf is found from that leaf's cell.
-        let next = match &last_leaf {
-            Some(from) => view.locate_next(from, x, v),
-            None => None,
-        };
         let mut leaf = if let Some(leaf) = hinted.take() {
             leaf
-        } else if let Some(leaf) = next {
+        } else if let Some(leaf) = last_leaf.as_ref().and_then(|from| view.locate_next(from, x, v)) {
             leaf
         } else {
             if !view.root_contains(x, v) {

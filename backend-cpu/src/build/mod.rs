@@ -20,7 +20,7 @@
 //!    size) by the view-visible method: segments from points on the surface leaf's triangles
 //!    to the shared boundary; the hit nearest the boundary votes front or back. Votes from
 //!    closed components outrank votes from open ones; within a rank the majority wins and a
-//!    tie goes to back. See [`label`].
+//!    tie goes to back. See the private `label` module.
 //! 6. **Encode** breadth first, then fill the lookup table.
 
 mod encode;

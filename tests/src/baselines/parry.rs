@@ -1,6 +1,6 @@
 //! What a Rust user reaches for today: parry3d's `TriMesh` (with its BVH), each particle's
 //! step cast as a ray (`RayCast::cast_local_ray_and_get_normal`, not solid, so both sides of
-//! every triangle are hit), the nearest hit answered as [`super::step_by_casting`] says.
+//! every triangle are hit), the nearest hit answered as `step_by_casting` in the parent module says.
 //!
 //! parry works in `f32` (its `glamx` vectors); the ray's direction is the whole displacement
 //! `v * t_remaining`, so its time of impact is the fraction of it, and the cast stops at 1.

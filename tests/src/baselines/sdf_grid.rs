@@ -2,7 +2,7 @@
 //! (grown by two cells each side), as fine as a memory budget allows, sampled trilinearly.
 //!
 //! Building: every sample within three cells of the surface takes its exact distance to the
-//! mesh from the tests crate's [`GroundTruth`](crate::ground_truth::GroundTruth) (in parallel
+//! mesh from the tests crate's [`GroundTruth`] (in parallel
 //! with rayon); the samples beyond get a chamfer distance transform from those (up to about 10 %
 //! long at most, and only far from the surface, where no collision looks). For a closed mesh
 //! the sign is inside/outside: the exact winding number, taken once per group of samples that

@@ -9,7 +9,7 @@
 //! Stepping: the segment `x → x + v t` is walked through the tree front to back (children
 //! sorted by where the segment enters them, nodes beyond the nearest hit so far skipped), every
 //! triangle of the leaves it passes is tested with Möller–Trumbore in `f64`, and the nearest hit
-//! is answered as [`super::step_by_casting`] says.
+//! is answered as `step_by_casting` in the parent module says.
 
 use glam::DVec3;
 use octoproxy_core::{Particle, StepParams};

@@ -230,8 +230,8 @@ impl ProxyView<'_> {
             let c = cell.to_array();
             if depth < known_depth {
                 let k = known_depth - depth - 1;
-                for a in 0..3 {
-                    octant |= ((known_cell[a] >> k) & 1) << a;
+                for (a, known) in known_cell.iter().enumerate() {
+                    octant |= ((known >> k) & 1) << a;
                 }
             } else {
                 for a in 0..3 {

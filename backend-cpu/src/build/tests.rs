@@ -311,7 +311,7 @@ fn locating_from_the_last_leaf_agrees_with_locating_from_scratch() {
         s >> 40
     };
     let (mut on_faces, mut moved) = (0, 0);
-    for v in [view.clone(), view.without_lut()] {
+    for v in [view, view.without_lut()] {
         let root = v.root_aabb();
         for _ in 0..3000 {
             let f = |k: u64| k as f32 / (1u64 << 24) as f32;

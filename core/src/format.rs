@@ -169,6 +169,14 @@ impl NodeRecord {
         f32::from_bits(self.b)
     }
 
+    /// The largest `|plane_offset|` a valid proxy holds for a surface leaf at `depth` in a
+    /// root cube of `root_size`: a hair over half the diagonal of the leaf's nominal cube (the
+    /// mean plane passes through the leaf). The validator checks it; the baker stays inside it.
+    #[inline]
+    pub fn plane_offset_bound(root_size: f32, depth: u32) -> f32 {
+        root_size / (1u32 << depth.min(MAX_DEPTH)) as f32 * 0.8661
+    }
+
     /// Whether this is a surface leaf.
     #[inline]
     pub const fn is_leaf(self) -> bool {

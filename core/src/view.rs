@@ -456,9 +456,8 @@ fn validate_nodes(nodes: &[NodeRecord], tree_depth: u32, root_size: f32) -> Resu
                 return Err(FormatError::TooDeep { node: i });
             }
             // The mean plane passes through the leaf: |d| is at most half its diagonal.
-            let half_diagonal = root_size / (1u32 << depth) as f32 * 0.8661;
             let d = rec.plane_offset();
-            if !d.is_finite() || d.abs() > half_diagonal {
+            if !d.is_finite() || d.abs() > NodeRecord::plane_offset_bound(root_size, depth) {
                 return Err(FormatError::BadNode { node: i });
             }
             continue;

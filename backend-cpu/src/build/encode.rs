@@ -57,7 +57,8 @@ impl Flat {
         flat.nodes.par_iter_mut().for_each(|n| {
             if let Kind::Surface(s) = &mut n.kind {
                 let (lo, hi) = grid.cell_box(n.cell, n.depth);
-                finish_surface(s, tris, lo, hi);
+                let bound = NodeRecord::plane_offset_bound(grid.root_size, n.depth) as f64;
+                finish_surface(s, tris, lo, hi, bound);
             }
         });
         flat
@@ -124,7 +125,9 @@ fn empty_surface() -> Surface {
     Surface { tris: Vec::new(), normal: DVec3::Z, two_sided: false, plane_offset: 0.0, anchors: Vec::new() }
 }
 
-fn finish_surface(s: &mut Surface, tris: &[Tri], lo: DVec3, hi: DVec3) {
+/// Fills in a surface leaf with the box `lo..hi`; `bound` is the validator's bound on its
+/// plane offset ([`NodeRecord::plane_offset_bound`]).
+fn finish_surface(s: &mut Surface, tris: &[Tri], lo: DVec3, hi: DVec3, bound: f64) {
     let mut clipped_sum = DVec3::ZERO;
     let mut clipped_area = 0.0;
     let mut full_sum = DVec3::ZERO;
@@ -155,8 +158,11 @@ fn finish_surface(s: &mut Surface, tris: &[Tri], lo: DVec3, hi: DVec3) {
     let center = (lo + hi) * 0.5;
     let half_diagonal = (hi - lo).length() * 0.5;
     let d = if clipped_area > 0.0 { s.normal.dot(moment / clipped_area - center) } else { 0.0 };
-    // Rounded to f32 inside the bound the validator checks.
-    s.plane_offset = d.clamp(-half_diagonal * 0.99, half_diagonal * 0.99);
+    // Rounded to f32 inside the bound the validator checks. Far from the origin a box of
+    // rounded grid planes can be wider than the nominal cube that bound is made from, so
+    // both limit it.
+    let limit = half_diagonal.min(bound) * 0.99;
+    s.plane_offset = d.clamp(-limit, limit);
     if s.anchors.is_empty() {
         // Numerically, no triangle reached inside: anchor at each centroid, clamped in.
         for &t in &s.tris {

@@ -76,6 +76,30 @@ fn closed_procedural_scenes_hold() {
 }
 
 #[test]
+fn a_large_epsilon_coarsens_only_flat_surface() {
+    // With `epsilon` far above any normal variance and no `dmin`, only the flatness rule keeps
+    // curved patches out of coarse leaves; without it the star's points and the torus let
+    // particles through (hundreds per million steps at dmax 8).
+    let coarse = BuildParams { dmin: 0, dmax: 7, epsilon: 1000.0, ..BuildParams::default() };
+    for (name, mesh) in [
+        ("star prism", scenes::star_prism(6, 1.0, 0.35, 0.6)),
+        ("torus", scenes::torus([0.0; 3], 1.0, 0.35, 48, 24)),
+    ] {
+        let r = check(name, &mesh, true, 800, 40, &coarse);
+        assert_clean(name, &r);
+    }
+    // Flat faces still make coarse leaves: the box's faces keep far fewer nodes than at the
+    // default epsilon.
+    let cube = scenes::cube([-1.0; 3], [1.0; 3]);
+    let nodes = |params: &BuildParams| bake(&[MeshRef::from(&cube)], params, &()).expect("bakes").1.nodes;
+    let tilted = scenes::uv_sphere([0.0; 3], 1.0, 6, 3);
+    let nodes_tilted = |params: &BuildParams| bake(&[MeshRef::from(&tilted)], params, &()).expect("bakes").1.nodes;
+    let fine = BuildParams { dmin: 0, dmax: 7, epsilon: 0.0, ..BuildParams::default() };
+    eprintln!("cube: {} nodes coarse, {} fine; low-poly sphere: {} coarse, {} fine", nodes(&coarse), nodes(&fine), nodes_tilted(&coarse), nodes_tilted(&fine));
+    assert!(nodes_tilted(&coarse) < nodes_tilted(&fine), "flat faces did not make coarser leaves");
+}
+
+#[test]
 fn thin_closed_slab_holds() {
     // Thinner than a leaf at dmax 6 (root about 2.2, leaf about 0.035).
     let mesh = scenes::slab([0.0; 3], [2.0, 0.01, 2.0]);

@@ -66,6 +66,14 @@ impl Poly {
         &self.pts[..self.len]
     }
 
+    /// The least and greatest `n · p` over the vertices; `None` when empty.
+    pub fn extent_along(&self, n: DVec3) -> Option<(f64, f64)> {
+        self.points().iter().map(|p| n.dot(*p)).fold(None, |acc, d| match acc {
+            None => Some((d, d)),
+            Some((lo, hi)) => Some((d.min(lo), d.max(hi))),
+        })
+    }
+
     /// Area and area centroid (the centroid is the mean of the vertices when the area is 0).
     pub fn area_centroid(&self) -> (f64, DVec3) {
         let p = self.points();

@@ -10,7 +10,9 @@
 //! 3. **Subdivide** with an exact triangle–box test until a node is empty, reaches `dmax`, or
 //!    is deeper than `dmin` with normal variance below `epsilon` (equations (1)–(2) of the
 //!    paper, divided by the node's total triangle area so that `epsilon` means the same for a
-//!    mesh and its subdivision). A node touching the root boundary always subdivides, and so
+//!    mesh and its subdivision) and its triangles, clipped to it, no thicker across their mean
+//!    normal than [`MAX_EARLY_LEAF_THICKNESS`] `dmax` leaves (a curved patch in a coarse leaf
+//!    would let particles through it). A node touching the root boundary always subdivides, and so
 //!    does a node holding a rim edge or triangles of more than one connected component (its
 //!    leaf may be solid, so it is kept to `dmax` size).
 //! 4. **Normals**: the area-weighted normal of the triangles clipped to each surface leaf. If
@@ -39,6 +41,13 @@ use rayon::prelude::*;
 /// Below this ratio of |Σ a n| to Σ a, a surface leaf's triangles face opposite ways and the
 /// leaf is two-sided (a knife edge sharper than about 35°, or both faces of a thin wall).
 pub const TWO_SIDED_COHERENCE: f64 = 0.3;
+
+/// A surface leaf stops before `dmax` only if its triangles, clipped to it, lie between two
+/// planes across its mean normal at most this many `dmax`-leaf sizes apart. A leaf holds one
+/// normal, and a particle that does not move against it passes through the leaf: across a
+/// curved patch in a coarse leaf it would cross the real surface, as deep as the patch is
+/// thick. Normal variance alone (`epsilon`) lets a leaf of any size hold a curved patch.
+pub const MAX_EARLY_LEAF_THICKNESS: f64 = 0.5;
 
 const PROGRESS_DEPTH: u32 = 3;
 
@@ -530,7 +539,8 @@ impl Subdiv<'_> {
                 && !on_boundary
                 && !rim
                 && !forced
-                && self.variance(&list) < self.params.epsilon as f64);
+                && self.variance(&list) < self.params.epsilon as f64
+                && self.thickness(&list, cell, depth) <= self.flat_tolerance());
         if stop {
             return Node::Surface { tris: list };
         }
@@ -588,6 +598,38 @@ impl Subdiv<'_> {
             }
         }
         subs
+    }
+
+    /// Largest thickness a surface leaf shallower than `dmax` may have (see
+    /// [`MAX_EARLY_LEAF_THICKNESS`]).
+    fn flat_tolerance(&self) -> f64 {
+        MAX_EARLY_LEAF_THICKNESS * self.grid.root_size as f64 / (1u64 << self.params.dmax) as f64
+    }
+
+    /// How thick the triangles of `list` are inside the cell: clipped to its box, the distance
+    /// between the two planes across their area-weighted mean normal that hold them (the
+    /// normal the leaf would keep). Infinite when nothing of them is left inside.
+    fn thickness(&self, list: &[u32], cell: UVec3, depth: u32) -> f64 {
+        let (lo, hi) = self.grid.cell_box(cell, depth);
+        let mut sum = DVec3::ZERO;
+        let polys: Vec<geom::Poly> = list
+            .iter()
+            .map(|&t| {
+                let t = &self.tris[t as usize];
+                let poly = geom::clip_triangle(&t.v, lo, hi);
+                sum += t.n * poly.area_centroid().0;
+                poly
+            })
+            .collect();
+        let len = sum.length();
+        if !(len > 0.0) {
+            return f64::INFINITY;
+        }
+        let n = sum / len;
+        let spread = polys.iter().filter_map(|p| p.extent_along(n)).fold(None, |acc: Option<(f64, f64)>, (a, b)| {
+            Some(acc.map_or((a, b), |(lo, hi)| (lo.min(a), hi.max(b))))
+        });
+        spread.map_or(f64::INFINITY, |(a, b)| b - a)
     }
 
     /// Equations (1)–(2), divided by the total area: Σ aᵢ‖nᵢ − n̄‖² / Σ aᵢ with n̄ the

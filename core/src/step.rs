@@ -480,6 +480,38 @@ pub fn step_particle_traced<F: FnMut(Vec3, Vec3)>(
     march(view, p, params, &mut LeafHint::default(), trace)
 }
 
+/// The leaf a step that starts at `x` (with velocity `v`, on side `side`) starts in, given the
+/// leaf point location found, `leaf`. A step that starts on a face between a one-sided surface
+/// leaf and an empty leaf labelled with the other side starts in the surface leaf, so that the
+/// shell rule decides whether it may come out there. Point location alone would put it in the
+/// empty leaf whenever its velocity does not point into the surface leaf, and stamp the other
+/// side with no crossing to stop: a particle can sit on such a face after a step that moved it
+/// along the face while its velocity pointed into the shell (far from the origin a slow
+/// velocity component does not move a coordinate at all), and turn its velocity there.
+/// Found by a campaign on scenes at 2e5 from the origin; elsewhere it takes a step ending
+/// exactly on a cell plane.
+#[inline]
+fn start_beside_shell(view: &ProxyView<'_>, leaf: LeafInfo, x: Vec3, v: Vec3, side: u32) -> LeafInfo {
+    if leaf.kind != LeafKind::Empty || leaf.label == Label::None || side_of(leaf.label) == side {
+        return leaf;
+    }
+    for a in 0..3 {
+        let below = x[a] == leaf.aabb.min[a];
+        if !below && x[a] != leaf.aabb.max[a] {
+            continue;
+        }
+        let mut dir = v;
+        dir[a] = if below { -1.0 } else { 1.0 };
+        if view.root_contains(x, dir) {
+            let across = view.locate_inside(x, dir);
+            if across.kind == LeafKind::Surface && !across.two_sided {
+                return across;
+            }
+        }
+    }
+    leaf
+}
+
 /// The step itself, for every public entry point above.
 #[inline(always)]
 fn march<F: FnMut(Vec3, Vec3)>(
@@ -555,7 +587,12 @@ fn march<F: FnMut(Vec3, Vec3)>(
                     }
                 }
             }
-            view.locate_inside(x, v)
+            let leaf = view.locate_inside(x, v);
+            if visited == 1 {
+                start_beside_shell(view, leaf, x, v, side)
+            } else {
+                leaf
+            }
         };
         if leaf.two_sided && entry_faces(&leaf.aabb, x, v) == 0 {
             // A particle sliding along a face of a solid leaf (no velocity across it), and not

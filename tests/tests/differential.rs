@@ -255,6 +255,14 @@ fn nefertiti_closed_scan() {
 }
 
 #[test]
+fn far_from_the_origin() {
+    // At 2e5 a dmax-5 leaf is 4.4 f32 steps wide: slow particles sit on cell planes beside the
+    // shell, and steps start there (the step's `start_beside_shell`).
+    let mesh = scenes::uv_sphere([2e5, 0.0, 0.0], 1.0, 48, 24);
+    differential("sphere at 2e5", &mesh, &build(5), 120, None);
+}
+
+#[test]
 fn fandisk_creases_at_a_coarse_depth() {
     // At dmax 6 the CAD part's narrow grooves put surface leaves that face each other side
     // by side: particles are pinched between them (the step's `pinch`).

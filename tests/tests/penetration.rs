@@ -103,11 +103,12 @@ fn a_large_epsilon_coarsens_only_flat_surface() {
 fn closed_scenes_far_from_the_origin_hold() {
     // At 2e5 the f32 grid is coarse, so paths often pass exactly through a shared edge or
     // vertex of the mesh; the check must count no crossing that did not happen there (the
-    // crossing parity did, twice, on the torus at 2e5). Not yet held, and so not here: a UV
-    // sphere at 2e5 at dmax 5 (a leaf of 4.4 f32 steps), where particles too slow to move
-    // along an axis sit on a cell plane and change sides across it (see the README).
+    // crossing parity did, twice, on the torus at 2e5). On the sphere at dmax 5 a leaf is 4.4
+    // f32 steps wide: particles too slow to move along an axis sit on cell planes beside the
+    // shell, and changed sides there when their velocity turned (`start_beside_shell`).
     for (name, mesh, dmax) in [
         ("torus at 2e5", scenes::torus([2e5, 0.0, 0.0], 1.0, 0.35, 48, 24), 5),
+        ("sphere at 2e5", scenes::uv_sphere([2e5, 0.0, 0.0], 1.0, 48, 24), 5),
         ("torus at (1e4, -3e4, 5e3)", scenes::torus([1e4, -3e4, 5e3], 1.0, 0.35, 48, 24), 7),
     ] {
         let r = check(name, &mesh, true, 1500, 60, &BuildParams { dmax, ..BuildParams::default() });

@@ -220,6 +220,30 @@ fn side_of(label: u32) -> u32 {
     return SIDE_FRONT;
 }
 
+// core's `start_beside_shell`: a step that starts on a face between a one-sided surface leaf
+// and an empty leaf labelled with the other side starts in the surface leaf, so that the shell
+// rule decides whether it may come out there.
+fn start_beside_shell(leaf: LeafInfo, x: vec3<f32>, v: vec3<f32>, side: u32) -> LeafInfo {
+    if leaf.kind != LEAF_EMPTY || leaf.label == LABEL_NONE || side_of(leaf.label) == side {
+        return leaf;
+    }
+    for (var a = 0u; a < 3u; a++) {
+        let below = x[a] == leaf.aabb.min[a];
+        if !below && x[a] != leaf.aabb.max[a] {
+            continue;
+        }
+        var dir = v;
+        dir[a] = select(1.0, -1.0, below);
+        if root_contains(x, dir) {
+            let across = locate_inside(x, dir);
+            if across.kind == LEAF_SURFACE && !across.two_sided {
+                return across;
+            }
+        }
+    }
+    return leaf;
+}
+
 fn max_leaves_per_step(tree_depth: u32) -> u32 {
     return (4u << tree_depth) + 64u;
 }
@@ -342,6 +366,9 @@ fn step_particle(p: ptr<function, Particle>, params: StepParams, hint: ptr<funct
                 break;
             }
             leaf = locate_inside(x, v);
+            if visited == 1u {
+                leaf = start_beside_shell(leaf, x, v, side);
+            }
         }
         if leaf.two_sided && entry_faces(leaf.aabb, x, v) == 0u {
             // A particle sliding along a face of a solid leaf (no velocity across it), and not

@@ -4,7 +4,7 @@
 //! scene per step.
 
 use octoproxy_core::{ProxyView, StepParams};
-use octoproxy_cpu::{bake, BuildParams, MeshRef};
+use octoproxy_cpu::{bake, BuildError, BuildParams, MeshRef};
 use octoproxy_tests::ground_truth::GroundTruth;
 use octoproxy_tests::harness::{random_particles, run_check, CheckReport};
 use octoproxy_tests::meshes;
@@ -88,15 +88,36 @@ fn a_large_epsilon_coarsens_only_flat_surface() {
         let r = check(name, &mesh, true, 800, 40, &coarse);
         assert_clean(name, &r);
     }
-    // Flat faces still make coarse leaves: the box's faces keep far fewer nodes than at the
-    // default epsilon.
-    let cube = scenes::cube([-1.0; 3], [1.0; 3]);
-    let nodes = |params: &BuildParams| bake(&[MeshRef::from(&cube)], params, &()).expect("bakes").1.nodes;
-    let tilted = scenes::uv_sphere([0.0; 3], 1.0, 6, 3);
-    let nodes_tilted = |params: &BuildParams| bake(&[MeshRef::from(&tilted)], params, &()).expect("bakes").1.nodes;
-    let fine = BuildParams { dmin: 0, dmax: 7, epsilon: 0.0, ..BuildParams::default() };
-    eprintln!("cube: {} nodes coarse, {} fine; low-poly sphere: {} coarse, {} fine", nodes(&coarse), nodes(&fine), nodes_tilted(&coarse), nodes_tilted(&fine));
-    assert!(nodes_tilted(&coarse) < nodes_tilted(&fine), "flat faces did not make coarser leaves");
+    // Flat faces still make coarse leaves: a low-poly sphere (flat facets) keeps fewer nodes
+    // than with `epsilon` 0, which refines every surface leaf to `dmax`.
+    let facets = scenes::uv_sphere([0.0; 3], 1.0, 6, 3);
+    let nodes = |params: &BuildParams| bake(&[MeshRef::from(&facets)], params, &()).expect("bakes").1.nodes;
+    let fine = BuildParams { epsilon: 0.0, ..coarse };
+    let (coarse_nodes, fine_nodes) = (nodes(&coarse), nodes(&fine));
+    eprintln!("low-poly sphere: {coarse_nodes} nodes with epsilon 1000, {fine_nodes} with epsilon 0");
+    assert!(coarse_nodes < fine_nodes, "flat faces did not make coarser leaves");
+}
+
+/// A penetration campaign found scenes far from the origin whose bake wrote a surface leaf
+/// with a plane offset over the validator's bound: the offset was clamped to the leaf's box of
+/// rounded grid planes, which there is wider than the nominal cube the bound is made from.
+#[test]
+fn scenes_far_from_the_origin_bake_to_a_valid_proxy_or_an_error() {
+    let mut checked = 0;
+    for center in [[2e5, 0.0, 0.0], [1e4, -3e4, 5e3]] {
+        for mesh in [scenes::uv_sphere(center, 1.0, 48, 24), scenes::torus(center, 1.0, 0.35, 48, 24)] {
+            for dmax in 4..=8 {
+                match bake(&[MeshRef::from(&mesh)], &BuildParams { dmax, ..BuildParams::default() }, &()) {
+                    Ok((words, _)) => {
+                        ProxyView::new(&words).unwrap_or_else(|e| panic!("at {center:?}, dmax {dmax}: {e:?}"));
+                        checked += 1;
+                    }
+                    Err(e) => assert!(matches!(e, BuildError::Resolution { .. }), "at {center:?}, dmax {dmax}: {e}"),
+                }
+            }
+        }
+    }
+    assert!(checked >= 8, "only {checked} bakes succeeded");
 }
 
 #[test]

@@ -28,8 +28,10 @@
 //! curved patches much more tightly, for caps, distances and segments alike.
 //!
 //! Segment crossings use exact orientation predicates (a floating-point filter with an exact
-//! expansion-arithmetic fallback), so adjacent triangles agree about a segment passing
-//! through their shared edge or vertex.
+//! expansion-arithmetic fallback) and a symbolic perturbation for the exact zeros: a segment
+//! through an edge or vertex shared by several triangles is counted as if moved off it by an
+//! infinitesimal translation, so the crossing count along a path has the parity of the path's
+//! real passages through the surface.
 
 use glam::DVec3;
 
@@ -364,9 +366,13 @@ impl GroundTruth {
         }
     }
 
-    /// Number of triangles the closed segment `a → b` crosses or touches (a segment through
-    /// a shared edge or vertex counts once for every triangle there). A segment lying in a
-    /// triangle's plane does not count for it. The tests are exact; `a == b` gives 0.
+    /// Number of triangles the segment `a → b` crosses, exactly, as if translated by an
+    /// infinitesimal `δ = ε x̂ + ε² ŷ + ε³ ẑ` (see `segment_hits_triangle`): a segment through
+    /// a shared edge or vertex counts once where it passes from one side of the surface to the
+    /// other, and an even number of times where it only touches it; an end point on a triangle
+    /// counts on the side `δ` moves it to, the same for the pieces before and after it. The
+    /// sum over the pieces of a path has the parity of the path's passages through the
+    /// surface. `a == b` gives 0.
     pub fn segment_crossings(&self, a: [f32; 3], b: [f32; 3]) -> u32 {
         let a = to_d(a);
         let b = to_d(b);
@@ -642,19 +648,44 @@ fn segment_box(a: DVec3, inv: DVec3, lo: DVec3, hi: DVec3) -> bool {
     t0 <= t1
 }
 
-/// Whether the closed segment `a b` meets the closed triangle `v` (exact). A segment in the
-/// triangle's plane does not count.
+/// Whether the segment `a b`, translated by the infinitesimal `δ = ε x̂ + ε² ŷ + ε³ ẑ`,
+/// crosses the triangle `v` (exact). Every orientation that is exactly zero (an end point in
+/// the triangle's plane, the segment's line meeting an edge's line) takes the sign of its
+/// first nonzero term in `ε` instead. All pieces of a path are translated alike, so the
+/// translated path is still a path, and it is in general position: it passes through no edge
+/// or vertex and ends on no triangle. A segment through an edge shared by two triangles
+/// crosses exactly one of them when it passes from one side of the surface to the other, and
+/// none or both when it only touches a ridge, whatever the triangles' orientations; a segment
+/// in a triangle's plane crosses it nowhere.
 fn segment_hits_triangle(a: DVec3, b: DVec3, v: &[DVec3; 3]) -> bool {
-    let sa = orient(v[0], v[1], v[2], a);
-    let sb = orient(v[0], v[1], v[2], b);
+    // `orient(v0, v1, v2, a + δ) = orient(v0, v1, v2, a) + n · δ`, `n = (v1 - v0) × (v2 - v0)`.
+    let plane_tie = || first_nonzero(|axis| exact::cross_sign(v[0], v[1], v[0], v[2], axis));
+    let mut sa = orient(v[0], v[1], v[2], a);
+    let mut sb = orient(v[0], v[1], v[2], b);
+    if sa == 0 || sb == 0 {
+        let tie = plane_tie();
+        sa = if sa == 0 { tie } else { sa };
+        sb = if sb == 0 { tie } else { sb };
+    }
     if sa == sb {
-        // Both ends strictly on one side, or both in the plane.
         return false;
     }
-    let e0 = orient(a, b, v[0], v[1]);
-    let e1 = orient(a, b, v[1], v[2]);
-    let e2 = orient(a, b, v[2], v[0]);
+    // `orient(a + δ, b + δ, u, w) = orient(a, b, u, w) - δ · ((w - u) × (b - a))`.
+    let edge = |u: DVec3, w: DVec3| match orient(a, b, u, w) {
+        0 => first_nonzero(|axis| -exact::cross_sign(u, w, a, b, axis)),
+        o => o,
+    };
+    let (e0, e1, e2) = (edge(v[0], v[1]), edge(v[1], v[2]), edge(v[2], v[0]));
+    // Every sign is nonzero unless the triangle is degenerate (the constructor drops those)
+    // or the segment is parallel to its plane (then `sa == sb` above): keep both closed
+    // tests anyway.
     (e0 >= 0 && e1 >= 0 && e2 >= 0) || (e0 <= 0 && e1 <= 0 && e2 <= 0)
+}
+
+/// The first nonzero of `f(0)`, `f(1)`, `f(2)`: the sign of the leading term of
+/// `c · δ` for `c = (f(0), f(1), f(2))` in signs, with `δ` as in [`segment_hits_triangle`].
+fn first_nonzero(f: impl Fn(usize) -> i32) -> i32 {
+    (0..3).map(f).find(|&s| s != 0).unwrap_or(0)
 }
 
 /// Exact sign of `(q - p) × (r - p) · (s - p)`: positive when `s` is on the side of plane
@@ -790,6 +821,14 @@ mod exact {
             Some(_) => -1,
             None => 0,
         }
+    }
+
+    /// Exact sign of component `axis` of `(p1 - p0) × (q1 - q0)`.
+    pub(super) fn cross_sign(p0: DVec3, p1: DVec3, q0: DVec3, q1: DVec3, axis: usize) -> i32 {
+        let (i, j) = ((axis + 1) % 3, (axis + 2) % 3);
+        let (pi, pj) = (diff(p1[i], p0[i]), diff(p1[j], p0[j]));
+        let (qi, qj) = (diff(q1[i], q0[i]), diff(q1[j], q0[j]));
+        sign(&sum(&mul(&pi, &qj), &neg(&mul(&pj, &qi))))
     }
 
     /// Exact sign of `det[a - d, b - d, c - d]`.
@@ -1084,11 +1123,20 @@ mod tests {
         assert_eq!(g.segment_crossings([-3.0, 1.5, 0.2], [3.0, 1.5, 0.2]), 0);
         assert_eq!(g.segment_crossings([0.0, 0.1, 0.2], [0.5, 0.1, 0.2]), 0);
         assert_eq!(g.segment_crossings([0.0, 0.1, 0.2], [0.0, 0.1, 0.2]), 0);
-        // Ending exactly on a face touches it.
-        assert_eq!(g.segment_crossings([3.0, 0.1, 0.2], [1.0, 0.1, 0.2]), 1);
-        // Through the face centres, which lie on the quads' diagonals: each diagonal is shared
-        // by two triangles, and both count, exactly.
-        assert_eq!(g.segment_crossings([-3.0, 0.0, 0.0], [3.0, 0.0, 0.0]), 4);
+        // Ending exactly on a face: the end point counts on the side the infinitesimal
+        // translation (toward +x first) moves it to, outside the +x face and inside the -x
+        // face; the piece that goes on from there counts the rest.
+        assert_eq!(g.segment_crossings([3.0, 0.1, 0.2], [1.0, 0.1, 0.2]), 0);
+        assert_eq!(g.segment_crossings([1.0, 0.1, 0.2], [0.0, 0.1, 0.2]), 1);
+        assert_eq!(g.segment_crossings([-3.0, 0.1, 0.2], [-1.0, 0.1, 0.2]), 1);
+        assert_eq!(g.segment_crossings([-1.0, 0.1, 0.2], [0.0, 0.1, 0.2]), 0);
+        // Through the face centres, which lie on the quads' diagonals, each shared by two
+        // triangles: once per face.
+        assert_eq!(g.segment_crossings([-3.0, 0.0, 0.0], [3.0, 0.0, 0.0]), 2);
+        // Through two opposite corners, where several triangles of three faces meet.
+        assert_eq!(g.segment_crossings([-2.0, -2.0, -2.0], [2.0, 2.0, 2.0]), 2);
+        // Along an edge of the cube from outside: it touches the surface only.
+        assert_eq!(g.segment_crossings([1.0, 1.0, -3.0], [1.0, 1.0, 3.0]) % 2, 0);
         // Lying in a face's plane does not count for that face.
         assert_eq!(g.segment_crossings([1.0, -0.5, -0.5], [1.0, 0.5, 0.5]), 0);
     }
@@ -1108,8 +1156,115 @@ mod tests {
                 assert_eq!(g.segment_crossings(a, b) % 2, 0, "{a:?} {b:?}");
             }
         }
-        // Through the poles, where 24 triangles share a vertex: all of them count.
-        assert_eq!(g.segment_crossings([0.0, -2.0, 0.0], [0.0, 2.0, 0.0]), 48);
+        // Through the poles, where 24 triangles share a vertex: once per pole.
+        assert_eq!(g.segment_crossings([0.0, -2.0, 0.0], [0.0, 2.0, 0.0]), 2);
+    }
+
+    #[test]
+    fn open_mesh_crossings_through_shared_edges_and_vertices() {
+        // A 4x4 sheet in y = 0 over [-1, 1]²: vertices every 0.5, each quad split along a
+        // diagonal. Straight through a vertex where six triangles meet, through an edge, and
+        // through a diagonal's midpoint: once each.
+        let sheet = gt(&scenes::flat_sheet([0.0; 3], 2.0, 4));
+        assert_eq!(sheet.segment_crossings([0.0, -1.0, 0.0], [0.0, 1.0, 0.0]), 1);
+        assert_eq!(sheet.segment_crossings([0.5, 1.0, -0.5], [-0.5, -1.0, 0.5]), 1);
+        assert_eq!(sheet.segment_crossings([0.25, -1.0, 0.0], [0.25, 1.0, 0.0]), 1);
+        assert_eq!(sheet.segment_crossings([0.25, -1.0, 0.25], [0.25, 1.0, 0.25]), 1);
+        // Along the sheet, across its edges and vertices: never.
+        assert_eq!(sheet.segment_crossings([-0.9, 0.0, -0.9], [0.9, 0.0, 0.7]), 0);
+        // A roof: two triangles meeting at the ridge x = 0, y = 1, sloping down to y = 0.
+        let positions = [[0.0, 1.0, -1.0], [0.0, 1.0, 1.0], [1.0, 0.0, -1.0], [-1.0, 0.0, -1.0], [1.0, 0.0, 1.0], [-1.0, 0.0, 1.0]];
+        let roof = GroundTruth::new(&positions, &[[0, 1, 2], [2, 1, 4], [1, 0, 3], [1, 3, 5]]);
+        // Grazing the ridge from above, it stays above: an even count.
+        assert_eq!(roof.segment_crossings([-1.0, 1.5, 0.0], [1.0, 0.5, 0.0]) % 2, 0);
+        assert_eq!(roof.segment_crossings([-1.0, 2.0, 0.0], [1.0, 0.0, 0.0]) % 2, 0);
+        // Through the ridge from above to beneath: once.
+        assert_eq!(roof.segment_crossings([0.0, 2.0, 0.0], [0.0, 0.5, 0.0]), 1);
+        assert_eq!(roof.segment_crossings([-0.5, 2.0, 0.3], [0.5, 0.0, -0.3]), 1);
+    }
+
+    /// `segment_hits_triangle` against an explicit translation by `(2^-16, 2^-32, 2^-48)`, on
+    /// small lattice coordinates, where segments through edges, through vertices, along
+    /// edges, ending on triangles and lying in their planes are common. Coordinates are
+    /// multiples of 1/2 below 32 in size, so a nonzero orientation is at least 1/8 while the
+    /// translation changes one by less than 1/16, each order of it outweighs the next, and the
+    /// translated coordinates are exact: the explicit translation decides as the
+    /// infinitesimal one does, and its orientations are never zero where they matter.
+    #[test]
+    fn perturbed_hits_match_an_explicit_translation() {
+        let mut rng = Lcg(29);
+        let lattice = |rng: &mut Lcg| DVec3::new(rng.int(8) as f64, rng.int(8) as f64, rng.int(8) as f64);
+        let delta = DVec3::new(2f64.powi(-16), 2f64.powi(-32), 2f64.powi(-48));
+        let mut degenerate = 0;
+        let mut hits = 0;
+        for _ in 0..20_000 {
+            let v = [lattice(&mut rng), lattice(&mut rng), lattice(&mut rng)];
+            if (v[1] - v[0]).cross(v[2] - v[0]) == DVec3::ZERO {
+                continue;
+            }
+            // Segments through a vertex, through an edge's midpoint, or between lattice points.
+            let a = lattice(&mut rng);
+            let through = match rng.next() % 3 {
+                0 => v[(rng.next() % 3) as usize],
+                1 => (v[0] + v[1]) * 0.5,
+                _ => lattice(&mut rng),
+            };
+            // Through it, or ending there.
+            let b = if rng.next().is_multiple_of(4) { through } else { through + (through - a) };
+            if a == b {
+                continue;
+            }
+            let exact = [
+                orient(v[0], v[1], v[2], a),
+                orient(v[0], v[1], v[2], b),
+                orient(a, b, v[0], v[1]),
+                orient(a, b, v[1], v[2]),
+                orient(a, b, v[2], v[0]),
+            ];
+            degenerate += exact.contains(&0) as u32;
+            let (at, bt) = (a + delta, b + delta);
+            let ends = [orient(v[0], v[1], v[2], at), orient(v[0], v[1], v[2], bt)];
+            assert!(!ends.contains(&0), "{a} {b} {v:?}");
+            let translated = ends[0] != ends[1] && {
+                let edges = [orient(at, bt, v[0], v[1]), orient(at, bt, v[1], v[2]), orient(at, bt, v[2], v[0])];
+                // Crossing the plane, the segment is not parallel to any edge.
+                assert!(!edges.contains(&0), "{a} {b} {v:?}");
+                edges.iter().all(|&e| e > 0) || edges.iter().all(|&e| e < 0)
+            };
+            assert_eq!(segment_hits_triangle(a, b, &v), translated, "{a} {b} {v:?}");
+            hits += translated as u32;
+        }
+        assert!(degenerate > 2000 && hits > 1000, "{degenerate} degenerate cases, {hits} hits");
+    }
+
+    /// On a closed mesh whose vertices, edges and faces are all on a coarse lattice, the
+    /// crossings along a random lattice path (through vertices and edges, along faces, ending
+    /// on them) add up, at every end point off the surface, to the parity of inside versus
+    /// where it started.
+    #[test]
+    fn path_crossings_have_the_parity_of_the_side_on_a_lattice_mesh() {
+        let g = gt(&scenes::merge(&[scenes::cube([-2.0; 3], [2.0; 3]), scenes::cube([-1.0, -1.0, -1.0], [1.0, 3.0, 1.0])]));
+        let inside = |p: [f32; 3]| g.winding_number(p).round() as i64 % 2 != 0;
+        let mut rng = Lcg(31);
+        let mut checked = 0;
+        for _ in 0..300 {
+            let mut p = [rng.int(4) as f32, rng.int(4) as f32, rng.int(4) as f32];
+            while g.distance(p) == 0.0 {
+                p[0] += 0.5;
+            }
+            let start = inside(p);
+            let mut crossings = 0;
+            for _ in 0..30 {
+                let q = [rng.int(4) as f32, rng.int(4) as f32, rng.int(4) as f32];
+                crossings += g.segment_crossings(p, q);
+                p = q;
+                if g.distance(p) > 0.0 {
+                    assert_eq!(crossings % 2 == 1, inside(p) != start, "at {p:?}");
+                    checked += 1;
+                }
+            }
+        }
+        assert!(checked > 3000, "{checked}");
     }
 
     #[test]

@@ -1,12 +1,12 @@
 //! The penetration harness: any scene, any particles, many steps, checked against exact
 //! ground truth rather than the proxy.
 //!
-//! Every straight piece of every particle's real path (from `step_particle_traced`) is tested
-//! against the mesh; a particle whose crossings add up to an odd number has changed side.
-//! A **penetration** is a particle that has changed side and ends a step more than `tolerance`
-//! (one `dmax`-leaf diagonal) from the surface. For closed meshes the winding number checks
-//! the same thing a second way: a particle that started inside and ends outside (or the
-//! reverse), farther than the tolerance from the surface, escaped (or penetrated).
+//! A **penetration** is a particle that ends a step on the other side of the surface from
+//! where it started, more than `tolerance` (one `dmax`-leaf diagonal) from the surface. For a
+//! closed mesh the side is inside or outside, by the exact winding number at the step's end.
+//! For an open mesh it is the parity of the surface crossings along every straight piece of
+//! the particle's real path (from `step_particle_traced`), counted exactly, with paths through
+//! shared edges and vertices counted once per passage (see `GroundTruth::segment_crossings`).
 //! Passing through a hole crosses no triangle, so open meshes may be passed only through holes.
 
 use glam::Vec3;
@@ -82,9 +82,7 @@ pub fn tolerance(view: &ProxyView<'_>) -> f32 {
 /// Steps `particles` `steps` times against `view`, checking every path against `gt`: a
 /// particle more than [`tolerance`] from the surface must be on the side it started on.
 /// `closed`: the side is inside or outside, by the exact winding number. Open: the side is the
-/// parity of the surface crossings along every piece of the path (a path through a shared
-/// edge or vertex counts once per triangle there, so far from the origin, where such hits are
-/// common, the parity can report a crossing that did not happen; a closed mesh does not use it).
+/// parity of the surface crossings along every piece of the path.
 pub fn run_check(
     view: &ProxyView<'_>,
     gt: &GroundTruth,

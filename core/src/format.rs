@@ -116,12 +116,16 @@ impl Label {
     }
 
     /// Decodes two label bits; `3` is not a label.
+    #[inline]
     pub const fn from_bits(bits: u32) -> Option<Label> {
-        match bits {
-            0 => Some(Label::None),
-            1 => Some(Label::Front),
-            2 => Some(Label::Back),
-            _ => None,
+        // A table, not a `match`: a `match` compiles to a jump table, and which label a leaf
+        // has is a coin toss for the predictor of that indirect jump (a tenth of the
+        // mispredictions of a two-leaf step).
+        const LABELS: [Option<Label>; 4] = [Some(Label::None), Some(Label::Front), Some(Label::Back), None];
+        if bits < 4 {
+            LABELS[bits as usize]
+        } else {
+            None
         }
     }
 }

@@ -612,18 +612,19 @@ fn march<F: FnMut(Vec3, Vec3)>(
         last_leaf = Some(leaf);
         match leaf.kind {
             LeafKind::Empty => {
-                if leaf.label != Label::None {
-                    let label_side = side_of(leaf.label);
-                    if in_shell && label_side != side {
-                        trace(x, shell_entry);
-                        x = shell_entry;
-                        v = respond(v, face_normal(cross_axes, cross_signs), e, mu);
-                        collisions += 1;
-                        outcome = StepOutcome::Blocked;
-                        break;
-                    }
-                    side = label_side;
+                // Selects, not a branch on the label: labelled or not is a coin toss for the
+                // branch predictor; coming out of the shell on the other side is rare.
+                let labelled = leaf.label != Label::None;
+                let label_side = side_of(leaf.label);
+                if (labelled as u32 & in_shell as u32 & (label_side != side) as u32) != 0 {
+                    trace(x, shell_entry);
+                    x = shell_entry;
+                    v = respond(v, face_normal(cross_axes, cross_signs), e, mu);
+                    collisions += 1;
+                    outcome = StepOutcome::Blocked;
+                    break;
                 }
+                side = if labelled { label_side } else { side };
                 in_shell = false;
             }
             LeafKind::Surface => {
@@ -662,7 +663,8 @@ fn march<F: FnMut(Vec3, Vec3)>(
         // Most steps end in the leaf they start in: an end point strictly inside the box
         // settles it without the exit time (the segment stays in the convex box).
         let end = x + v * remaining;
-        if end.cmpgt(leaf.aabb.min).all() && end.cmplt(leaf.aabb.max).all() {
+        // One test of a mask, not six short-circuit branches.
+        if (end.cmpgt(leaf.aabb.min) & end.cmplt(leaf.aabb.max)).bitmask() == 0b111 {
             trace(x, end);
             x = end;
             *hint = LeafHint::of(&leaf);

@@ -3,7 +3,10 @@
 //!
 //! A **penetration** is a particle that ends a step on the other side of the surface from
 //! where it started, more than `tolerance` (one `dmax`-leaf diagonal) from the surface. For a
-//! closed mesh the side is inside or outside, by the exact winding number at the step's end.
+//! closed mesh the side is inside or outside, by the exact winding number at the step's end,
+//! and at points every half tolerance along every piece of the path that crosses the surface:
+//! a path that goes through a closed mesh within one step is a penetration (a **tunnel**)
+//! even if it ends on the right side.
 //! For an open mesh it is the parity of the surface crossings along every straight piece of
 //! the particle's real path (from `step_particle_traced`), counted exactly, with paths through
 //! shared edges and vertices counted once per passage (see `GroundTruth::segment_crossings`).
@@ -29,6 +32,9 @@ pub struct CheckReport {
     pub penetrations: u64,
     /// Of those, particles that started inside a closed mesh and ended outside.
     pub escapes: u64,
+    /// Of those, particles whose path went through a closed mesh: some point of it deeper
+    /// than the tolerance on the other side, though maybe no step ended there.
+    pub tunnels: u64,
     /// Particles whose state became NaN or infinite.
     pub non_finite: u64,
     /// Steps stopped by the shell rule.
@@ -101,6 +107,7 @@ pub fn run_check(
         non_finite: bool,
         blocked: u64,
         bound: u64,
+        tunnelled: bool,
     }
     let mut states: Vec<State> = particles
         .par_iter()
@@ -113,6 +120,7 @@ pub fn run_check(
             non_finite: false,
             blocked: 0,
             bound: 0,
+            tunnelled: false,
         })
         .collect();
     particles.par_iter_mut().zip(states.par_iter_mut()).for_each(|(p, s)| {
@@ -121,10 +129,29 @@ pub fn run_check(
                 break;
             }
             step_particle_traced(view, p, params, &mut |a: Vec3, b: Vec3| {
-                if !closed && a != b {
-                    s.crossings += gt.segment_crossings(a.to_array(), b.to_array()) as u64;
+                if a == b {
+                    return;
+                }
+                let k = gt.segment_crossings(a.to_array(), b.to_array());
+                if !closed {
+                    s.crossings += k as u64;
+                } else if k > 0 && !s.tunnelled {
+                    // Through the surface and maybe back within the piece: every point of it
+                    // deeper than the tolerance must be on the starting side.
+                    let n = ((((b - a).length() as f64) / (0.5 * tol)).ceil() as usize).clamp(1, 4096);
+                    for i in 1..n {
+                        let q = (a + (b - a) * (i as f32 / n as f32)).to_array();
+                        if gt.is_inside(q) != s.inside && gt.distance_capped(q, 2.0 * tol) > tol {
+                            s.tunnelled = true;
+                            break;
+                        }
+                    }
                 }
             });
+            if s.tunnelled {
+                s.bad = true;
+                s.escaped = s.inside;
+            }
             if p.flags & FLAG_INVALID != 0 || !Vec3::from_array(p.position).is_finite() {
                 s.non_finite = true;
                 break;
@@ -154,6 +181,7 @@ pub fn run_check(
         if s.bad {
             report.penetrations += 1;
             report.escapes += s.escaped as u64;
+            report.tunnels += s.tunnelled as u64;
             if report.examples.len() < 5 {
                 report.examples.push((i, s.start, p.position));
             }

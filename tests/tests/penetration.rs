@@ -3,7 +3,7 @@
 //! an open sheet except through a hole. Speeds run from a fraction of a leaf to the whole
 //! scene per step.
 
-use octoproxy_core::{ProxyView, StepParams};
+use octoproxy_core::{Particle, ProxyView, StepParams};
 use octoproxy_cpu::{bake, BuildError, BuildParams, MeshRef};
 use octoproxy_tests::ground_truth::GroundTruth;
 use octoproxy_tests::harness::{random_particles, run_check, CheckReport};
@@ -157,6 +157,31 @@ fn open_scenes_far_from_the_origin_hold() {
         let r = check(name, &mesh, false, 3000, 60, &BuildParams { dmax, ..BuildParams::default() });
         assert_clean(name, &r);
     }
+}
+
+#[test]
+fn the_check_sees_a_path_through_a_closed_mesh() {
+    // A proxy without the sphere (two small triangles at opposite corners of its box) against
+    // the sphere's ground truth: particles fired through the sphere in one step end outside
+    // it, on the side they started on, and only the check of the path's points sees them.
+    let sphere = scenes::uv_sphere([0.0; 3], 0.5, 32, 16);
+    let corners = Mesh {
+        positions: vec![[-0.6, -0.6, -0.6], [-0.59, -0.6, -0.6], [-0.6, -0.59, -0.6], [0.6, 0.6, 0.6], [0.59, 0.6, 0.6], [0.6, 0.59, 0.6]],
+        triangles: vec![[0, 1, 2], [3, 4, 5]],
+    };
+    let (words, _) = bake(&[MeshRef::from(&corners)], &BuildParams::default(), &()).expect("bakes");
+    let view = ProxyView::new(&words).expect("valid");
+    let gt = GroundTruth::new(&sphere.positions, &sphere.triangles);
+    let mut ps: Vec<Particle> = (0..100)
+        .map(|i| {
+            let (y, z) = ((i % 10) as f32 * 0.04 - 0.18, (i / 10) as f32 * 0.04 - 0.18);
+            Particle::new([-0.58, y, z], [1.16 / DT, 0.0, 0.0])
+        })
+        .collect();
+    let params = StepParams { gravity: [0.0; 3], dt: DT, ..StepParams::default() };
+    let r = run_check(&view, &gt, &mut ps, 1, &params, true);
+    assert!(ps.iter().all(|p| p.position[0] > 0.55 && !gt.is_inside(p.position)), "they all end outside, beyond the sphere");
+    assert_eq!((r.penetrations, r.tunnels), (100, 100));
 }
 
 #[test]

@@ -24,7 +24,9 @@ fn help() -> String {
 usage: cargo xtask check (--mesh MESH... | --scene NAME) [options]
 
 Counts penetrations against exact ground truth: generalized winding numbers for closed
-meshes, crossing parity of every path segment for open ones, both through a BVH.
+meshes (at every step's end, and along every piece of a path that crosses the surface, so a
+particle that goes through the mesh within one step counts), crossing parity of every path
+segment for open ones, both through a BVH.
 
 scene:
   --mesh FILE       a mesh (PLY/OBJ/STL, .gz); repeat for several
@@ -116,7 +118,7 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
         "ground truth: {} triangles, {} mesh ({}), BVH in {:.0} ms",
         gt.triangle_count(),
         if closed { "closed" } else { "open" },
-        if closed { "winding numbers and crossing parity" } else { "crossing parity" },
+        if closed { "winding numbers, at step ends and along paths that cross it" } else { "crossing parity" },
         t.elapsed().as_secs_f64() * 1e3
     );
     let mut particles = match &particles_file {
@@ -151,7 +153,11 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
         "penetrations: {} ({:.3} per million particle-steps){}",
         report.penetrations,
         report.per_million(),
-        if closed { format!(", of which {} escaped from inside", report.escapes) } else { String::new() }
+        if closed {
+            format!(", of which {} escaped from inside and {} went through the mesh within a step", report.escapes, report.tunnels)
+        } else {
+            String::new()
+        }
     );
     println!("NaN or infinite: {}", report.non_finite);
     println!(

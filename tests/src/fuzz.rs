@@ -21,7 +21,7 @@ use octoproxy_cpu::mesh::{parse_mesh, Mesh};
 use octoproxy_cpu::particles::{encode_particles, parse_particles, PlyEncoding};
 
 use crate::ground_truth::GroundTruth;
-use crate::harness::tolerance;
+use crate::harness::{deep_on_the_other_side, tolerance};
 use crate::scenes;
 
 // ---------------------------------------------------------------------------------------------
@@ -1073,17 +1073,13 @@ fn penetration_inner(u: &mut Unstructured<'_>) -> Result<()> {
                 if a == b || gt.segment_crossings(a.to_array(), b.to_array()) == 0 {
                     continue;
                 }
-                let n = ((((b - a).length() as f64) / (0.5 * tol)).ceil() as usize).clamp(1, 4096);
-                for i in 1..n {
-                    let q = (a + (b - a) * (i as f32 / n as f32)).to_array();
-                    if gt.is_inside(q) != inside && gt.distance_capped(q, 2.0 * tol) > tol {
-                        panic!(
-                            "PENETRATION: particle that {} a closed mesh went through it in step {s}, {:.4} deep \
-                             at {q:?} (tolerance {tol:.4}); start {start:?}, before {before:?}, after {p:?}, params {step:?}, build {params:?}",
-                            if inside { "started inside" } else { "started outside" },
-                            gt.distance(q)
-                        );
-                    }
+                if let Some(q) = deep_on_the_other_side(&gt, a, b, inside, tol) {
+                    panic!(
+                        "PENETRATION: particle that {} a closed mesh went through it in step {s}, {:.4} deep \
+                         at {q:?} (tolerance {tol:.4}); start {start:?}, before {before:?}, after {p:?}, params {step:?}, build {params:?}",
+                        if inside { "started inside" } else { "started outside" },
+                        gt.distance(q)
+                    );
                 }
             }
             let far = gt.distance_capped(p.position, 2.0 * tol) > tol;

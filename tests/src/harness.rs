@@ -85,6 +85,17 @@ pub fn tolerance(view: &ProxyView<'_>) -> f32 {
     view.finest_leaf_size() * 3f32.sqrt()
 }
 
+/// The first of the points every half `tol` along the piece `a → b` of a path (ends
+/// excluded) that is on the other side of a closed mesh from `inside` and farther than `tol`
+/// from its surface: a path that goes through the mesh, or into it and back. Only a piece that
+/// crosses the surface (`GroundTruth::segment_crossings`) can have one.
+pub fn deep_on_the_other_side(gt: &GroundTruth, a: Vec3, b: Vec3, inside: bool, tol: f64) -> Option<[f32; 3]> {
+    let n = ((((b - a).length() as f64) / (0.5 * tol)).ceil() as usize).clamp(1, 4096);
+    (1..n)
+        .map(|i| (a + (b - a) * (i as f32 / n as f32)).to_array())
+        .find(|&q| gt.is_inside(q) != inside && gt.distance_capped(q, 2.0 * tol) > tol)
+}
+
 /// Steps `particles` `steps` times against `view`, checking every path against `gt`: a
 /// particle more than [`tolerance`] from the surface must be on the side it started on.
 /// `closed`: the side is inside or outside, by the exact winding number. Open: the side is the
@@ -136,22 +147,10 @@ pub fn run_check(
                 if !closed {
                     s.crossings += k as u64;
                 } else if k > 0 && !s.tunnelled {
-                    // Through the surface and maybe back within the piece: every point of it
-                    // deeper than the tolerance must be on the starting side.
-                    let n = ((((b - a).length() as f64) / (0.5 * tol)).ceil() as usize).clamp(1, 4096);
-                    for i in 1..n {
-                        let q = (a + (b - a) * (i as f32 / n as f32)).to_array();
-                        if gt.is_inside(q) != s.inside && gt.distance_capped(q, 2.0 * tol) > tol {
-                            s.tunnelled = true;
-                            break;
-                        }
-                    }
+                    s.tunnelled = deep_on_the_other_side(gt, a, b, s.inside, tol).is_some();
                 }
             });
-            if s.tunnelled {
-                s.bad = true;
-                s.escaped = s.inside;
-            }
+            s.bad |= s.tunnelled;
             if p.flags & FLAG_INVALID != 0 || !Vec3::from_array(p.position).is_finite() {
                 s.non_finite = true;
                 break;

@@ -62,16 +62,8 @@ impl Poly {
         self.len == 0
     }
 
-    fn points(&self) -> &[DVec3] {
+    pub(crate) fn points(&self) -> &[DVec3] {
         &self.pts[..self.len]
-    }
-
-    /// The least and greatest `n · p` over the vertices; `None` when empty.
-    pub fn extent_along(&self, n: DVec3) -> Option<(f64, f64)> {
-        self.points().iter().map(|p| n.dot(*p)).fold(None, |acc, d| match acc {
-            None => Some((d, d)),
-            Some((lo, hi)) => Some((d.min(lo), d.max(hi))),
-        })
     }
 
     /// Area and area centroid (the centroid is the mean of the vertices when the area is 0).

@@ -626,10 +626,15 @@ impl Subdiv<'_> {
             return f64::INFINITY;
         }
         let n = sum / len;
-        let spread = polys.iter().filter_map(|p| p.extent_along(n)).fold(None, |acc: Option<(f64, f64)>, (a, b)| {
-            Some(acc.map_or((a, b), |(lo, hi)| (lo.min(a), hi.max(b))))
-        });
-        spread.map_or(f64::INFINITY, |(a, b)| b - a)
+        let (lo, hi) = polys
+            .iter()
+            .flat_map(|p| p.points())
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), q| (lo.min(n.dot(*q)), hi.max(n.dot(*q))));
+        if lo <= hi {
+            hi - lo
+        } else {
+            f64::INFINITY
+        }
     }
 
     /// Equations (1)–(2), divided by the total area: Σ aᵢ‖nᵢ − n̄‖² / Σ aᵢ with n̄ the

@@ -260,6 +260,53 @@ pub fn hemisphere(center: [f32; 3], radius: f32, segments: u32, rings: u32) -> M
     Mesh { positions, triangles }
 }
 
+/// A closed cone along +x: its apex at `(length, 0, 0)`, its base a circle of `radius` on
+/// `x = 0` (`segments` around, at least 3) closed by a fan from the origin. A thin one is a
+/// needle: its tip is sharper than any leaf.
+pub fn cone(length: f32, radius: f32, segments: u32) -> Mesh {
+    let segments = segments.max(3);
+    let mut positions = vec![[length, 0.0, 0.0], [0.0; 3]];
+    for s in 0..segments {
+        let th = TAU * s as f32 / segments as f32;
+        positions.push([0.0, radius * th.cos(), radius * th.sin()]);
+    }
+    let mut triangles = Vec::with_capacity(2 * segments as usize);
+    for s in 0..segments {
+        let (a, b) = (2 + s, 2 + (s + 1) % segments);
+        // The ring runs counter-clockwise seen from +x: the side faces the apex's way round,
+        // the base faces -x.
+        triangles.push([0, a, b]);
+        triangles.push([1, b, a]);
+    }
+    Mesh { positions, triangles }
+}
+
+/// `count` open sheets (as [`flat_sheet`], 2 on a side, facing +y) stacked `gap` apart,
+/// centred on the origin: closer together than a leaf when `gap` is small, so that one leaf
+/// holds several.
+pub fn sheet_stack(count: u32, gap: f32) -> Mesh {
+    let half = (count.max(1) - 1) as f32 * 0.5;
+    let sheets: Vec<Mesh> = (0..count).map(|i| flat_sheet([0.0, (i as f32 - half) * gap, 0.0], 2.0, 4)).collect();
+    merge(&sheets)
+}
+
+/// `count` unconnected triangles at random in the cube [-1, 1]³, of sizes from 1 % to 40 %
+/// of it, facing every way and passing through each other: no orientation, no inside, the
+/// hardest case for labels. The same `seed` gives the same soup.
+pub fn triangle_soup(count: u32, seed: u64) -> Mesh {
+    let mut rng = octoproxy_cpu::emit::Rng::new(seed);
+    let mut positions = Vec::with_capacity(3 * count as usize);
+    for _ in 0..count {
+        let c = [rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0)];
+        let size = rng.range(0.01, 0.4);
+        for _ in 0..3 {
+            positions.push(c.map(|x| x + size * rng.range(-1.0, 1.0)));
+        }
+    }
+    let triangles = (0..count).map(|i| [3 * i, 3 * i + 1, 3 * i + 2]).collect();
+    Mesh { positions, triangles }
+}
+
 /// One mesh holding all of `meshes` (vertices appended, indices shifted; nothing welded).
 pub fn merge(meshes: &[Mesh]) -> Mesh {
     let mut out = Mesh::default();
@@ -418,6 +465,28 @@ mod tests {
         let rim: Vec<_> = uses.iter().filter(|(_, &n)| n == 1).map(|(e, _)| *e).collect();
         assert_eq!(rim.len(), 32);
         assert!(rim.iter().all(|&(a, b)| [a, b].iter().all(|&i| (h.positions[i as usize][1] + 1.0).abs() < 1e-5)));
+    }
+
+    #[test]
+    fn cones_stacks_and_soups() {
+        let c = cone(2.0, 0.1, 16);
+        check_closed("cone", &c, &[[0.5, 0.0, 0.0], [1.9, 0.0, 0.0]], &[[2.01, 0.0, 0.0], [1.0, 0.06, 0.0], [-0.01, 0.0, 0.0]]);
+        // A regular 16-gon of circumradius 0.1 has area 8 · 0.1² · sin(π/8); the cone a third
+        // of that times its length.
+        let want = 8.0 * 0.01 * (PI / 8.0).sin() * 2.0 / 3.0;
+        assert!((c.signed_volume() as f32 - want).abs() < 1e-4 * want);
+        let s = sheet_stack(3, 0.01);
+        assert_eq!(s.triangles.len(), 3 * 32);
+        assert!(s.is_consistently_oriented() && !s.is_closed());
+        let mut ys: Vec<f32> = s.positions.iter().map(|p| p[1]).collect();
+        ys.dedup();
+        assert_eq!(ys, [-0.01, 0.0, 0.01]);
+        let a = triangle_soup(50, 3);
+        assert_eq!((a.positions.len(), a.triangles.len()), (150, 50));
+        assert_eq!(a.positions, triangle_soup(50, 3).positions);
+        assert_ne!(a.positions, triangle_soup(50, 4).positions);
+        assert!(a.positions.iter().flatten().all(|x| x.abs() < 1.4));
+        assert!(a.triangles.iter().all(|t| normal(&a, t).length() > 0.0));
     }
 
     #[test]

@@ -184,6 +184,38 @@ fn the_check_sees_a_path_through_a_closed_mesh() {
     assert_eq!((r.penetrations, r.tunnels), (100, 100));
 }
 
+/// Scenes that break the assumptions of the method one by one: a tip sharper than a leaf,
+/// sheets closer together than a leaf, triangles in every direction through each other,
+/// solids that overlap or touch, a mesh that passes through itself, and a room seen from
+/// inside. All but the needle are checked by parity (no inside to keep: a crossing of the
+/// surface deeper than the tolerance is a penetration). Found to hold on 68 such scenes at
+/// dmax 6, 8 and 10, straight and rotated, in a campaign; these are its smallest cases.
+#[test]
+fn scenes_that_break_the_methods_assumptions_hold() {
+    let unit = |c: [f32; 3]| scenes::uv_sphere(c, 1.0, 48, 24);
+    let mut room = scenes::cube([-1.0; 3], [1.0; 3]);
+    for t in &mut room.triangles {
+        t.swap(1, 2);
+    }
+    let cases: Vec<(&str, Mesh, bool)> = vec![
+        ("needle", scenes::cone(2.0, 0.002, 16), true),
+        ("three sheets 0.005 apart", scenes::sheet_stack(3, 0.005), false),
+        ("triangle soup", scenes::triangle_soup(300, 5), false),
+        ("overlapping spheres", scenes::merge(&[unit([0.0; 3]), unit([0.7, 0.0, 0.0])]), false),
+        (
+            "touching cubes",
+            scenes::merge(&[scenes::cube([-1.0; 3], [0.0, 1.0, 1.0]), scenes::cube([0.0, -1.0, -1.0], [1.0; 3])]),
+            false,
+        ),
+        ("self-intersecting torus", scenes::torus([0.0; 3], 0.3, 0.5, 48, 24), false),
+        ("room seen from inside", room, false),
+    ];
+    for (name, mesh, closed) in &cases {
+        let r = check(name, mesh, *closed, 400, 40, &defaults());
+        assert_clean(name, &r);
+    }
+}
+
 #[test]
 fn thin_closed_slab_holds() {
     // Thinner than a leaf at dmax 6 (root about 2.2, leaf about 0.035).

@@ -302,6 +302,14 @@ fn sharp_wedges_and_star() {
 }
 
 #[test]
+fn triangle_soup_with_conflicting_labels() {
+    // Triangles through each other in every direction: most surface leaves are two-sided and
+    // many empty leaves get conflicting labels; a needle's tip is sharper than a leaf.
+    let mesh = scenes::merge(&[scenes::triangle_soup(300, 5), scenes::cone(1.5, 0.01, 12)]);
+    differential("triangle soup + needle", &mesh, &build(6), 120, None);
+}
+
+#[test]
 fn nested_shells_in_small_chunks() {
     // Chunks of 256 particles (4 workgroups) in dispatch rows of 3 workgroups: 20 chunks, each
     // a folded 3 x 2 grid whose last two workgroups have no particles.

@@ -29,6 +29,7 @@ mod encode;
 pub mod geom;
 mod label;
 
+use std::collections::HashSet;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
@@ -50,6 +51,10 @@ pub const TWO_SIDED_COHERENCE: f64 = 0.3;
 pub const MAX_EARLY_LEAF_THICKNESS: f64 = 0.5;
 
 const PROGRESS_DEPTH: u32 = 3;
+
+/// Nodes above this depth subdivide their children in parallel, however few triangles they
+/// hold (below it, only nodes with many triangles do).
+const PARALLEL_DEPTH: u32 = 3;
 
 /// Most subdivide–label passes a bake makes (see [`bake`]).
 const MAX_PASSES: u32 = 4;
@@ -281,7 +286,7 @@ pub fn bake(meshes: &[MeshRef<'_>], params: &BuildParams, progress: &dyn BuildPr
     // normals cancel, or its labels conflict), force its region down to dmax and go again (solid leaves must be
     // small: a particle inside one is then never farther than a dmax diagonal from the
     // surface). A few passes settle it; what remains is left solid and reported.
-    let mut force: Vec<(UVec3, UVec3)> = Vec::new();
+    let mut force = Forced::default();
     let mut pass = 0;
     let (tree, labels) = loop {
         pass += 1;
@@ -314,20 +319,22 @@ pub fn bake(meshes: &[MeshRef<'_>], params: &BuildParams, progress: &dyn BuildPr
         let labels = label::label(&tree, &tris, &grid, progress);
         report.timings.push(("label", t.elapsed()));
 
-        let big: Vec<(UVec3, UVec3)> = tree
+        let big: Vec<(u32, UVec3)> = tree
             .surface
             .iter()
             .filter_map(|&i| {
                 let n = &tree.nodes[i as usize];
                 let solid = labels.conflicted(i) || matches!(&n.kind, encode::Kind::Surface(s) if s.two_sided);
-                (n.depth < params.dmax && solid).then(|| n.range())
+                (n.depth < params.dmax && solid).then_some((n.depth, n.cell))
             })
             .collect();
         if big.is_empty() || pass >= MAX_PASSES {
             report.passes = pass;
             break (tree, labels);
         }
-        force.extend(big);
+        for (depth, cell) in big {
+            force.add(depth, cell);
+        }
     };
 
     let t = Instant::now();
@@ -496,12 +503,49 @@ fn root_grid(tris: &[Tri], dmax: u32) -> Result<Grid, BuildError> {
     Err(BuildError::Resolution { dmax, cell: size / leaves as f32, magnitude: extent as f32 })
 }
 
+/// Cells of the octree whose region must be subdivided to `dmax`. Two cells are nested or
+/// disjoint, so a node overlaps a forced cell when it lies inside one (it or an ancestor is
+/// forced) or holds one (it is an ancestor of a forced cell): a few hash lookups per node,
+/// however many cells are forced (a linear scan over them made a bake of 160 triangles in
+/// stacked sheets take 7 s).
+#[derive(Default)]
+pub(crate) struct Forced {
+    /// The forced cells, as `(depth, cell)`.
+    cells: HashSet<(u32, [u32; 3])>,
+    /// Their strict ancestors.
+    holders: HashSet<(u32, [u32; 3])>,
+    /// The depth of the shallowest forced cell (`u32::MAX` when none).
+    shallowest: u32,
+}
+
+impl Forced {
+    pub(crate) fn add(&mut self, depth: u32, cell: UVec3) {
+        if self.cells.is_empty() {
+            self.shallowest = u32::MAX;
+        }
+        self.shallowest = self.shallowest.min(depth);
+        self.cells.insert((depth, cell.to_array()));
+        for d in 0..depth {
+            self.holders.insert((d, (cell >> (depth - d)).to_array()));
+        }
+    }
+
+    /// Whether the cell `cell` at `depth` overlaps a forced cell.
+    pub(crate) fn overlaps(&self, depth: u32, cell: UVec3) -> bool {
+        if self.cells.is_empty() {
+            return false;
+        }
+        self.holders.contains(&(depth, cell.to_array()))
+            || (self.shallowest..=depth).any(|d| self.cells.contains(&(d, (cell >> (depth - d)).to_array())))
+    }
+}
+
 struct Subdiv<'a> {
     tris: &'a [Tri],
     grid: Grid,
     params: BuildParams,
-    /// Regions (finest-grid plane ranges) that must be subdivided to `dmax`.
-    force: &'a [(UVec3, UVec3)],
+    /// Regions that must be subdivided to `dmax`.
+    force: &'a Forced,
     nodes: AtomicU64,
     over: AtomicBool,
     progress: &'a dyn BuildProgress,
@@ -531,9 +575,7 @@ impl Subdiv<'_> {
         // rim, nor where parts meet (their votes may conflict).
         let first = self.tris[list[0] as usize].component;
         let rim = list.iter().any(|&t| self.tris[t as usize].rim || self.tris[t as usize].component != first);
-        let s = MAX_DEPTH - depth;
-        let (lo, hi) = (cell << s, (cell + 1) << s);
-        let forced = self.force.iter().any(|(flo, fhi)| lo.cmplt(*fhi).all() && flo.cmplt(hi).all());
+        let forced = self.force.overlaps(depth, cell);
         let stop = depth >= self.params.dmax
             || (depth > self.params.dmin
                 && !on_boundary
@@ -560,7 +602,9 @@ impl Subdiv<'_> {
             let c = cell * 2 + UVec3::new(o & 1, (o >> 1) & 1, (o >> 2) & 1);
             self.build(sub, c, depth + 1)
         };
-        let large = subs.iter().map(Vec::len).sum::<usize>() > 1024;
+        // In parallel where there is much to do: many triangles, or (however few) the top of
+        // the tree, where a few large triangles may still make a deep subtree in every child.
+        let large = depth < PARALLEL_DEPTH || subs.iter().map(Vec::len).sum::<usize>() > 1024;
         let subs = (0u32..).zip(subs);
         let children: Vec<Node> = if large {
             subs.collect::<Vec<_>>().into_par_iter().map(child).collect()

@@ -55,7 +55,7 @@ fn variance_metric_is_area_normalised() {
         tris: &tris,
         grid,
         params: BuildParams::default(),
-        force: &[],
+        force: &Forced::default(),
         nodes: AtomicU64::new(0),
         over: AtomicBool::new(false),
         progress: &(),
@@ -336,4 +336,45 @@ fn locating_from_the_last_leaf_agrees_with_locating_from_scratch() {
     }
     // Most points were put on a face, and many of those are in another leaf.
     assert!(on_faces > 4000 && moved > 1500, "{on_faces} points on faces, {moved} in another leaf");
+}
+
+#[test]
+fn forced_cells_overlap_exactly_the_cells_that_nest_with_them() {
+    // Against the definition: closed-open plane ranges that overlap on every axis.
+    let range = |depth: u32, cell: UVec3| {
+        let s = MAX_DEPTH - depth;
+        (cell << s, (cell + 1) << s)
+    };
+    let overlap = |a: (UVec3, UVec3), b: (UVec3, UVec3)| a.0.cmplt(b.1).all() && b.0.cmplt(a.1).all();
+    let mut rng = crate::emit::Rng::new(5);
+    let mut cell_at = |depth: u32| {
+        let n = 1u32 << depth;
+        UVec3::new(rng.next_u64() as u32 % n, rng.next_u64() as u32 % n, rng.next_u64() as u32 % n)
+    };
+    let forced: Vec<(u32, UVec3)> = [2u32, 3, 5, 5, 7].iter().map(|&d| (d, cell_at(d))).collect();
+    let mut set = Forced::default();
+    assert!(!set.overlaps(0, UVec3::ZERO), "nothing forced yet");
+    for &(d, c) in &forced {
+        set.add(d, c);
+    }
+    let mut hits = 0;
+    for depth in 0..=8 {
+        for probe in 0..400 {
+            // Half the probes inside or around a forced cell, so that both answers occur.
+            let c = if probe % 2 == 0 {
+                let (fd, fc) = forced[probe % forced.len()];
+                if depth >= fd {
+                    (fc << (depth - fd)) + (cell_at(depth - fd) & UVec3::splat((1 << (depth - fd)) - 1))
+                } else {
+                    fc >> (fd - depth)
+                }
+            } else {
+                cell_at(depth)
+            };
+            let want = forced.iter().any(|&(d, f)| overlap(range(d, f), range(depth, c)));
+            assert_eq!(set.overlaps(depth, c), want, "cell {c} at depth {depth}");
+            hits += want as u32;
+        }
+    }
+    assert!(hits > 1000 && hits < 3000, "{hits} of 3600 probes overlap");
 }

@@ -481,15 +481,20 @@ pub fn step_particle_traced<F: FnMut(Vec3, Vec3)>(
 }
 
 /// The leaf a step that starts at `x` (with velocity `v`, on side `side`) starts in, given the
-/// leaf point location found, `leaf`. A step that starts on a face between a one-sided surface
-/// leaf and an empty leaf labelled with the other side starts in the surface leaf, so that the
-/// shell rule decides whether it may come out there. Point location alone would put it in the
+/// leaf point location found, `leaf`. A step that starts on a face between a surface leaf and
+/// an empty leaf labelled with the other side starts in the surface leaf, so that the shell
+/// rule decides whether it may come out there. Point location alone would put it in the
 /// empty leaf whenever its velocity does not point into the surface leaf, and stamp the other
 /// side with no crossing to stop: a particle can sit on such a face after a step that moved it
 /// along the face while its velocity pointed into the shell (far from the origin a slow
 /// velocity component does not move a coordinate at all), and turn its velocity there.
 /// Found by a campaign on scenes at 2e5 from the origin; elsewhere it takes a step ending
-/// exactly on a cell plane.
+/// exactly on a cell plane. Solid (two-sided) leaves too: a particle pinched to a stop on the
+/// corner of one, inside the shell and past the surface, would otherwise start its next step
+/// in the empty leaf beyond, labelled with the side it had crossed to, and be stamped with it
+/// (found by a campaign on the teapot scaled by 1e-3, where gravity moves a particle half the
+/// scene per step). Such a start is not "sliding along the solid leaf's face": the march does
+/// not move it out of the leaf again.
 #[inline]
 fn start_beside_shell(view: &ProxyView<'_>, leaf: LeafInfo, x: Vec3, v: Vec3, side: u32) -> LeafInfo {
     if leaf.kind != LeafKind::Empty || leaf.label == Label::None || side_of(leaf.label) == side {
@@ -504,7 +509,7 @@ fn start_beside_shell(view: &ProxyView<'_>, leaf: LeafInfo, x: Vec3, v: Vec3, si
         dir[a] = if below { -1.0 } else { 1.0 };
         if view.root_contains(x, dir) {
             let across = view.locate_inside(x, dir);
-            if across.kind == LeafKind::Surface && !across.two_sided {
+            if across.kind == LeafKind::Surface {
                 return across;
             }
         }
@@ -559,6 +564,8 @@ fn march<F: FnMut(Vec3, Vec3)>(
             break;
         }
         visited += 1;
+        // Whether this leaf is the shell beside the point the step starts on.
+        let mut beside_shell = false;
         // Only the first leaf of a step can come from the hint: the particle has not moved yet.
         // After it, the particle is on the closed box of the leaf it was last in, and the next
         // leaf is found from that leaf's cell.
@@ -589,12 +596,14 @@ fn march<F: FnMut(Vec3, Vec3)>(
             }
             let leaf = view.locate_inside(x, v);
             if visited == 1 {
-                start_beside_shell(view, leaf, x, v, side)
+                let start = start_beside_shell(view, leaf, x, v, side);
+                beside_shell = start.kind != leaf.kind;
+                start
             } else {
                 leaf
             }
         };
-        if leaf.two_sided && entry_faces(&leaf.aabb, x, v) == 0 {
+        if leaf.two_sided && !beside_shell && entry_faces(&leaf.aabb, x, v) == 0 {
             // A particle sliding along a face of a solid leaf (no velocity across it), and not
             // entering through another, is not in the leaf: locate it on the face's outer side.
             let mut dir = v;

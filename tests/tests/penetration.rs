@@ -217,6 +217,41 @@ fn scenes_that_break_the_methods_assumptions_hold() {
 }
 
 #[test]
+fn a_step_from_a_solid_leafs_face_cannot_come_out_on_the_other_side() {
+    // A particle on the bottom face of a solid (two-sided) leaf of a slab thinner than a leaf,
+    // on the back side while the empty leaf below is labelled front: it got there inside the
+    // shell (pinched to a stop on a solid leaf's corner, past the surface, in a campaign), and
+    // the shell rule decides whether it may come out. It may not: the step is blocked.
+    use octoproxy_core::LeafKind;
+    // A small cube above moves the root's centre plane off the slab, so that both of the
+    // slab's faces lie in one leaf.
+    let mesh = scenes::merge(&[scenes::slab([0.0; 3], [2.0, 0.01, 2.0]), scenes::cube([0.0, 0.5, 0.0], [0.05, 0.55, 0.05])]);
+    let (words, _) = bake(&[MeshRef::from(&mesh)], &defaults(), &()).expect("bakes");
+    let view = ProxyView::new(&words).expect("valid");
+    let solid = view.locate_leaf([0.3, 0.0, 0.3].into()).expect("in the root");
+    assert!(solid.kind == LeafKind::Surface && solid.two_sided, "{solid:?}");
+    // On its bottom face, and on the corner of it, where a velocity along no other axis puts
+    // the particle on the face of the solid leaf beside it, as after a pinch.
+    let center = (solid.aabb.min + solid.aabb.max) * 0.5;
+    for start in [[center.x, solid.aabb.min.y, center.z], solid.aabb.min.to_array()] {
+        stopped_on_a_solid_leaf(&view, start);
+    }
+}
+
+fn stopped_on_a_solid_leaf(view: &ProxyView<'_>, start: [f32; 3]) {
+    use octoproxy_core::{step_particle, Label, LeafKind, StepOutcome, SIDE_BACK};
+    let below = view.locate_leaf_toward(start.into(), [0.0, -1.0, 0.0].into()).expect("in the root");
+    assert!(below.kind == LeafKind::Empty && below.label == Label::Front, "{below:?}");
+    let params = StepParams { gravity: [0.0; 3], dt: DT, restitution: 0.5, friction: 0.0, _pad: [0; 2] };
+    let mut p = Particle::new(start, [0.0, -1.0, 0.0]);
+    p.side = SIDE_BACK;
+    assert_eq!(step_particle(view, &mut p, &params), StepOutcome::Blocked, "from {start:?}");
+    assert_eq!(p.position, start);
+    assert_eq!(p.side, SIDE_BACK);
+    assert!(p.velocity[1] > 0.0, "turned back into the shell: {:?}", p.velocity);
+}
+
+#[test]
 fn thin_closed_slab_holds() {
     // Thinner than a leaf at dmax 6 (root about 2.2, leaf about 0.035).
     let mesh = scenes::slab([0.0; 3], [2.0, 0.01, 2.0]);

@@ -220,9 +220,9 @@ fn side_of(label: u32) -> u32 {
     return SIDE_FRONT;
 }
 
-// core's `start_beside_shell`: a step that starts on a face between a one-sided surface leaf
-// and an empty leaf labelled with the other side starts in the surface leaf, so that the shell
-// rule decides whether it may come out there.
+// core's `start_beside_shell`: a step that starts on a face between a surface leaf and an
+// empty leaf labelled with the other side starts in the surface leaf, so that the shell rule
+// decides whether it may come out there.
 fn start_beside_shell(leaf: LeafInfo, x: vec3<f32>, v: vec3<f32>, side: u32) -> LeafInfo {
     if leaf.kind != LEAF_EMPTY || leaf.label == LABEL_NONE || side_of(leaf.label) == side {
         return leaf;
@@ -236,7 +236,7 @@ fn start_beside_shell(leaf: LeafInfo, x: vec3<f32>, v: vec3<f32>, side: u32) -> 
         dir[a] = select(1.0, -1.0, below);
         if root_contains(x, dir) {
             let across = locate_inside(x, dir);
-            if across.kind == LEAF_SURFACE && !across.two_sided {
+            if across.kind == LEAF_SURFACE {
                 return across;
             }
         }
@@ -337,6 +337,8 @@ fn step_particle(p: ptr<function, Particle>, params: StepParams, hint: ptr<funct
             break;
         }
         visited += 1u;
+        // Whether this leaf is the shell beside the point the step starts on.
+        var beside_shell = false;
         // Only the first leaf of a step can come from the hint: the particle has not moved yet.
         // After it, the particle is on the closed box of the leaf it was last in, and the next
         // leaf is found from that leaf's cell.
@@ -367,10 +369,12 @@ fn step_particle(p: ptr<function, Particle>, params: StepParams, hint: ptr<funct
             }
             leaf = locate_inside(x, v);
             if visited == 1u {
-                leaf = start_beside_shell(leaf, x, v, side);
+                let start = start_beside_shell(leaf, x, v, side);
+                beside_shell = start.kind != leaf.kind;
+                leaf = start;
             }
         }
-        if leaf.two_sided && entry_faces(leaf.aabb, x, v) == 0u {
+        if leaf.two_sided && !beside_shell && entry_faces(leaf.aabb, x, v) == 0u {
             // A particle sliding along a face of a solid leaf (no velocity across it), and not
             // entering through another, is not in the leaf: locate it on the face's outer side.
             var dir = v;

@@ -137,7 +137,7 @@ fn finish_surface(s: &mut Surface, tris: &[Tri], lo: DVec3, hi: DVec3, bound: f6
     let mut moment = DVec3::ZERO;
     for &t in &s.tris {
         let tri = &tris[t as usize];
-        rim |= tri.rim;
+        rim |= tri.rim_touches(lo, hi);
         let poly = geom::clip_triangle(&tri.v, lo, hi);
         let (area, centroid) = poly.area_centroid();
         if !poly.is_empty() {

@@ -230,10 +230,21 @@ pub(crate) struct Tri {
     pub n: DVec3,
     pub area: f64,
     pub closed: bool,
-    /// Has an edge not shared by exactly two triangles (a rim of a hole, or non-manifold).
-    pub rim: bool,
+    /// Its rim edges, bit `k` for the edge from `v[k]` to `v[(k + 1) % 3]`: edges not shared
+    /// by exactly two triangles in opposite directions (the rim of a hole, a non-manifold
+    /// edge, or one between triangles wound opposite ways).
+    pub rim: u8,
     /// Connected component (triangles joined by shared edges), unique across the scene.
     pub component: u32,
+}
+
+impl Tri {
+    /// Whether one of its rim edges touches the closed box `lo..hi` (or may: the test errs
+    /// on the side of yes).
+    pub fn rim_touches(&self, lo: DVec3, hi: DVec3) -> bool {
+        self.rim != 0
+            && (0..3).any(|k| self.rim & 1 << k != 0 && geom::segment_may_touch_box(self.v[k], self.v[(k + 1) % 3], lo, hi))
+    }
 }
 
 /// The grid: root cube and the exact `f32` planes every backend uses.
@@ -392,10 +403,10 @@ fn gather(meshes: &[MeshRef<'_>], report: &mut BuildReport) -> Result<Vec<Tri>, 
 }
 
 /// Classifies triangles by their edges: those of closed components (components joined by
-/// shared edges in which every edge is used exactly once in each direction), and those with a
-/// rim edge (not used exactly once in each direction). Vertices are welded by position first,
+/// shared edges in which every edge is used exactly once in each direction), and their rim
+/// edges (not used exactly once in each direction; bit `k` for the edge from vertex `k`). Vertices are welded by position first,
 /// so seams of duplicated vertices do not open a mesh.
-fn edge_classes(m: &MeshRef<'_>) -> (Vec<bool>, Vec<bool>, Vec<u32>) {
+fn edge_classes(m: &MeshRef<'_>) -> (Vec<bool>, Vec<u8>, Vec<u32>) {
     let n = m.triangles.len();
     // Weld: canonical vertex id per position bit pattern.
     let mut order: Vec<u32> = (0..m.positions.len() as u32).collect();
@@ -407,8 +418,8 @@ fn edge_classes(m: &MeshRef<'_>) -> (Vec<bool>, Vec<bool>, Vec<u32>) {
         canon[i as usize] = if w > 0 && key(order[w - 1]) == key(i) { canon[order[w - 1] as usize] } else { i };
     }
     let valid = |t: &[u32; 3]| t.iter().all(|&i| (i as usize) < m.positions.len());
-    // Directed edges (a, b, triangle), sorted by undirected key.
-    let mut edges: Vec<(u64, bool, u32)> = m
+    // Directed edges (a, b, triangle, edge of the triangle), sorted by undirected key.
+    let mut edges: Vec<(u64, bool, u32, u8)> = m
         .triangles
         .par_iter()
         .enumerate()
@@ -418,7 +429,7 @@ fn edge_classes(m: &MeshRef<'_>) -> (Vec<bool>, Vec<bool>, Vec<u32>) {
             (0..3).filter_map(move |k| {
                 let (a, b) = (c[k], c[(k + 1) % 3]);
                 let (lo, hi, fwd) = if a < b { (a, b, true) } else { (b, a, false) };
-                (a != b).then_some(((lo as u64) << 32 | hi as u64, fwd, ti as u32))
+                (a != b).then_some(((lo as u64) << 32 | hi as u64, fwd, ti as u32, k as u8))
             })
         })
         .collect();
@@ -431,7 +442,7 @@ fn edge_classes(m: &MeshRef<'_>) -> (Vec<bool>, Vec<bool>, Vec<u32>) {
         }
         x
     }
-    let mut open = vec![false; n];
+    let mut open = vec![0u8; n];
     let mut i = 0;
     while i < edges.len() {
         let mut j = i;
@@ -442,7 +453,7 @@ fn edge_classes(m: &MeshRef<'_>) -> (Vec<bool>, Vec<bool>, Vec<u32>) {
         let good = group.len() == 2 && group[0].1 != group[1].1;
         if !good {
             for e in group {
-                open[e.2 as usize] = true;
+                open[e.2 as usize] |= 1 << e.3;
             }
         }
         for e in &group[1..] {
@@ -455,7 +466,7 @@ fn edge_classes(m: &MeshRef<'_>) -> (Vec<bool>, Vec<bool>, Vec<u32>) {
     }
     let mut comp_open = vec![false; n];
     for (t, &is_open) in open.iter().enumerate() {
-        if is_open || !valid(&m.triangles[t]) {
+        if is_open != 0 || !valid(&m.triangles[t]) {
             let r = find(&mut parent, t as u32);
             comp_open[r as usize] = true;
         }
@@ -574,7 +585,8 @@ impl Subdiv<'_> {
         // Leaves that may become solid (two-sided) must stay small, so no early stop for a
         // rim, nor where parts meet (their votes may conflict).
         let first = self.tris[list[0] as usize].component;
-        let rim = list.iter().any(|&t| self.tris[t as usize].rim || self.tris[t as usize].component != first);
+        let (blo, bhi) = self.grid.cell_box(cell, depth);
+        let rim = list.iter().any(|&t| self.tris[t as usize].rim_touches(blo, bhi) || self.tris[t as usize].component != first);
         let forced = self.force.overlaps(depth, cell);
         let stop = depth >= self.params.dmax
             || (depth > self.params.dmin

@@ -33,7 +33,7 @@ fn cube_is_closed_and_outward() {
     let (p, t) = cube([0.0; 3], [1.0; 3]);
     let (closed, rim, _) = edge_classes(&MeshRef { positions: &p, triangles: &t });
     assert!(closed.iter().all(|&c| c));
-    assert!(rim.iter().all(|&r| !r));
+    assert!(rim.iter().all(|&r| r == 0));
     let tris = gather(&[MeshRef { positions: &p, triangles: &t }], &mut BuildReport::default()).unwrap();
     for tri in &tris {
         let c = (tri.v[0] + tri.v[1] + tri.v[2]) / 3.0 - DVec3::splat(0.5);
@@ -42,8 +42,16 @@ fn cube_is_closed_and_outward() {
     // Dropping one triangle opens it.
     let (closed, rim, _) = edge_classes(&MeshRef { positions: &p, triangles: &t[1..] });
     assert!(closed.iter().all(|&c| !c));
-    // The three triangles that shared an edge with the removed one now have a rim edge.
-    assert_eq!(rim.iter().filter(|&&r| r).count(), 3);
+    // The three triangles that shared an edge with the removed one now have a rim edge, one
+    // each: the one they shared with it.
+    assert_eq!(rim.iter().filter(|&&r| r != 0).count(), 3);
+    assert!(rim.iter().all(|&r| r.count_ones() <= 1));
+    let removed: Vec<u32> = t[0].to_vec();
+    for (tri, &r) in t[1..].iter().zip(&rim).filter(|(_, &r)| r != 0) {
+        let k = r.trailing_zeros() as usize;
+        let edge = [tri[k], tri[(k + 1) % 3]];
+        assert!(edge.iter().all(|i| removed.contains(i)), "rim edge {edge:?} is not the removed triangle's");
+    }
 }
 
 #[test]

@@ -268,13 +268,8 @@ mod tests {
         assert!(!seg([2.0, 0.0, 0.0], [4.0, 1.0, 1.0]), "short of the box along its line");
         // Against sampling: a segment with a sampled point in the box is never missed, and
         // one that the test passes gets within a millionth of the box.
-        let mut s = 0x0ddb_a11c_afe0_1234u64;
-        let mut r = || {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            (s >> 11) as f64 / (1u64 << 53) as f64 * 3.0 - 1.0
-        };
+        let mut rng = crate::emit::Rng::new(0x0ddb_a11c);
+        let mut r = || f64::from(rng.range(-1.0, 2.0));
         let (mut touching, mut missing) = (0, 0);
         for _ in 0..4000 {
             let (a, b) = (DVec3::new(r(), r(), r()), DVec3::new(r(), r(), r()));

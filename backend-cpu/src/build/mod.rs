@@ -519,7 +519,6 @@ fn root_grid(tris: &[Tri], dmax: u32) -> Result<Grid, BuildError> {
 /// forced) or holds one (it is an ancestor of a forced cell): a few hash lookups per node,
 /// however many cells are forced (a linear scan over them made a bake of 160 triangles in
 /// stacked sheets take 7 s).
-#[derive(Default)]
 pub(crate) struct Forced {
     /// The forced cells, as `(depth, cell)`.
     cells: HashSet<(u32, [u32; 3])>,
@@ -529,11 +528,14 @@ pub(crate) struct Forced {
     shallowest: u32,
 }
 
+impl Default for Forced {
+    fn default() -> Self {
+        Forced { cells: HashSet::new(), holders: HashSet::new(), shallowest: u32::MAX }
+    }
+}
+
 impl Forced {
     pub(crate) fn add(&mut self, depth: u32, cell: UVec3) {
-        if self.cells.is_empty() {
-            self.shallowest = u32::MAX;
-        }
         self.shallowest = self.shallowest.min(depth);
         self.cells.insert((depth, cell.to_array()));
         for d in 0..depth {
@@ -543,9 +545,6 @@ impl Forced {
 
     /// Whether the cell `cell` at `depth` overlaps a forced cell.
     pub(crate) fn overlaps(&self, depth: u32, cell: UVec3) -> bool {
-        if self.cells.is_empty() {
-            return false;
-        }
         self.holders.contains(&(depth, cell.to_array()))
             || (self.shallowest..=depth).any(|d| self.cells.contains(&(d, (cell >> (depth - d)).to_array())))
     }
@@ -583,16 +582,18 @@ impl Subdiv<'_> {
         let n = 1u32 << depth;
         let on_boundary = cell.min_element() == 0 || cell.max_element() == n - 1;
         // Leaves that may become solid (two-sided) must stay small, so no early stop for a
-        // rim, nor where parts meet (their votes may conflict).
-        let first = self.tris[list[0] as usize].component;
-        let (blo, bhi) = self.grid.cell_box(cell, depth);
-        let rim = list.iter().any(|&t| self.tris[t as usize].rim_touches(blo, bhi) || self.tris[t as usize].component != first);
-        let forced = self.force.overlaps(depth, cell);
+        // rim, nor where parts meet (their votes may conflict). Tested only where a node may
+        // stop early: a rim edge costs a segment–box test.
+        let rim_or_parts = || {
+            let first = self.tris[list[0] as usize].component;
+            let (lo, hi) = self.grid.cell_box(cell, depth);
+            list.iter().any(|&t| self.tris[t as usize].component != first || self.tris[t as usize].rim_touches(lo, hi))
+        };
         let stop = depth >= self.params.dmax
             || (depth > self.params.dmin
                 && !on_boundary
-                && !rim
-                && !forced
+                && !self.force.overlaps(depth, cell)
+                && !rim_or_parts()
                 && self.variance(&list) < self.params.epsilon as f64
                 && self.thickness(&list, cell, depth) <= self.flat_tolerance());
         if stop {

@@ -999,18 +999,53 @@ fn penetration_inner(u: &mut Unstructured<'_>) -> Result<()> {
         let dt = step.dt;
         // Speed per step: 0.05 leaf .. 2 scenes.
         let per_step = leaf * 10f32.powf(range(u, -1.3, (2.0 * scene / leaf).log10())?);
-        let dir = Vec3::new(
-            range(u, -1.0, 1.0)?,
-            range(u, -1.0, 1.0)?,
-            range(u, -1.0, 1.0)?,
-        )
-        .normalize_or(Vec3::Y);
         let mut position = Vec3::new(
             range(u, root.min.x, root.max.x)?,
             range(u, root.min.y, root.max.y)?,
             range(u, root.min.z, root.max.z)?,
         );
-        let mut velocity = dir * (per_step / dt);
+        // Float edge cases: a start on the cell planes of some depth (a face, edge or corner
+        // of a cell, where point location breaks ties), and a path along an axis, an exact
+        // face or space diagonal, or down a grid line from rest under gravity.
+        if u.ratio(1u8, 3)? {
+            let d = u.int_in_range(1..=view.header().tree_depth)?;
+            for a in 0..3 {
+                if u.arbitrary()? {
+                    let cells = 1u32 << d;
+                    let i = ((position[a] - root.min[a]) / scene * cells as f32).clamp(0.0, cells as f32) as u32;
+                    position[a] = view.plane(a, i << (MAX_DEPTH - d));
+                }
+            }
+        }
+        let speed = per_step / dt;
+        let mut velocity = match u.int_in_range(0u8..=7)? {
+            0 => {
+                let mut v = Vec3::ZERO;
+                v[u.int_in_range(0usize..=2)?] = if u.arbitrary()? { speed } else { -speed };
+                v
+            }
+            1 | 2 => {
+                // Equal magnitudes on two or three axes, so the path meets cell edges and corners.
+                let axes = if u.arbitrary()? { 2 } else { 3 };
+                let s = speed / (axes as f32).sqrt();
+                let skip = u.int_in_range(0usize..=2)?;
+                let mut v = Vec3::ZERO;
+                for a in (0..3).filter(|&a| axes == 3 || a != skip) {
+                    v[a] = if u.arbitrary()? { s } else { -s };
+                }
+                v
+            }
+            3 => Vec3::ZERO,
+            _ => {
+                Vec3::new(
+                    range(u, -1.0, 1.0)?,
+                    range(u, -1.0, 1.0)?,
+                    range(u, -1.0, 1.0)?,
+                )
+                .normalize_or(Vec3::Y)
+                    * speed
+            }
+        };
         if !velocity.is_finite() {
             continue;
         }
@@ -1100,7 +1135,8 @@ fn penetration_inner(u: &mut Unstructured<'_>) -> Result<()> {
 /// Target `penetration`: closed meshes generated from the input (boxes, slabs thinner than a
 /// leaf, wedges and knife edges, low-poly spheres, tori, star prisms, nested shells, convex
 /// hulls of random points, unions of overlapping parts), baked at dmax 5–7, and particles at
-/// speeds from a fraction of a leaf to two scenes per step: a particle that starts farther
+/// speeds from a fraction of a leaf to two scenes per step (some started on cell planes, some
+/// moving along an axis or an exact diagonal, some at rest under gravity): a particle that starts farther
 /// than one dmax-leaf diagonal from the surface never ends a step on the other side (by exact
 /// winding number) farther than that from the surface, nor passes through the other side
 /// that deep on the way.

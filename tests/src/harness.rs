@@ -14,7 +14,7 @@
 
 use glam::Vec3;
 use octoproxy_core::{
-    initial_side, step_particle_traced, Particle, ProxyView, StepParams, FLAG_BLOCKED, FLAG_BOUND_HIT, FLAG_INVALID,
+    initial_side, step_particle_traced, Particle, ProxyView, StepParams, FLAG_BLOCKED, FLAG_BOUND_HIT, FLAG_INVALID, MAX_DEPTH,
 };
 use octoproxy_cpu::emit::Rng;
 use rayon::prelude::*;
@@ -74,6 +74,57 @@ pub fn random_particles(view: &ProxyView<'_>, gt: &GroundTruth, n: usize, speeds
         }
         let speed = speeds[out.len() % speeds.len().max(1)];
         let mut q = Particle::new(p.to_array(), (rng.unit_vector() * speed).to_array());
+        q.side = initial_side(view, q.position);
+        out.push(q);
+    }
+    out
+}
+
+/// Particles on the cell planes of random depths (one, two or three coordinates snapped: on
+/// a cell's face, edge or corner, where point location breaks ties), at least `2 * tolerance`
+/// from the surface, moving along an axis, along an exact face or space diagonal (through
+/// cell edges and corners), or at rest (to fall down a grid line under gravity), at speeds
+/// drawn from `speeds`: the float edge cases of point location and of the march.
+pub fn grid_aligned_particles(view: &ProxyView<'_>, gt: &GroundTruth, n: usize, speeds: &[f32], seed: u64) -> Vec<Particle> {
+    let root = view.root_aabb();
+    let size = view.header().root_size;
+    let depth = view.header().tree_depth;
+    let tol = tolerance(view);
+    let mut rng = Rng::new(seed);
+    let mut below = |k: u32| (rng.next_u64() % k as u64) as u32;
+    let mut out = Vec::with_capacity(n);
+    let mut tries = 0;
+    while out.len() < n && tries < n * 50 {
+        tries += 1;
+        let d = 1 + below(depth);
+        let cells = 1u32 << d;
+        let first = below(3) as usize;
+        let snapped = 1 + below(3) as usize;
+        let mut p = [0.0f32; 3];
+        for (a, c) in p.iter_mut().enumerate() {
+            let on_plane = (a + 3 - first) % 3 < snapped;
+            let i = below(cells << 8);
+            *c = if on_plane { view.plane(a, (i >> 8) << (MAX_DEPTH - d)) } else { root.min[a] + size * (i as f32 / (cells << 8) as f32) };
+        }
+        if gt.distance_capped(p, 4.0 * tol as f64) <= 2.0 * tol as f64 {
+            continue;
+        }
+        let speed = speeds[out.len() % speeds.len().max(1)];
+        let mut v = [0.0f32; 3];
+        let axes = below(4) as usize;
+        let s = if axes == 0 { 0.0 } else { speed / (axes as f32).sqrt() };
+        let skip = below(3) as usize;
+        for (a, c) in v.iter_mut().enumerate() {
+            let moving = match axes {
+                1 => a == skip,
+                2 => a != skip,
+                _ => axes == 3,
+            };
+            if moving {
+                *c = if below(2) == 0 { s } else { -s };
+            }
+        }
+        let mut q = Particle::new(p, v);
         q.side = initial_side(view, q.position);
         out.push(q);
     }

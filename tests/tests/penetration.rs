@@ -3,17 +3,33 @@
 //! an open sheet except through a hole. Speeds run from a fraction of a leaf to the whole
 //! scene per step.
 
-use octoproxy_core::{Particle, ProxyView, StepParams};
+use octoproxy_core::{initial_side, Particle, ProxyView, StepParams};
 use octoproxy_cpu::{bake, BuildError, BuildParams, MeshRef};
 use octoproxy_tests::ground_truth::GroundTruth;
-use octoproxy_tests::harness::{random_particles, run_check, CheckReport};
+use octoproxy_tests::harness::{grid_aligned_particles, random_particles, run_check, tolerance, CheckReport};
 use octoproxy_tests::meshes;
 use octoproxy_tests::scenes::{self, Mesh};
 
 const DT: f32 = 1.0 / 60.0;
 
+/// Particles for a view: `(view, ground truth, count, speeds, seed)`.
+type MakeParticles = fn(&ProxyView<'_>, &GroundTruth, usize, &[f32], u64) -> Vec<Particle>;
+
 /// Bakes, makes particles at speeds from 0.2 leaf to the whole scene per step, and checks.
 fn check(name: &str, mesh: &Mesh, closed: bool, particles: usize, steps: u32, params: &BuildParams) -> CheckReport {
+    check_with(name, mesh, closed, particles, steps, params, random_particles)
+}
+
+/// [`check`], with particles from `make`.
+fn check_with(
+    name: &str,
+    mesh: &Mesh,
+    closed: bool,
+    particles: usize,
+    steps: u32,
+    params: &BuildParams,
+    make: MakeParticles,
+) -> CheckReport {
     let (words, _) = bake(&[MeshRef::from(mesh)], params, &()).expect("bakes");
     let view = ProxyView::new(&words).expect("valid");
     let gt = GroundTruth::new(&mesh.positions, &mesh.triangles);
@@ -29,7 +45,7 @@ fn check(name: &str, mesh: &Mesh, closed: bool, particles: usize, steps: u32, pa
     .iter()
     .enumerate()
     {
-        let mut ps = random_particles(&view, &gt, particles, &speeds, 17 + i as u64);
+        let mut ps = make(&view, &gt, particles, &speeds, 17 + i as u64);
         let r = run_check(&view, &gt, &mut ps, steps, step, closed);
         total.particles += r.particles;
         total.particle_steps += r.particle_steps;
@@ -214,6 +230,47 @@ fn scenes_that_break_the_methods_assumptions_hold() {
         let r = check(name, mesh, *closed, 400, 40, &defaults());
         assert_clean(name, &r);
     }
+}
+
+/// Starts on cell faces, edges and corners, paths along axes and exact diagonals, and drops
+/// from rest down grid lines: the ties of point location and the march's plane tests.
+#[test]
+fn particles_on_cell_planes_moving_along_axes_hold() {
+    let mut cases: Vec<(&str, Mesh, bool, BuildParams)> = vec![
+        ("cube", scenes::cube([-1.0; 3], [1.0, 0.5, 1.0]), true, defaults()),
+        ("sphere", scenes::uv_sphere([0.0; 3], 1.0, 48, 24), true, BuildParams { dmax: 7, ..defaults() }),
+        ("wedge", scenes::wedge(8.0, 1.5, 1.0), true, defaults()),
+        ("touching cubes", scenes::merge(&[scenes::cube([-1.0; 3], [0.0, 1.0, 1.0]), scenes::cube([0.0, -1.0, -1.0], [1.0; 3])]), false, defaults()),
+    ];
+    if let Some(suzanne) = meshes::load("suzanne.obj.gz") {
+        cases.push(("suzanne, dmin 0, epsilon 1", suzanne, false, BuildParams { dmin: 0, dmax: 8, epsilon: 1.0, ..BuildParams::default() }));
+    }
+    for (name, mesh, closed, params) in &cases {
+        let r = check_with(name, mesh, *closed, 2000, 60, params, grid_aligned_particles);
+        assert_clean(name, &r);
+    }
+}
+
+/// Suzanne with dmin 0 and epsilon 1 once kept a depth-3 flat leaf whose patch left it through
+/// a face it nearly lay in. A particle started on that face, 2.4 tolerances from the surface,
+/// took the side of the leaf's plane (which passed just beside it), wrong for the surface in
+/// the next leaf, and crossed that surface within ten steps. Early leaves now have to span
+/// their cell. Found by a campaign of particles started on cell planes.
+#[test]
+fn a_particle_started_where_a_coarse_leafs_patch_ends_keeps_its_side() {
+    let Some(suzanne) = meshes::load("suzanne.obj.gz") else { return };
+    let params = BuildParams { dmin: 0, dmax: 8, epsilon: 1.0, ..BuildParams::default() };
+    let (words, _) = bake(&[MeshRef::from(&suzanne)], &params, &()).expect("bakes");
+    let view = ProxyView::new(&words).expect("valid");
+    let gt = GroundTruth::new(&suzanne.positions, &suzanne.triangles);
+    let mut p = Particle::new([-2.146_406_2, 0.556_373_54, 4.761_210_4], [0.752_697_8, -0.752_697_8, 0.752_697_8]);
+    // On two planes of the depth-3 grid, and outside the tolerance.
+    let on_planes = (0..2).filter(|&a| (0..=8).any(|i| view.plane(a, i << 13) == p.position[a])).count();
+    assert_eq!(on_planes, 2, "the start is no longer on the cell planes it was found on");
+    assert!(gt.distance(p.position) > 2.0 * tolerance(&view) as f64);
+    p.side = initial_side(&view, p.position);
+    let r = run_check(&view, &gt, &mut [p], 60, &StepParams { dt: DT, ..StepParams::default() }, false);
+    assert_clean("suzanne, particle on a coarse leaf's face", &r);
 }
 
 #[test]

@@ -127,6 +127,25 @@ pub fn clip_triangle(v: &[DVec3; 3], min: DVec3, max: DVec3) -> Poly {
     poly
 }
 
+/// Area and perimeter of the section of the closed box `[min, max]` by the plane
+/// `n · x = d` (`n` a unit vector): a convex polygon of up to six sides, or nothing.
+pub fn plane_section(n: DVec3, d: f64, min: DVec3, max: DVec3) -> (f64, f64) {
+    let mid = (min + max) * 0.5;
+    let center = mid - n * (n.dot(mid) - d);
+    let (u, w) = n.any_orthonormal_pair();
+    // A square in the plane, larger than the box's section wherever it is.
+    let h = (max - min).length() + (center - mid).length();
+    let mut poly = Poly { pts: [DVec3::ZERO; 12], len: 4 };
+    poly.pts[..4].copy_from_slice(&[center - (u + w) * h, center + (u - w) * h, center + (u + w) * h, center - (u - w) * h]);
+    for a in 0..3 {
+        poly = clip_plane(&poly, a, min[a], 1.0);
+        poly = clip_plane(&poly, a, max[a], -1.0);
+    }
+    let p = poly.points();
+    let perimeter = (0..p.len()).map(|i| (p[(i + 1) % p.len()] - p[i]).length()).sum();
+    (poly.area_centroid().0, perimeter)
+}
+
 /// Keeps the part of `poly` where `sign * (p[axis] - value) >= 0`.
 fn clip_plane(poly: &Poly, axis: usize, value: f64, sign: f64) -> Poly {
     let mut out = Poly { pts: [DVec3::ZERO; 12], len: 0 };
@@ -253,6 +272,23 @@ mod tests {
         let t = tri([0.0, 0.0, 0.5], [1.5, 0.0, 0.5], [0.0, 1.5, 0.5]);
         let (area, _) = clip_triangle(&t, DVec3::ZERO, DVec3::ONE).area_centroid();
         assert!((area - (1.0 - 0.125)).abs() < 1e-12, "{area}");
+    }
+
+    #[test]
+    fn sections_of_a_box_by_planes() {
+        let (min, max) = (DVec3::ZERO, DVec3::ONE);
+        let close = |got: (f64, f64), want: (f64, f64)| (got.0 - want.0).abs() < 1e-12 && (got.1 - want.1).abs() < 1e-12;
+        // Across an axis: the unit square.
+        let s = plane_section(DVec3::Y, 0.25, min, max);
+        assert!(close(s, (1.0, 4.0)), "{s:?}");
+        // On a face: still the whole face (the box is closed).
+        let s = plane_section(-DVec3::X, 0.0, min, max);
+        assert!(close(s, (1.0, 4.0)), "{s:?}");
+        // Through the centre across the main diagonal: a regular hexagon of side √2/2.
+        let s = plane_section(DVec3::ONE.normalize(), 1.5 / 3f64.sqrt(), min, max);
+        assert!(close(s, (0.75 * 3f64.sqrt(), 3.0 * 2f64.sqrt())), "{s:?}");
+        // Past the box: nothing.
+        assert_eq!(plane_section(DVec3::Z, 1.5, min, max), (0.0, 0.0));
     }
 
     #[test]

@@ -12,7 +12,8 @@
 //!    paper, divided by the node's total triangle area so that `epsilon` means the same for a
 //!    mesh and its subdivision) and its triangles, clipped to it, no thicker across their mean
 //!    normal than [`MAX_EARLY_LEAF_THICKNESS`] `dmax` leaves (a curved patch in a coarse leaf
-//!    would let particles through it). A node touching the root boundary always subdivides, and so
+//!    would let particles through it) and spanning the node (a patch that ends inside a
+//!    coarse leaf leaves part of it on no definite side of the surface). A node touching the root boundary always subdivides, and so
 //!    does a node holding a rim edge or triangles of more than one connected component (its
 //!    leaf may be solid, so it is kept to `dmax` size).
 //! 4. **Normals**: the area-weighted normal of the triangles clipped to each surface leaf. If
@@ -665,17 +666,24 @@ impl Subdiv<'_> {
 
     /// How thick the triangles of `list` are inside the cell: clipped to its box, the distance
     /// between the two planes across their area-weighted mean normal that hold them (the
-    /// normal the leaf would keep). Infinite when nothing of them is left inside.
+    /// normal the leaf would keep). Infinite when nothing of them is left inside, or when they
+    /// do not span the cell: their area, projected on the mean plane, falls short of the
+    /// cell's section by that plane by more than a strip of the flat tolerance along the
+    /// section's rim. A patch that ends inside a coarse leaf (one that leaves it through a
+    /// face it nearly lies in) leaves part of the leaf on no definite side of it: there the
+    /// leaf's plane extends past the surface, and a particle that starts or turns there may
+    /// take the wrong side and cross the surface in the next leaf.
     fn thickness(&self, list: &[u32], cell: UVec3, depth: u32) -> f64 {
         let (lo, hi) = self.grid.cell_box(cell, depth);
         let mut sum = DVec3::ZERO;
-        let polys: Vec<geom::Poly> = list
+        let polys: Vec<(geom::Poly, f64)> = list
             .iter()
             .map(|&t| {
                 let t = &self.tris[t as usize];
                 let poly = geom::clip_triangle(&t.v, lo, hi);
-                sum += t.n * poly.area_centroid().0;
-                poly
+                let area = poly.area_centroid().0;
+                sum += t.n * area;
+                (poly, area)
             })
             .collect();
         let len = sum.length();
@@ -683,15 +691,19 @@ impl Subdiv<'_> {
             return f64::INFINITY;
         }
         let n = sum / len;
-        let (lo, hi) = polys
+        let (low, high) = polys
             .iter()
-            .flat_map(|p| p.points())
+            .flat_map(|(p, _)| p.points())
             .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), q| (lo.min(n.dot(*q)), hi.max(n.dot(*q))));
-        if lo <= hi {
-            hi - lo
-        } else {
-            f64::INFINITY
+        if !(low <= high) {
+            return f64::INFINITY;
         }
+        let covered: f64 = list.iter().zip(&polys).map(|(&t, (_, area))| area * self.tris[t as usize].n.dot(n).abs()).sum();
+        let (section, perimeter) = geom::plane_section(n, 0.5 * (low + high), lo, hi);
+        if covered < section - perimeter * self.flat_tolerance() {
+            return f64::INFINITY;
+        }
+        high - low
     }
 
     /// Equations (1)–(2), divided by the total area: Σ aᵢ‖nᵢ − n̄‖² / Σ aᵢ with n̄ the

@@ -256,6 +256,49 @@ fn particles_starting_inside_big_surface_leaves_get_the_plane_side() {
 }
 
 #[test]
+fn a_flat_patch_stops_early_only_where_it_spans_the_leaf() {
+    // A big cube sets the grid; the test boxes are cut to one of its depth-3 cells.
+    let (p, t) = cube([-8.0; 3], [8.0; 3]);
+    let params = BuildParams { dmax: 8, ..BuildParams::default() };
+    let big = gather(&[MeshRef { positions: &p, triangles: &t }], &mut BuildReport::default()).unwrap();
+    let grid = root_grid(&big, params.dmax).unwrap();
+    let (cell, depth) = (UVec3::new(3, 4, 3), 3);
+    let (lo, hi) = grid.cell_box(cell, depth);
+    let size = hi.x - lo.x;
+    let flat = MAX_EARLY_LEAF_THICKNESS * grid.root_size as f64 / 256.0;
+    // Closed boxes whose top face lies in the cell: across all of it, or ending in its middle,
+    // barely above its floor (the side face there is a sliver thinner than the flat tolerance:
+    // flat, and with a large epsilon nearly flat enough in normal too, but the patch leaves the
+    // cell through the floor it nearly lies in). Found by particles started on grid planes,
+    // against Suzanne baked with dmin 0 and epsilon 1.
+    let slab = |x_end: f64, top: f64| {
+        let min = [(lo.x - size) as f32, (lo.y - size) as f32, (lo.z - size) as f32];
+        let (p, t) = cube(min, [x_end as f32, top as f32, (hi.z + size) as f32]);
+        let tris = gather(&[MeshRef { positions: &p, triangles: &t }], &mut BuildReport::default()).unwrap();
+        let ctx = Subdiv {
+            tris: &tris,
+            grid,
+            params,
+            force: &Forced::default(),
+            nodes: AtomicU64::new(0),
+            over: AtomicBool::new(false),
+            progress: &(),
+        };
+        let list: Vec<u32> = (0..tris.len() as u32)
+            .filter(|&i| geom::triangle_overlaps_box(&tris[i as usize].v, lo, hi))
+            .collect();
+        assert!(!list.is_empty());
+        ctx.thickness(&list, cell, depth)
+    };
+    let across = slab(hi.x + size, lo.y + 0.3 * size);
+    assert!(across <= 1e-6 * size, "a face across the cell is flat and spans it: {across}");
+    let low = slab(hi.x + size, lo.y + 0.2 * flat);
+    assert!(low <= 1e-6 * size, "a face just above the floor still spans the cell: {low}");
+    let ends = slab(0.5 * (lo.x + hi.x), lo.y + 0.2 * flat);
+    assert!(ends.is_infinite(), "a face that ends in the middle of the cell does not span it: {ends}");
+}
+
+#[test]
 fn owned_proxy_views_like_a_fresh_validation() {
     let (p, t) = cube([-1.0; 3], [1.0; 3]);
     let (words, _) = bake_one(&p, &t, &BuildParams { dmin: 2, dmax: 5, ..BuildParams::default() });

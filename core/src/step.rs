@@ -469,7 +469,11 @@ fn march_from_hint(view: &ProxyView<'_>, p: &mut Particle, params: &StepParams, 
 }
 
 /// [`step_particle`], calling `trace(from, to)` for every straight piece of the particle's
-/// path in order, including the jump back to the shell entry when the shell rule stops it.
+/// path in order, and last, when the shell rule or the leaf bound stops the step inside the
+/// shell, the jump back to the shell entry: a piece that ends where an earlier one began. The
+/// particle is put there and does not travel it (after a long slide along a curved wall its
+/// chord may cut through the mesh); it is traced so that crossings counted along the pieces
+/// still add up to the side the particle ends on.
 /// Ground-truth checks use it to test the real path against the mesh.
 pub fn step_particle_traced<F: FnMut(Vec3, Vec3)>(
     view: &ProxyView<'_>,

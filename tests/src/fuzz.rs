@@ -21,7 +21,7 @@ use octoproxy_cpu::mesh::{parse_mesh, Mesh};
 use octoproxy_cpu::particles::{encode_particles, parse_particles, PlyEncoding};
 
 use crate::ground_truth::GroundTruth;
-use crate::harness::{deep_on_the_other_side, tolerance};
+use crate::harness::{deep_on_the_other_side, jumps_back, tolerance};
 use crate::scenes;
 
 // ---------------------------------------------------------------------------------------------
@@ -1103,8 +1103,10 @@ fn penetration_inner(u: &mut Unstructured<'_>) -> Result<()> {
                 "finite particle became invalid at step {s}: {before:?} -> {p:?} ({step:?})"
             );
             // Through the surface and back within a piece of the path: every point of it
-            // deeper than the tolerance is on the starting side too.
-            for &(a, b) in &pieces {
+            // deeper than the tolerance is on the starting side too. The jump back to the
+            // shell entry that may end the step is not travelled (see `jumps_back`).
+            let travelled = pieces.len() - jumps_back(&pieces, p.flags) as usize;
+            for &(a, b) in &pieces[..travelled] {
                 if a == b || gt.segment_crossings(a.to_array(), b.to_array()) == 0 {
                     continue;
                 }

@@ -136,6 +136,16 @@ pub fn tolerance(view: &ProxyView<'_>) -> f32 {
     view.finest_leaf_size() * 3f32.sqrt()
 }
 
+/// Whether the last of a step's traced `pieces` is the jump back to where the particle
+/// entered the shell, which the shell rule and the leaf bound end a step with (`flags` says
+/// which stopped it): a piece that ends where an earlier one began. The particle is put there,
+/// it does not travel the jump, so it counts for the parity of crossings (an open mesh's side
+/// along the path) but is not a path through the mesh.
+pub fn jumps_back(pieces: &[(Vec3, Vec3)], flags: u32) -> bool {
+    let Some((&(_, to), earlier)) = pieces.split_last() else { return false };
+    flags & (FLAG_BLOCKED | FLAG_BOUND_HIT) != 0 && earlier.iter().any(|&(from, _)| from == to)
+}
+
 /// The first of the points every half `tol` along the piece `a → b` of a path (ends
 /// excluded) that is on the other side of a closed mesh from `inside` and farther than `tol`
 /// from its surface: a path that goes through the mesh, or into it and back. Only a piece that
@@ -186,21 +196,25 @@ pub fn run_check(
         })
         .collect();
     particles.par_iter_mut().zip(states.par_iter_mut()).for_each(|(p, s)| {
+        let mut pieces = Vec::new();
         for _ in 0..steps {
             if s.bad || s.non_finite {
                 break;
             }
-            step_particle_traced(view, p, params, &mut |a: Vec3, b: Vec3| {
+            pieces.clear();
+            step_particle_traced(view, p, params, &mut |a: Vec3, b: Vec3| pieces.push((a, b)));
+            let jump = jumps_back(&pieces, p.flags);
+            for (i, &(a, b)) in pieces.iter().enumerate() {
                 if a == b {
-                    return;
+                    continue;
                 }
                 let k = gt.segment_crossings(a.to_array(), b.to_array());
                 if !closed {
                     s.crossings += k as u64;
-                } else if k > 0 && !s.tunnelled {
+                } else if k > 0 && !s.tunnelled && !(jump && i + 1 == pieces.len()) {
                     s.tunnelled = deep_on_the_other_side(gt, a, b, s.inside, tol).is_some();
                 }
-            });
+            }
             s.bad |= s.tunnelled;
             if p.flags & FLAG_INVALID != 0 || !Vec3::from_array(p.position).is_finite() {
                 s.non_finite = true;

@@ -13,9 +13,11 @@
 //!    mesh and its subdivision) and its triangles, clipped to it, no thicker across their mean
 //!    normal than [`MAX_EARLY_LEAF_THICKNESS`] `dmax` leaves (a curved patch in a coarse leaf
 //!    would let particles through it) and spanning the node (a patch that ends inside a
-//!    coarse leaf leaves part of it on no definite side of the surface). A node touching the root boundary always subdivides, and so
-//!    does a node holding a rim edge or triangles of more than one connected component (its
-//!    leaf may be solid, so it is kept to `dmax` size).
+//!    coarse leaf leaves part of it on no definite side of the surface). A node touching the
+//!    root boundary always subdivides, and so does a node holding a rim edge or triangles of
+//!    more than one connected component (its leaf may be solid, so it is kept to `dmax`
+//!    size). A leaf that stopped early next to a surface leaf of another component is
+//!    refined to `dmax` in a further pass of [`bake`].
 //! 4. **Normals**: the area-weighted normal of the triangles clipped to each surface leaf. If
 //!    they cancel (coherence below [`TWO_SIDED_COHERENCE`]), or the leaf holds a rim (an edge
 //!    of a hole, or a non-manifold edge), the leaf is two-sided: solid from every side.
@@ -297,7 +299,9 @@ pub fn bake(meshes: &[MeshRef<'_>], params: &BuildParams, progress: &dyn BuildPr
     // Subdivide, flatten, label; if a leaf larger than dmax came out solid (two-sided: its
     // normals cancel, or its labels conflict), force its region down to dmax and go again (solid leaves must be
     // small: a particle inside one is then never farther than a dmax diagonal from the
-    // surface). A few passes settle it; what remains is left solid and reported.
+    // surface). The same for a leaf larger than dmax that touches a surface leaf holding
+    // another part of the scene (see `touches_other_parts`). A few passes settle it; what
+    // remains is left solid and reported.
     let mut force = Forced::default();
     let mut pass = 0;
     let (tree, labels) = loop {
@@ -333,11 +337,11 @@ pub fn bake(meshes: &[MeshRef<'_>], params: &BuildParams, progress: &dyn BuildPr
 
         let big: Vec<(u32, UVec3)> = tree
             .surface
-            .iter()
+            .par_iter()
             .filter_map(|&i| {
                 let n = &tree.nodes[i as usize];
                 let solid = labels.conflicted(i) || matches!(&n.kind, encode::Kind::Surface(s) if s.two_sided);
-                (n.depth < params.dmax && solid).then_some((n.depth, n.cell))
+                (n.depth < params.dmax && (solid || touches_other_parts(&tree, i, &tris))).then_some((n.depth, n.cell))
             })
             .collect();
         if big.is_empty() || pass >= MAX_PASSES {
@@ -353,6 +357,27 @@ pub fn bake(meshes: &[MeshRef<'_>], params: &BuildParams, progress: &dyn BuildPr
     let words = encode::encode(&tree, &labels, &grid, params, &mut report);
     report.timings.push(("encode", t.elapsed()));
     Ok((words, report))
+}
+
+/// Whether surface leaf `leaf` touches a surface leaf that holds triangles of a connected
+/// component other than its own. A particle inside a leaf larger than `dmax` may be far from
+/// its surface, and takes the side of its plane; it keeps that side if it moves straight into
+/// a neighbouring surface leaf. Across one surface (a closed component, or one sheet) that side
+/// still holds, but not across another part: between two parallel sheets, or a sheet and a
+/// solid, a particle behind the one is in front of the other, and would pass through it.
+fn touches_other_parts(tree: &encode::Flat, leaf: u32, tris: &[Tri]) -> bool {
+    let node = &tree.nodes[leaf as usize];
+    let encode::Kind::Surface(surface) = &node.kind else { return false };
+    let Some(&first) = surface.tris.first() else { return false };
+    let component = tris[first as usize].component;
+    let (lo, hi) = node.range();
+    let mut other = false;
+    tree.for_each_touching_surface(lo, hi, |n| {
+        if let encode::Kind::Surface(s) = &tree.nodes[n as usize].kind {
+            other |= s.tris.iter().any(|&t| tris[t as usize].component != component);
+        }
+    });
+    other
 }
 
 fn gather(meshes: &[MeshRef<'_>], report: &mut BuildReport) -> Result<Vec<Tri>, BuildError> {

@@ -94,36 +94,27 @@ impl Flat {
     /// Calls `f(node)` for every surface leaf whose closed box meets the closed region
     /// `qlo..qhi` (finest-grid plane indices): the leaves inside it and those touching it.
     pub fn for_each_touching_surface(&self, qlo: UVec3, qhi: UVec3, mut f: impl FnMut(u32)) {
-        let mut stack = [0u32; 8 * (MAX_DEPTH as usize + 1)];
-        let mut top = 1;
-        stack[0] = 0;
-        while top > 0 {
-            top -= 1;
-            let node = &self.nodes[stack[top] as usize];
-            let Kind::Internal { children } = &node.kind else { continue };
-            let s = MAX_DEPTH - node.depth - 1;
-            for (o, &child) in children.iter().enumerate() {
-                let o = o as u32;
-                let c = node.cell * 2 + UVec3::new(o & 1, (o >> 1) & 1, (o >> 2) & 1);
-                let (lo, hi) = (c << s, (c + 1) << s);
-                if child == EMPTY || !(lo.cmple(qhi).all() && qlo.cmple(hi).all()) {
-                    continue;
-                }
-                match self.nodes[child as usize].kind {
-                    Kind::Surface(_) => f(child),
-                    Kind::Internal { .. } if top < stack.len() => {
-                        stack[top] = child;
-                        top += 1;
-                    }
-                    Kind::Internal { .. } => {}
-                }
+        self.for_each_touching_leaf(qlo, qhi, |_, child, _, _| {
+            if child != EMPTY {
+                f(child);
             }
-        }
+        });
     }
 
     /// Calls `f(empty_id, lo, hi)` for every empty leaf whose closed box touches the closed
     /// box `[qlo, qhi]` (finest-grid plane indices). `empty_id` is `parent * 8 + octant`.
     pub fn for_each_touching_empty(&self, qlo: UVec3, qhi: UVec3, mut f: impl FnMut(u32, UVec3, UVec3)) {
+        self.for_each_touching_leaf(qlo, qhi, |slot, child, lo, hi| {
+            if child == EMPTY {
+                f(slot, lo, hi);
+            }
+        });
+    }
+
+    /// Calls `f(parent * 8 + octant, child, lo, hi)` for every leaf, empty (`child` is
+    /// [`EMPTY`]) or surface, whose closed box `lo..hi` meets the closed box `[qlo, qhi]`
+    /// (finest-grid plane indices).
+    fn for_each_touching_leaf(&self, qlo: UVec3, qhi: UVec3, mut f: impl FnMut(u32, u32, UVec3, UVec3)) {
         let mut stack = [0u32; 8 * (MAX_DEPTH as usize + 1)];
         let mut top = 1;
         stack[0] = 0;
@@ -140,11 +131,13 @@ impl Flat {
                 if !(lo.cmple(qhi).all() && qlo.cmple(hi).all()) {
                     continue;
                 }
-                if child == EMPTY {
-                    f(id * 8 + o, lo, hi);
-                } else if matches!(self.nodes[child as usize].kind, Kind::Internal { .. }) && top < stack.len() {
-                    stack[top] = child;
-                    top += 1;
+                if child != EMPTY && matches!(self.nodes[child as usize].kind, Kind::Internal { .. }) {
+                    if top < stack.len() {
+                        stack[top] = child;
+                        top += 1;
+                    }
+                } else {
+                    f(id * 8 + o, child, lo, hi);
                 }
             }
         }

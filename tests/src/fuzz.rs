@@ -794,6 +794,8 @@ fn build_inner(u: &mut Unstructured<'_>) -> Result<()> {
                         e,
                         BuildError::Empty { .. }
                             | BuildError::Resolution { .. }
+                            | BuildError::TooLarge { .. }
+                            | BuildError::TooSmall { .. }
                             | BuildError::TooManyNodes { .. }
                             | BuildError::Unsplittable
                     ),

@@ -148,6 +148,20 @@ pub enum BuildError {
     /// scene's magnitudes (coordinates near the limits of `f32`).
     #[error("no triangle fits a cell of the octree (coordinates too extreme for exact overlap tests); scale the scene down")]
     Unsplittable,
+    /// The scene is too large for `f32`: its root cube would reach beyond `f32::MAX`.
+    #[error("the scene is too large for f32: its extent of {extent:.3e} needs a root cube beyond f32's range (about 3.4e38); scale it down")]
+    TooLarge {
+        /// Largest side of the scene's box.
+        extent: f64,
+    },
+    /// The scene is too small for `f32` at `dmax`: its leaves would fall below the normal range.
+    #[error("the scene is too small for f32 at dmax {dmax}: its extent of {extent:.3e} gives cells below f32's normal range; scale it up or lower dmax")]
+    TooSmall {
+        /// Largest side of the scene's box.
+        extent: f64,
+        /// dmax asked for.
+        dmax: u32,
+    },
     /// The scene is too far from the origin for its size: cells would collapse in `f32`.
     #[error("the scene is too small for its distance from the origin at dmax {dmax} (cells of {cell} at coordinates up to {magnitude}); move it nearer the origin or lower dmax")]
     Resolution {
@@ -518,7 +532,11 @@ fn root_grid(tris: &[Tri], dmax: u32) -> Result<Grid, BuildError> {
     let leaves = (1u64 << dmax) as f64;
     // 2.5 leaves of slack in all: 1.25 on each side, before rounding.
     let mut size = quantize_root_size((extent / (1.0 - 2.5 / leaves)) as f32 * (1.0 + 1e-6));
+    let too_large = |size: f32| !size.is_finite() || (0..3).any(|a| center[a].abs() + size as f64 >= f32::MAX as f64);
     for _ in 0..64 {
+        if too_large(size) {
+            return Err(BuildError::TooLarge { extent });
+        }
         let root_min = [0, 1, 2].map(|a| (center[a] - size as f64 * 0.5) as f32);
         let grid = Grid { root_min, root_size: size, unit: size * (1.0 / (1u32 << MAX_DEPTH) as f32) };
         let n = 1u32 << MAX_DEPTH;
@@ -529,7 +547,10 @@ fn root_grid(tris: &[Tri], dmax: u32) -> Result<Grid, BuildError> {
                 .map(|a| grid.plane(a, 0).abs().max(grid.plane(a, n).abs()))
                 .fold(0.0, f64::max) as f32;
             let cell = (size as f64 / leaves) as f32;
-            if !(cell >= 4.0 * ulp(magnitude)) || !grid.unit.is_normal() {
+            if !grid.unit.is_normal() {
+                return Err(BuildError::TooSmall { extent, dmax });
+            }
+            if !(cell >= 4.0 * ulp(magnitude)) {
                 return Err(BuildError::Resolution { dmax, cell, magnitude });
             }
             return Ok(grid);

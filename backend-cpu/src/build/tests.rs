@@ -180,6 +180,17 @@ fn bad_input_is_an_error() {
     ] {
         assert!(matches!(bake(&[MeshRef { positions: &p, triangles: &t }], &params, &()), Err(BuildError::BadParam(_))));
     }
+    // Scenes beyond what f32 can grid: too large, too small, and far for their size.
+    let scaled = |s: f32, o: f32| p.iter().map(|v| v.map(|c| c * s + o)).collect::<Vec<_>>();
+    let bake_at = |q: &[[f32; 3]]| bake(&[MeshRef { positions: q, triangles: &t }], &BuildParams::default(), &());
+    let r = bake_at(&scaled(3e38, 0.0));
+    assert!(matches!(r, Err(BuildError::TooLarge { .. })), "{r:?}");
+    assert!(r.unwrap_err().to_string().contains("too large"));
+    let r = bake_at(&scaled(1e-36, 0.0));
+    assert!(matches!(r, Err(BuildError::TooSmall { dmax: 8, .. })), "{r:?}");
+    let r = bake_at(&scaled(1.0, 1e6));
+    assert!(matches!(r, Err(BuildError::Resolution { .. })), "{r:?}");
+    assert!(bake_at(&scaled(1e-30, 0.0)).is_ok(), "a tiny scene at the origin still bakes");
     // A runaway tree stops at the node cap.
     let big = BuildParams { dmax: 16, dmin: 16, max_nodes: 10_000, ..Default::default() };
     assert!(matches!(bake(&[MeshRef { positions: &p, triangles: &t }], &big, &()), Err(BuildError::TooManyNodes { .. })));

@@ -300,6 +300,12 @@ fn three_floats<'a>(t: &mut impl Iterator<Item = &'a [u8]>) -> Result<[f32; 3], 
     Ok(p)
 }
 
+/// The line without its continuation backslash (and the spaces around it), if it has one.
+fn continues(line: &[u8]) -> Option<&[u8]> {
+    let end = line.iter().rposition(|b| !b.is_ascii_whitespace())?;
+    line[..=end].strip_suffix(b"\\")
+}
+
 fn parse_obj(name: &str, data: &[u8], report: &mut LoadReport) -> Result<Mesh, MeshError> {
     let mut mesh = Mesh::default();
     let mut poly: Vec<u32> = Vec::new();
@@ -307,9 +313,30 @@ fn parse_obj(name: &str, data: &[u8], report: &mut LoadReport) -> Result<Mesh, M
     // The largest positive index that referred past the vertices read so far (OBJ allows
     // forward references): (index, face, line). Checked once every vertex is read.
     let mut forward: Option<(i64, usize, usize)> = None;
-    for (n, raw) in data.split(|&b| b == b'\n').enumerate() {
+    // A line that ends in a backslash continues on the next; errors name its first line.
+    let mut joined: Vec<u8> = Vec::new();
+    let mut lines = data.split(|&b| b == b'\n').enumerate();
+    while let Some((n, raw)) = lines.next() {
         let lineno = n + 1;
-        let line = raw.split(|&b| b == b'#').next().unwrap_or_default();
+        let mut logical = raw;
+        if continues(raw).is_some() {
+            joined.clear();
+            let mut cur = raw;
+            while let Some(head) = continues(cur) {
+                joined.extend_from_slice(head);
+                joined.push(b' ');
+                match lines.next() {
+                    Some((_, next)) => cur = next,
+                    None => {
+                        cur = &[];
+                        break;
+                    }
+                }
+            }
+            joined.extend_from_slice(cur);
+            logical = &joined;
+        }
+        let line = logical.split(|&b| b == b'#').next().unwrap_or_default();
         let mut t = tokens(line);
         match t.next() {
             Some(b"v") => {
@@ -736,6 +763,19 @@ mod tests {
         assert_eq!(m.triangles[8], [3, 7, 6]);
         assert_eq!(m.triangles[9], [3, 6, 2]);
         assert_eq!(m.triangles[11], [3, 4, 7]);
+    }
+
+    #[test]
+    fn obj_lines_continue_after_a_backslash() {
+        let obj = b"v 0 0 \\\n 0\nv 1 0 0\r\nv 1 1 0\nv 0 1 0\nf 1 2 \\ \r\n 3 \\\n4\n";
+        let (m, r) = parse("c.obj", obj).unwrap();
+        assert_eq!(m.positions, vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]]);
+        assert_eq!(r.polygons_triangulated, 1);
+        assert_eq!(m.triangles, vec![[0, 1, 2], [0, 2, 3]]);
+        // A face cut short by the end of the file: its error names the line it began on.
+        let bad = [&obj[..], b"f 1 2 \\"].concat();
+        let e = parse("c.obj", &bad).unwrap_err().to_string();
+        assert!(e.contains("line 9") && e.contains("at least 3 vertices"), "{e}");
     }
 
     #[test]

@@ -281,6 +281,48 @@ pub fn cone(length: f32, radius: f32, segments: u32) -> Mesh {
     Mesh { positions, triangles }
 }
 
+/// An open V-groove: two unit wings meeting along the x axis at `angle_deg`, opening up
+/// (+y), then turned by `tilt_deg` about z so that the crease slopes and particles slide
+/// down it. Narrow ones squeeze a particle between two surfaces less than a leaf apart.
+pub fn v_groove(angle_deg: f32, tilt_deg: f32) -> Mesh {
+    let (s, c) = (0.5 * angle_deg).to_radians().sin_cos();
+    let wings = Mesh {
+        positions: vec![[-1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, c, s], [-1.0, c, s], [1.0, c, -s], [-1.0, c, -s]],
+        triangles: vec![[0, 1, 2], [0, 2, 3], [0, 4, 1], [0, 5, 4]],
+    };
+    rotated(&wings, tilt_deg, 0.0)
+}
+
+/// An open funnel: a cone with its apex at the origin, opening up (+y) to a rim at `y = 1`,
+/// `half_angle_deg` from its axis, `segments` around (at least 3), facing inward. Particles
+/// collect in its apex, where the surface closes in from every side.
+pub fn funnel(half_angle_deg: f32, segments: u32) -> Mesh {
+    let segments = segments.max(3);
+    let r = half_angle_deg.to_radians().tan();
+    let mut positions = vec![[0.0; 3]];
+    for s in 0..segments {
+        let th = TAU * s as f32 / segments as f32;
+        positions.push([r * th.cos(), 1.0, r * th.sin()]);
+    }
+    let triangles = (0..segments).map(|s| [0, 1 + (s + 1) % segments, 1 + s]).collect();
+    Mesh { positions, triangles }
+}
+
+/// `mesh` turned by `about_z_deg` about z, then by `about_x_deg` about x (through the origin).
+pub fn rotated(mesh: &Mesh, about_z_deg: f32, about_x_deg: f32) -> Mesh {
+    let (sz, cz) = about_z_deg.to_radians().sin_cos();
+    let (sx, cx) = about_x_deg.to_radians().sin_cos();
+    let positions = mesh
+        .positions
+        .iter()
+        .map(|&[x, y, z]| {
+            let (x, y) = (x * cz - y * sz, x * sz + y * cz);
+            [x, y * cx - z * sx, y * sx + z * cx]
+        })
+        .collect();
+    Mesh { positions, triangles: mesh.triangles.clone() }
+}
+
 /// `count` open sheets (as [`flat_sheet`], 2 on a side, facing +y) stacked `gap` apart,
 /// centred on the origin: closer together than a leaf when `gap` is small, so that one leaf
 /// holds several.

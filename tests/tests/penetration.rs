@@ -307,6 +307,42 @@ fn faces_on_cell_planes_hold() {
     }
 }
 
+/// Slow particles under gravity for 600 steps, without bounce or with a little, settling
+/// into the crease of narrow V-grooves and the apex of a funnel (two or more surfaces closer
+/// together than a leaf, pressing on a resting particle from both sides), straight and at an
+/// oblique angle.
+#[test]
+fn particles_resting_in_creases_and_apexes_hold() {
+    let cases = [
+        ("v-groove of 5°", scenes::v_groove(5.0, 10.0)),
+        ("v-groove of 10°, turned", scenes::rotated(&scenes::v_groove(10.0, 10.0), 29.0, 17.0)),
+        ("funnel of 15°, turned", scenes::rotated(&scenes::funnel(15.0, 24), 29.0, 17.0)),
+    ];
+    for (name, mesh) in &cases {
+        let params = defaults();
+        let (words, _) = bake(&[MeshRef::from(mesh)], &params, &()).expect("bakes");
+        let view = ProxyView::new(&words).expect("valid");
+        let gt = GroundTruth::new(&mesh.positions, &mesh.triangles);
+        let leaf = view.finest_leaf_size();
+        let speeds: Vec<f32> = [0.0, 0.1 * leaf, leaf].iter().map(|d| d / DT).collect();
+        let mut collisions = 0;
+        for (i, (restitution, friction)) in [(0.0, 0.0), (0.2, 0.1)].into_iter().enumerate() {
+            // Gravity of 200 leaves per second squared: a fall of 100 leaves in the first second.
+            let step = StepParams { gravity: [0.0, -200.0 * leaf, 0.0], dt: DT, restitution, friction, _pad: [0; 2] };
+            // Those above the surface, so that they fall onto it.
+            let drop = [0.0, 2.0 * view.header().root_size, 0.0];
+            let above = |p: &Particle| gt.segment_crossings(p.position, [0, 1, 2].map(|a| p.position[a] - drop[a])) % 2 == 1;
+            let mut ps: Vec<Particle> = random_particles(&view, &gt, 20_000, &speeds, 31 + i as u64).into_iter().filter(above).take(300).collect();
+            assert!(ps.len() >= 100, "{name}: only {} particles above the surface", ps.len());
+            let r = run_check(&view, &gt, &mut ps, 600, &step, false);
+            assert_clean(name, &r);
+            collisions += r.collisions;
+        }
+        eprintln!("{name}: {collisions} collisions");
+        assert!(collisions > 10_000, "{name}: only {collisions} collisions; the particles do not settle on the surface");
+    }
+}
+
 /// Suzanne with dmin 0 and epsilon 1 once kept a depth-3 flat leaf whose patch left it through
 /// a face it nearly lay in. A particle started on that face, 2.4 tolerances from the surface,
 /// took the side of the leaf's plane (which passed just beside it), wrong for the surface in

@@ -323,6 +323,45 @@ pub fn rotated(mesh: &Mesh, about_z_deg: f32, about_x_deg: f32) -> Mesh {
     Mesh { positions, triangles: mesh.triangles.clone() }
 }
 
+/// Faces, edges and corners exactly on the octree's cell planes for a bake with `params`
+/// (open, parts overlapping and touching): a closed cube over [-1, 1]³ that fixes the root
+/// (so the planes are known before baking), boxes on the depth-3 and depth-6 grids (the second
+/// on the first's +x face, overlapping part of it, face to face), a quad in a depth-4 cell
+/// plane, and a staircase of three depth-5 cells. Triangles on a cell face belong to the
+/// cells on both sides of it.
+pub fn on_cell_planes(params: &octoproxy_cpu::BuildParams) -> Mesh {
+    use octoproxy_core::{ProxyView, MAX_DEPTH};
+    use octoproxy_cpu::{bake, MeshRef};
+    let outer = cube([-1.0; 3], [1.0; 3]);
+    let (words, _) = bake(&[MeshRef::from(&outer)], params, &()).expect("a cube bakes");
+    let view = ProxyView::new(&words).expect("valid");
+    let at = |d: u32, k: [u32; 3]| [0, 1, 2].map(|a| view.plane(a, k[a] << (MAX_DEPTH - d)));
+    let a = cube(at(3, [2, 2, 3]), at(3, [4, 3, 5]));
+    // Depth-3 plane 4 is depth-6 plane 32.
+    let b = cube(at(6, [32, 16, 24]), at(6, [35, 20, 30]));
+    let (q0, q1) = (at(4, [5, 11, 4]), at(4, [9, 11, 12]));
+    let quad = Mesh {
+        positions: vec![q0, [q1[0], q0[1], q0[2]], q1, [q0[0], q0[1], q1[2]]],
+        triangles: vec![[0, 1, 2], [0, 2, 3]],
+    };
+    let mut stairs = Mesh::default();
+    let (z0, z1) = (at(5, [0, 0, 18])[2], at(5, [0, 0, 26])[2]);
+    for s in 0..3u32 {
+        let ([xa, ya, _], [xb, yb, _]) = (at(5, [8 + s, 20 + s, 0]), at(5, [9 + s, 21 + s, 0]));
+        let i = stairs.positions.len() as u32;
+        stairs.positions.extend([[xa, ya, z0], [xa, yb, z0], [xa, yb, z1], [xa, ya, z1], [xb, yb, z0], [xb, yb, z1]]);
+        stairs.triangles.extend([[i, i + 1, i + 2], [i, i + 2, i + 3], [i + 1, i + 4, i + 5], [i + 1, i + 5, i + 2]]);
+    }
+    let scene = merge(&[outer, a, b, quad, stairs]);
+    let (words, _) = bake(&[MeshRef::from(&scene)], params, &()).expect("the scene bakes");
+    let moved = ProxyView::new(&words).expect("valid");
+    assert!(
+        moved.root_aabb().min == view.root_aabb().min && moved.header().root_size == view.header().root_size,
+        "the inner parts moved the root"
+    );
+    scene
+}
+
 /// `count` open sheets (as [`flat_sheet`], 2 on a side, facing +y) stacked `gap` apart,
 /// centred on the origin: closer together than a leaf when `gap` is small, so that one leaf
 /// holds several.

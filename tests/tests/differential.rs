@@ -318,6 +318,22 @@ fn nested_shells_in_small_chunks() {
 }
 
 #[test]
+fn faces_on_cell_planes() {
+    // Float ties everywhere: the hand-placed particles start on the very planes the faces lie in.
+    differential("faces on cell planes", &scenes::on_cell_planes(&build(6)), &build(6), 120, None);
+}
+
+#[test]
+fn resting_in_creases_and_apexes() {
+    // Particles pressed between surfaces less than a leaf apart, pinched, sliding to a stop.
+    let mesh = scenes::merge(&[
+        scenes::rotated(&scenes::v_groove(5.0, 10.0), 29.0, 17.0),
+        scenes::rotated(&scenes::funnel(15.0, 24), -20.0, 0.0),
+    ]);
+    differential("creases and apexes", &mesh, &build(6), 150, None);
+}
+
+#[test]
 fn leaf_hints_are_forgotten_when_the_proxy_changes() {
     // Steps with one proxy, then swaps in another with a sheet across the middle, where the
     // first is empty. Every particle then holds a hint to a large empty leaf of the first

@@ -265,40 +265,13 @@ fn particles_on_cell_planes_moving_along_axes_hold() {
     }
 }
 
-/// Faces, edges and corners exactly on the octree's cell planes: boxes on the depth-3 and
-/// depth-6 grids (one touching another face to face), a quad in a cell plane and a staircase
-/// of cell-sized steps, inside an outer box that fixes the root (so the planes are known before
-/// baking). Triangles on a cell face belong to the cells on both sides of it; random and
-/// grid-aligned particles, the latter sliding along the very planes the faces lie in.
+/// Faces, edges and corners exactly on the octree's cell planes ([`scenes::on_cell_planes`]),
+/// with random and grid-aligned particles, the latter sliding along the very planes the faces
+/// lie in.
 #[test]
 fn faces_on_cell_planes_hold() {
-    use octoproxy_core::MAX_DEPTH;
     let params = BuildParams { dmax: 6, ..BuildParams::default() };
-    let outer = scenes::cube([-1.0; 3], [1.0; 3]);
-    let (words, _) = bake(&[MeshRef::from(&outer)], &params, &()).expect("bakes");
-    let view = ProxyView::new(&words).expect("valid");
-    let at = |d: u32, k: [u32; 3]| [0, 1, 2].map(|a| view.plane(a, k[a] << (MAX_DEPTH - d)));
-    let d6 = |k: [u32; 3]| at(6, k);
-    let a = scenes::cube(at(3, [2, 2, 3]), at(3, [4, 3, 5]));
-    // On a's +x face (depth-3 plane 4 = depth-6 plane 32), overlapping part of it.
-    let b = scenes::cube(d6([32, 16, 24]), d6([35, 20, 30]));
-    let (q0, q1) = (at(4, [5, 11, 4]), at(4, [9, 11, 12]));
-    let quad = Mesh {
-        positions: vec![q0, [q1[0], q0[1], q0[2]], q1, [q0[0], q0[1], q1[2]]],
-        triangles: vec![[0, 1, 2], [0, 2, 3]],
-    };
-    let mut stairs = Mesh::default();
-    let (z0, z1) = (at(5, [0, 0, 18])[2], at(5, [0, 0, 26])[2]);
-    for s in 0..3u32 {
-        let ([xa, ya, _], [xb, yb, _]) = (at(5, [8 + s, 20 + s, 0]), at(5, [9 + s, 21 + s, 0]));
-        let base = stairs.positions.len() as u32;
-        stairs.positions.extend([[xa, ya, z0], [xa, yb, z0], [xa, yb, z1], [xa, ya, z1], [xb, yb, z0], [xb, yb, z1]]);
-        stairs.triangles.extend([[base, base + 1, base + 2], [base, base + 2, base + 3], [base + 1, base + 4, base + 5], [base + 1, base + 5, base + 2]]);
-    }
-    let scene = scenes::merge(&[outer, a, b, quad, stairs]);
-    let (w2, _) = bake(&[MeshRef::from(&scene)], &params, &()).expect("bakes");
-    let v2 = ProxyView::new(&w2).expect("valid");
-    assert!(v2.root_aabb().min == view.root_aabb().min && v2.header().root_size == view.header().root_size, "the inner parts moved the root");
+    let scene = scenes::on_cell_planes(&params);
     let make: [(&str, MakeParticles); 2] = [("random", random_particles), ("grid-aligned", grid_aligned_particles)];
     for (kind, make) in make {
         let name = format!("parts on cell planes, {kind} particles");

@@ -95,8 +95,8 @@ impl BuildFlags {
 }
 
 /// The build-flag help lines.
-pub const BUILD_HELP: &str = "\
-  --dmin N          depth below which nodes always subdivide (default 4)
+// Not a `"\` continuation: it would eat the first line's indent.
+pub const BUILD_HELP: &str = "  --dmin N          depth below which nodes always subdivide (default 4)
   --dmax N          maximum depth, 2..=16 (default 8)
   --epsilon X       normal-variance tolerance, >= 0 (default 0.01)
   --lut-depth N     lookup-table depth, 0..=8, clamped to the tree depth (default 5)";

@@ -8,11 +8,30 @@ fn xtask(args: &[&str], dir: &Path) -> Output {
     Command::new(env!("CARGO_BIN_EXE_xtask")).args(args).current_dir(dir).output().expect("xtask runs")
 }
 
-fn scratch(name: &str) -> PathBuf {
+/// A fresh directory under the system's temporary one, removed when the test passes (and
+/// kept, to look into, when it fails).
+struct Scratch(PathBuf);
+
+impl std::ops::Deref for Scratch {
+    type Target = Path;
+    fn deref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        if !std::thread::panicking() {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
+}
+
+fn scratch(name: &str) -> Scratch {
     let dir = std::env::temp_dir().join(format!("octoproxy-cli-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
-    dir
+    Scratch(dir)
 }
 
 /// A closed box as ascii OBJ (outward faces, quads).
@@ -40,6 +59,20 @@ fn demo_writes_a_picture() {
     }
     let png = std::fs::read(dir.join("demo.png")).unwrap();
     assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
+}
+
+#[test]
+fn every_help_lists_its_options_indented() {
+    let dir = scratch("help");
+    for command in ["demo", "bake", "sim", "check", "bench"] {
+        let out = xtask(&[command, "--help"], &dir);
+        assert!(out.status.success(), "{command} --help failed");
+        let text = String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
+        assert!(text.starts_with("usage: cargo xtask"), "{command} --help: {text}");
+        for line in text.lines().skip(1) {
+            assert!(!line.starts_with('-'), "{command} --help: an option out of line: {line:?}");
+        }
+    }
 }
 
 #[test]

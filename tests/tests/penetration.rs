@@ -316,6 +316,24 @@ fn particles_resting_in_creases_and_apexes_hold() {
     }
 }
 
+/// A hollow ball whose wall pokes out through three faces of a box it overlaps: near those
+/// faces a leaf holds the ball's outer and inner walls and the box's face, two of the three
+/// facing out. The empty leaves inside the ball's cavity see the inner wall first, which faces
+/// them: their label said front, while the leaf's one normal (the majority's) faced out, so a
+/// particle rising through the cavity, stamped front, did not move against it and left the
+/// box through the top. Such leaves are now solid. Found by the fuzzer (at dmax 5, dmin 0,
+/// epsilon 0, no lookup table, with gravity up).
+#[test]
+fn a_hollow_ball_poking_out_of_a_box_holds() {
+    let scene = scenes::merge(&[scenes::nested_shells(1.0, 0.0125), scenes::cube([-1.5; 3], [0.985; 3])]);
+    for dmax in [5, 6] {
+        let params = BuildParams { dmin: 0, dmax, epsilon: 0.0, lut_depth: 0, ..BuildParams::default() };
+        let name = format!("hollow ball poking out of a box, dmax {dmax}");
+        let r = check(&name, &scene, true, 3000, 40, &params);
+        assert_clean(&name, &r);
+    }
+}
+
 /// Suzanne with dmin 0 and epsilon 1 once kept a depth-3 flat leaf whose patch left it through
 /// a face it nearly lay in. A particle started on that face, 2.4 tolerances from the surface,
 /// took the side of the leaf's plane (which passed just beside it), wrong for the surface in

@@ -16,6 +16,13 @@
 //! bit cannot be right for every surface there (self-intersections, overlapping parts, thin
 //! gaps between opposite faces), so every surface leaf that touches such an empty leaf is made
 //! two-sided: solid from every side, whatever the particle's side.
+//!
+//! **Votes against the leaf's normal.** A label is the side of the surface that decided it,
+//! but a step reads it against the surface leaf's one normal. Where the deciding surface faces
+//! against that normal (a leaf holding surfaces that face both ways, the other way in the
+//! majority: the wall of a hollow ball where it passes a face of an overlapping box), the
+//! label means the other side of the leaf's plane, and a particle it stamps would pass through
+//! the surface it faces. Such a surface leaf is made two-sided too.
 
 use glam::DVec3;
 use octoproxy_core::Label;
@@ -58,6 +65,8 @@ struct Vote {
     surface: u32,
     front: bool,
     closed: bool,
+    /// The surface that decided the vote faces against the surface leaf's normal.
+    against: bool,
 }
 
 pub(crate) fn label(tree: &Flat, tris: &[Tri], grid: &Grid, progress: &dyn BuildProgress) -> Labels {
@@ -82,7 +91,7 @@ pub(crate) fn label(tree: &Flat, tris: &[Tri], grid: &Grid, progress: &dyn Build
     let disagree = |c: &[u32; 4]| (c[0] + c[2] > 0) && (c[1] + c[3] > 0);
     let mut conflicted = vec![false; tree.nodes.len()];
     for v in &votes {
-        if disagree(&counts[v.empty as usize]) {
+        if v.against || disagree(&counts[v.empty as usize]) {
             conflicted[v.surface as usize] = true;
         }
     }
@@ -132,8 +141,9 @@ fn leaf_votes(tree: &Flat, leaf: u32, tris: &[Tri], grid: &Grid) -> Vec<Vote> {
         }
         for &(_, i) in best.iter().filter(|b| b.1 != usize::MAX) {
             let (pb, own) = surface.anchors[i];
-            if let Some((front, closed)) = view_visible(pe, pb, own, &surface.tris, tris) {
-                out.push(Vote { empty, surface: leaf, front, closed });
+            if let Some((front, closed, n)) = view_visible(pe, pb, own, &surface.tris, tris) {
+                let against = !surface.two_sided && n.dot(surface.normal) < 0.0;
+                out.push(Vote { empty, surface: leaf, front, closed, against });
             }
         }
     });
@@ -141,9 +151,10 @@ fn leaf_votes(tree: &Flat, leaf: u32, tris: &[Tri], grid: &Grid) -> Vec<Vote> {
 }
 
 /// The vote of one segment from `pe` to `pb` (a point on triangle `own`): the triangle hit
-/// nearest `pe` faces `pe` (front) or not (back). Hits within a hair of the nearest are
-/// summed, so a segment through an edge sees both triangles. `None` when undecided.
-fn view_visible(pe: DVec3, pb: DVec3, own: u32, list: &[u32], tris: &[Tri]) -> Option<(bool, bool)> {
+/// nearest `pe` faces `pe` (front) or not (back), whether it is closed, and its normal.
+/// Hits within a hair of the nearest are summed, so a segment through an edge sees both
+/// triangles. `None` when undecided.
+fn view_visible(pe: DVec3, pb: DVec3, own: u32, list: &[u32], tris: &[Tri]) -> Option<(bool, bool, DVec3)> {
     let dir = pb - pe;
     if dir.length_squared() == 0.0 {
         return None;
@@ -181,5 +192,5 @@ fn view_visible(pe: DVec3, pb: DVec3, own: u32, list: &[u32], tris: &[Tri]) -> O
     if facing == 0.0 {
         return None;
     }
-    Some((facing > 0.0, closed))
+    Some((facing > 0.0, closed, n))
 }

@@ -21,7 +21,7 @@ use octoproxy_cpu::mesh::{parse_mesh, Mesh};
 use octoproxy_cpu::particles::{encode_particles, parse_particles, PlyEncoding};
 
 use crate::ground_truth::GroundTruth;
-use crate::harness::{deep_on_the_other_side, jumps_back, tolerance};
+use crate::harness::{aligned_velocity, deep_on_the_other_side, jumps_back, tolerance};
 use crate::scenes;
 
 // ---------------------------------------------------------------------------------------------
@@ -1020,22 +1020,17 @@ fn penetration_inner(u: &mut Unstructured<'_>) -> Result<()> {
             }
         }
         let speed = per_step / dt;
+        // Signs drawn in axis order for the moving axes (a bool from `Unstructured` never fails).
         let mut velocity = match u.int_in_range(0u8..=7)? {
             0 => {
-                let mut v = Vec3::ZERO;
-                v[u.int_in_range(0usize..=2)?] = if u.arbitrary()? { speed } else { -speed };
-                v
+                let axis = u.int_in_range(0usize..=2)?;
+                aligned_velocity(1, axis, speed, || !u.arbitrary::<bool>().unwrap_or(true))
             }
             1 | 2 => {
                 // Equal magnitudes on two or three axes, so the path meets cell edges and corners.
                 let axes = if u.arbitrary()? { 2 } else { 3 };
-                let s = speed / (axes as f32).sqrt();
                 let skip = u.int_in_range(0usize..=2)?;
-                let mut v = Vec3::ZERO;
-                for a in (0..3).filter(|&a| axes == 3 || a != skip) {
-                    v[a] = if u.arbitrary()? { s } else { -s };
-                }
-                v
+                aligned_velocity(axes, skip, speed, || !u.arbitrary::<bool>().unwrap_or(true))
             }
             3 => Vec3::ZERO,
             _ => {

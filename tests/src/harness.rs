@@ -110,25 +110,33 @@ pub fn grid_aligned_particles(view: &ProxyView<'_>, gt: &GroundTruth, n: usize, 
             continue;
         }
         let speed = speeds[out.len() % speeds.len().max(1)];
-        let mut v = [0.0f32; 3];
-        let axes = below(4) as usize;
-        let s = if axes == 0 { 0.0 } else { speed / (axes as f32).sqrt() };
-        let skip = below(3) as usize;
-        for (a, c) in v.iter_mut().enumerate() {
-            let moving = match axes {
-                1 => a == skip,
-                2 => a != skip,
-                _ => axes == 3,
-            };
-            if moving {
-                *c = if below(2) == 0 { s } else { -s };
-            }
-        }
-        let mut q = Particle::new(p, v);
+        let (axes, skip) = (below(4) as usize, below(3) as usize);
+        let v = aligned_velocity(axes, skip, speed, || below(2) != 0);
+        let mut q = Particle::new(p, v.to_array());
         q.side = initial_side(view, q.position);
         out.push(q);
     }
     out
+}
+
+/// A velocity of `speed` along `axes` axes with equal magnitudes: none (at rest), the axis
+/// `skip`, the two axes other than `skip` (an exact face diagonal) or all three (a space
+/// diagonal), so that a path meets cell faces, edges and corners exactly. `negative()` is
+/// asked once for each moving axis, in axis order, whether it moves down that axis.
+pub fn aligned_velocity(axes: usize, skip: usize, speed: f32, mut negative: impl FnMut() -> bool) -> Vec3 {
+    let s = if axes == 0 { 0.0 } else { speed / (axes as f32).sqrt() };
+    let mut v = Vec3::ZERO;
+    for a in 0..3 {
+        let moving = match axes {
+            1 => a == skip,
+            2 => a != skip,
+            _ => axes == 3,
+        };
+        if moving {
+            v[a] = if negative() { -s } else { s };
+        }
+    }
+    v
 }
 
 /// One `dmax`-leaf diagonal.

@@ -17,15 +17,26 @@ fn subdivide(m: &Mesh) -> Mesh {
     let mut mid = |a: u32, b: u32, positions: &mut Vec<[f32; 3]>| -> u32 {
         *mids.entry((a.min(b), a.max(b))).or_insert_with(|| {
             let (p, q) = (positions[a as usize], positions[b as usize]);
-            positions.push([(p[0] + q[0]) * 0.5, (p[1] + q[1]) * 0.5, (p[2] + q[2]) * 0.5]);
+            positions.push([
+                (p[0] + q[0]) * 0.5,
+                (p[1] + q[1]) * 0.5,
+                (p[2] + q[2]) * 0.5,
+            ]);
             positions.len() as u32 - 1
         })
     };
     for &[a, b, c] in &m.triangles {
-        let (ab, bc, ca) = (mid(a, b, &mut positions), mid(b, c, &mut positions), mid(c, a, &mut positions));
+        let (ab, bc, ca) = (
+            mid(a, b, &mut positions),
+            mid(b, c, &mut positions),
+            mid(c, a, &mut positions),
+        );
         triangles.extend_from_slice(&[[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]]);
     }
-    Mesh { positions, triangles }
+    Mesh {
+        positions,
+        triangles,
+    }
 }
 
 fn main() {

@@ -1,6 +1,8 @@
 //! [`CpuBackend`]: the core step run over particles in parallel with rayon.
 
-use octoproxy_core::{step_particle_hinted, Backend, FormatError, LeafHint, OwnedProxy, Particle, StepParams};
+use octoproxy_core::{
+    step_particle_hinted, Backend, FormatError, LeafHint, OwnedProxy, Particle, StepParams,
+};
 use rayon::prelude::*;
 
 /// What the CPU backend can report.
@@ -40,7 +42,10 @@ pub struct CpuBackend {
 impl CpuBackend {
     /// A backend with no proxy and no particles.
     pub fn new() -> Self {
-        Self { use_lut: true, ..Self::default() }
+        Self {
+            use_lut: true,
+            ..Self::default()
+        }
     }
 
     /// Whether to enter through the lookup table (on by default; off only to measure it).
@@ -59,11 +64,14 @@ impl CpuBackend {
         params.validate()?;
         let g = glam::Vec3::from_array(params.gravity) * params.dt;
         for _ in 0..steps {
-            self.particles.par_iter_mut().with_min_len(1024).for_each(|p| {
-                let v = glam::Vec3::from_array(p.velocity) + g;
-                p.velocity = v.to_array();
-                p.position = (glam::Vec3::from_array(p.position) + v * params.dt).to_array();
-            });
+            self.particles
+                .par_iter_mut()
+                .with_min_len(1024)
+                .for_each(|p| {
+                    let v = glam::Vec3::from_array(p.velocity) + g;
+                    p.velocity = v.to_array();
+                    p.position = (glam::Vec3::from_array(p.position) + v * params.dt).to_array();
+                });
         }
         Ok(())
     }
@@ -94,7 +102,10 @@ impl Backend for CpuBackend {
 
     fn download_particles(&mut self, out: &mut [Particle]) -> Result<(), CpuError> {
         if out.len() != self.particles.len() {
-            return Err(CpuError::LengthMismatch { expected: self.particles.len(), got: out.len() });
+            return Err(CpuError::LengthMismatch {
+                expected: self.particles.len(),
+                got: out.len(),
+            });
         }
         out.copy_from_slice(&self.particles);
         Ok(())
@@ -106,14 +117,25 @@ impl Backend for CpuBackend {
 
     fn step(&mut self, params: &StepParams, steps: u32) -> Result<(), CpuError> {
         params.validate()?;
-        let Self { proxy, particles, hints, use_lut } = self;
-        let Some(proxy) = proxy else { return Err(CpuError::NoProxy) };
+        let Self {
+            proxy,
+            particles,
+            hints,
+            use_lut,
+        } = self;
+        let Some(proxy) = proxy else {
+            return Err(CpuError::NoProxy);
+        };
         let view = proxy.view();
         let view = if *use_lut { view } else { view.without_lut() };
         for _ in 0..steps {
-            particles.par_iter_mut().zip(hints.par_iter_mut()).with_min_len(1024).for_each(|(p, hint)| {
-                step_particle_hinted(&view, p, params, hint);
-            });
+            particles
+                .par_iter_mut()
+                .zip(hints.par_iter_mut())
+                .with_min_len(1024)
+                .for_each(|(p, hint)| {
+                    step_particle_hinted(&view, p, params, hint);
+                });
         }
         Ok(())
     }

@@ -37,7 +37,11 @@ impl Rng {
     /// A uniformly random unit vector.
     pub fn unit_vector(&mut self) -> Vec3 {
         loop {
-            let v = Vec3::new(self.range(-1.0, 1.0), self.range(-1.0, 1.0), self.range(-1.0, 1.0));
+            let v = Vec3::new(
+                self.range(-1.0, 1.0),
+                self.range(-1.0, 1.0),
+                self.range(-1.0, 1.0),
+            );
             let l = v.length_squared();
             if l > 1e-4 && l <= 1.0 {
                 return v / l.sqrt();
@@ -52,7 +56,11 @@ pub fn emit_box(n: usize, min: Vec3, max: Vec3, speed: f32, seed: u64) -> Vec<Pa
     let mut rng = Rng::new(seed);
     (0..n)
         .map(|_| {
-            let p = Vec3::new(rng.range(min.x, max.x), rng.range(min.y, max.y), rng.range(min.z, max.z));
+            let p = Vec3::new(
+                rng.range(min.x, max.x),
+                rng.range(min.y, max.y),
+                rng.range(min.z, max.z),
+            );
             Particle::new(p.to_array(), (rng.unit_vector() * speed).to_array())
         })
         .collect()
@@ -61,13 +69,23 @@ pub fn emit_box(n: usize, min: Vec3, max: Vec3, speed: f32, seed: u64) -> Vec<Pa
 /// `n` particles on the surface of the meshes (triangles picked by area), lifted `offset`
 /// along the triangle normal so they start in front, moving at `speed` in random directions.
 /// Empty when the meshes have no area.
-pub fn emit_surface(n: usize, meshes: &[MeshRef<'_>], offset: f32, speed: f32, seed: u64) -> Vec<Particle> {
+pub fn emit_surface(
+    n: usize,
+    meshes: &[MeshRef<'_>],
+    offset: f32,
+    speed: f32,
+    seed: u64,
+) -> Vec<Particle> {
     let mut tris = Vec::new();
     let mut cumulative = Vec::new();
     let mut total = 0.0f64;
     for m in meshes {
         for t in m.triangles {
-            let Some(v) = t.iter().map(|&i| m.positions.get(i as usize)).collect::<Option<Vec<_>>>() else {
+            let Some(v) = t
+                .iter()
+                .map(|&i| m.positions.get(i as usize))
+                .collect::<Option<Vec<_>>>()
+            else {
                 continue;
             };
             let v: [DVec3; 3] = [0, 1, 2].map(|k| DVec3::from_array(v[k].map(f64::from)));
@@ -121,7 +139,16 @@ mod tests {
     fn surface_emission_is_offset_along_the_normal() {
         let positions = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]];
         let triangles = [[0, 1, 2]]; // normal +y
-        let p = emit_surface(100, &[MeshRef { positions: &positions, triangles: &triangles }], 0.25, 0.0, 3);
+        let p = emit_surface(
+            100,
+            &[MeshRef {
+                positions: &positions,
+                triangles: &triangles,
+            }],
+            0.25,
+            0.0,
+            3,
+        );
         assert_eq!(p.len(), 100);
         for q in p {
             assert!((q.position[1] - 0.25).abs() < 1e-6, "{:?}", q.position);

@@ -769,13 +769,24 @@ mod tests {
     fn obj_lines_continue_after_a_backslash() {
         let obj = b"v 0 0 \\\n 0\nv 1 0 0\r\nv 1 1 0\nv 0 1 0\nf 1 2 \\ \r\n 3 \\\n4\n";
         let (m, r) = parse("c.obj", obj).unwrap();
-        assert_eq!(m.positions, vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]]);
+        assert_eq!(
+            m.positions,
+            vec![
+                [0.0, 0.0, 0.0],
+                [1.0, 0.0, 0.0],
+                [1.0, 1.0, 0.0],
+                [0.0, 1.0, 0.0]
+            ]
+        );
         assert_eq!(r.polygons_triangulated, 1);
         assert_eq!(m.triangles, vec![[0, 1, 2], [0, 2, 3]]);
         // A face cut short by the end of the file: its error names the line it began on.
         let bad = [&obj[..], b"f 1 2 \\"].concat();
         let e = parse("c.obj", &bad).unwrap_err().to_string();
-        assert!(e.contains("line 9") && e.contains("at least 3 vertices"), "{e}");
+        assert!(
+            e.contains("line 9") && e.contains("at least 3 vertices"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -173,7 +173,8 @@ impl WgpuBackend {
     }
 
     fn open(hardware_only: bool) -> Result<Self, WgpuError> {
-        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        let instance =
+            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
         let options = wgpu::RequestAdapterOptions {
             power_preference: wgpu::PowerPreference::HighPerformance,
             ..Default::default()
@@ -223,7 +224,13 @@ impl WgpuBackend {
     pub fn from_device(device: &wgpu::Device, queue: &wgpu::Queue) -> Result<Self, WgpuError> {
         let lost = Arc::new(Mutex::new(None));
         let uncaptured = Arc::new(Mutex::new(None));
-        Self::build(device.clone(), queue.clone(), "caller's device".into(), lost, uncaptured)
+        Self::build(
+            device.clone(),
+            queue.clone(),
+            "caller's device".into(),
+            lost,
+            uncaptured,
+        )
     }
 
     fn build(
@@ -303,7 +310,13 @@ impl WgpuBackend {
             queue,
             description,
             software: false,
-            kernel: Kernel { layout, step, integrate, params, run },
+            kernel: Kernel {
+                layout,
+                step,
+                integrate,
+                params,
+                run,
+            },
             proxy: None,
             chunks: Vec::new(),
             count: 0,
@@ -353,14 +366,21 @@ impl WgpuBackend {
     /// 2D grid. The default is the device's limit (65,535 on most); small values make tests
     /// exercise the fold.
     pub fn set_fold_width(&mut self, groups: u32) {
-        let limit = self.device.limits().max_compute_workgroups_per_dimension.max(1);
+        let limit = self
+            .device
+            .limits()
+            .max_compute_workgroups_per_dimension
+            .max(1);
         self.fold_width = groups.clamp(1, limit);
     }
 
     /// Particles per chunk as the device allows.
     fn chunk_capacity(&self) -> u32 {
         let limits = self.device.limits();
-        let by_binding = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size) / PARTICLE_BYTES;
+        let by_binding = limits
+            .max_storage_buffer_binding_size
+            .min(limits.max_buffer_size)
+            / PARTICLE_BYTES;
         let by_binding = (by_binding.min(u32::MAX as u64) as u32 / WORKGROUP_SIZE) * WORKGROUP_SIZE;
         self.chunk_particles.min(by_binding.max(WORKGROUP_SIZE))
     }
@@ -375,15 +395,24 @@ impl WgpuBackend {
     /// `STORAGE` usage (and `COPY_SRC` for [`Backend::download_particles`], `COPY_DST` for
     /// [`Backend::upload_particles`]); `offset` must meet the device's storage offset
     /// alignment. Replaces any particles held before.
-    pub fn use_particle_buffer(&mut self, buffer: &wgpu::Buffer, offset: u64, count: usize) -> Result<(), WgpuError> {
+    pub fn use_particle_buffer(
+        &mut self,
+        buffer: &wgpu::Buffer,
+        offset: u64,
+        count: usize,
+    ) -> Result<(), WgpuError> {
         if !buffer.usage().contains(wgpu::BufferUsages::STORAGE) {
             return Err(WgpuError::BadBuffer("it needs STORAGE usage".into()));
         }
         let align = self.device.limits().min_storage_buffer_offset_alignment as u64;
         if !offset.is_multiple_of(align) {
-            return Err(WgpuError::BadBuffer(format!("offset {offset} is not a multiple of {align}")));
+            return Err(WgpuError::BadBuffer(format!(
+                "offset {offset} is not a multiple of {align}"
+            )));
         }
-        let end = (count as u64).checked_mul(PARTICLE_BYTES).and_then(|bytes| offset.checked_add(bytes));
+        let end = (count as u64)
+            .checked_mul(PARTICLE_BYTES)
+            .and_then(|bytes| offset.checked_add(bytes));
         if end.is_none_or(|end| end > buffer.size()) {
             return Err(WgpuError::BadBuffer(format!(
                 "{count} particles at offset {offset} do not fit in its {} bytes",
@@ -395,7 +424,11 @@ impl WgpuBackend {
         let mut start = 0usize;
         while start < count {
             let n = (count - start).min(cap);
-            chunks.push(self.chunk(buffer.clone(), offset + start as u64 * PARTICLE_BYTES, n as u32));
+            chunks.push(self.chunk(
+                buffer.clone(),
+                offset + start as u64 * PARTICLE_BYTES,
+                n as u32,
+            ));
             start += n;
         }
         self.chunks = chunks;
@@ -412,8 +445,12 @@ impl WgpuBackend {
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let values = ChunkParams { count, ..Default::default() };
-        self.queue.write_buffer(&params, 0, bytemuck::bytes_of(&values));
+        let values = ChunkParams {
+            count,
+            ..Default::default()
+        };
+        self.queue
+            .write_buffer(&params, 0, bytemuck::bytes_of(&values));
         // New buffers start zeroed: no hints.
         let hints = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("octoproxy leaf hints"),
@@ -421,7 +458,14 @@ impl WgpuBackend {
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        Chunk { buffer, offset, count, params, hints, bind_group: None }
+        Chunk {
+            buffer,
+            offset,
+            count,
+            params,
+            hints,
+            bind_group: None,
+        }
     }
 
     /// Forgets every particle's leaf hint (a hint belongs to the proxy that made it).
@@ -429,8 +473,11 @@ impl WgpuBackend {
         if self.chunks.is_empty() {
             return;
         }
-        let mut encoder =
-            self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("octoproxy hint reset") });
+        let mut encoder = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("octoproxy hint reset"),
+            });
         for chunk in &self.chunks {
             encoder.clear_buffer(&chunk.hints, 0, None);
         }
@@ -446,7 +493,10 @@ impl WgpuBackend {
                 label: Some("octoproxy chunk"),
                 layout: &self.kernel.layout,
                 entries: &[
-                    wgpu::BindGroupEntry { binding: 0, resource: proxy.as_entire_binding() },
+                    wgpu::BindGroupEntry {
+                        binding: 0,
+                        resource: proxy.as_entire_binding(),
+                    },
                     wgpu::BindGroupEntry {
                         binding: 1,
                         resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
@@ -455,10 +505,22 @@ impl WgpuBackend {
                             size,
                         }),
                     },
-                    wgpu::BindGroupEntry { binding: 2, resource: self.kernel.params.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 3, resource: self.kernel.run.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 4, resource: chunk.params.as_entire_binding() },
-                    wgpu::BindGroupEntry { binding: 5, resource: chunk.hints.as_entire_binding() },
+                    wgpu::BindGroupEntry {
+                        binding: 2,
+                        resource: self.kernel.params.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 3,
+                        resource: self.kernel.run.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 4,
+                        resource: chunk.params.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 5,
+                        resource: chunk.hints.as_entire_binding(),
+                    },
                 ],
             }));
         }
@@ -508,10 +570,19 @@ impl WgpuBackend {
             return Ok(());
         }
         let scope = ErrorScope::push(&self.device);
-        self.queue.write_buffer(&self.kernel.params, 0, bytemuck::bytes_of(params));
-        let run = RunParams { use_lut: self.use_lut as u32, ..Default::default() };
-        self.queue.write_buffer(&self.kernel.run, 0, bytemuck::bytes_of(&run));
-        let pipeline = if floor { &self.kernel.integrate } else { &self.kernel.step };
+        self.queue
+            .write_buffer(&self.kernel.params, 0, bytemuck::bytes_of(params));
+        let run = RunParams {
+            use_lut: self.use_lut as u32,
+            ..Default::default()
+        };
+        self.queue
+            .write_buffer(&self.kernel.run, 0, bytemuck::bytes_of(&run));
+        let pipeline = if floor {
+            &self.kernel.integrate
+        } else {
+            &self.kernel.step
+        };
         let mut left = steps;
         while left > 0 {
             let batch = left.min(STEPS_PER_SUBMIT);
@@ -525,7 +596,9 @@ impl WgpuBackend {
                 });
                 pass.set_pipeline(pipeline);
                 for chunk in &self.chunks {
-                    let Some(group) = &chunk.bind_group else { continue };
+                    let Some(group) = &chunk.bind_group else {
+                        continue;
+                    };
                     let (x, y) = self.dispatch_size(chunk.count);
                     pass.set_bind_group(0, group, &[]);
                     pass.dispatch_workgroups(x, y, 1);
@@ -552,7 +625,11 @@ impl ErrorScope {
         let validation = device.push_error_scope(wgpu::ErrorFilter::Validation);
         let memory = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
         let internal = device.push_error_scope(wgpu::ErrorFilter::Internal);
-        Self { internal, memory, validation }
+        Self {
+            internal,
+            memory,
+            validation,
+        }
     }
 
     fn pop(self) -> Result<(), String> {
@@ -580,9 +657,15 @@ impl Backend for WgpuBackend {
         self.check_health()?;
         let bytes: &[u8] = bytemuck::cast_slice(words);
         let limits = self.device.limits();
-        let limit = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
+        let limit = limits
+            .max_storage_buffer_binding_size
+            .min(limits.max_buffer_size);
         if bytes.len() as u64 > limit {
-            return Err(WgpuError::TooLarge { what: "the proxy", needed: bytes.len() as u64, limit });
+            return Err(WgpuError::TooLarge {
+                what: "the proxy",
+                needed: bytes.len() as u64,
+                limit,
+            });
         }
         let scope = ErrorScope::push(&self.device);
         let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
@@ -606,29 +689,41 @@ impl Backend for WgpuBackend {
         if self.external {
             if let Some(chunk) = self.chunks.first() {
                 if !chunk.buffer.usage().contains(wgpu::BufferUsages::COPY_DST) {
-                    return Err(WgpuError::BadBuffer("uploading into it needs COPY_DST usage".into()));
+                    return Err(WgpuError::BadBuffer(
+                        "uploading into it needs COPY_DST usage".into(),
+                    ));
                 }
             }
             if particles.len() != self.count {
-                return Err(WgpuError::LengthMismatch { expected: self.count, got: particles.len() });
+                return Err(WgpuError::LengthMismatch {
+                    expected: self.count,
+                    got: particles.len(),
+                });
             }
             for chunk in &self.chunks {
                 let start = (chunk.offset - self.chunks[0].offset) as usize;
                 let end = start + chunk.count as usize * PARTICLE_BYTES as usize;
-                self.queue.write_buffer(&chunk.buffer, chunk.offset, &bytes[start..end]);
+                self.queue
+                    .write_buffer(&chunk.buffer, chunk.offset, &bytes[start..end]);
             }
         } else {
             let cap = self.chunk_capacity() as usize;
             // Reuse the buffers when the chunk sizes are exactly those this upload needs.
             let same_layout = self.chunks.len() == particles.len().div_ceil(cap)
-                && self.chunks.iter().zip(particles.chunks(cap)).all(|(c, part)| c.count as usize == part.len());
+                && self
+                    .chunks
+                    .iter()
+                    .zip(particles.chunks(cap))
+                    .all(|(c, part)| c.count as usize == part.len());
             if !same_layout {
                 let mut chunks = Vec::new();
                 for part in particles.chunks(cap) {
                     let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
                         label: Some("octoproxy particles"),
                         size: part.len() as u64 * PARTICLE_BYTES,
-                        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC,
+                        usage: wgpu::BufferUsages::STORAGE
+                            | wgpu::BufferUsages::COPY_DST
+                            | wgpu::BufferUsages::COPY_SRC,
                         mapped_at_creation: false,
                     });
                     chunks.push(self.chunk(buffer, 0, part.len() as u32));
@@ -638,7 +733,8 @@ impl Backend for WgpuBackend {
                 self.bind();
             }
             for (chunk, part) in self.chunks.iter().zip(particles.chunks(cap)) {
-                self.queue.write_buffer(&chunk.buffer, 0, bytemuck::cast_slice(part));
+                self.queue
+                    .write_buffer(&chunk.buffer, 0, bytemuck::cast_slice(part));
             }
         }
         // Not needed for correctness (a step checks that a particle is inside its hinted
@@ -649,14 +745,23 @@ impl Backend for WgpuBackend {
 
     fn download_particles(&mut self, out: &mut [Particle]) -> Result<(), WgpuError> {
         if out.len() != self.count {
-            return Err(WgpuError::LengthMismatch { expected: self.count, got: out.len() });
+            return Err(WgpuError::LengthMismatch {
+                expected: self.count,
+                got: out.len(),
+            });
         }
         self.check_health()?;
         if self.count == 0 {
             return Ok(());
         }
-        if !self.chunks[0].buffer.usage().contains(wgpu::BufferUsages::COPY_SRC) {
-            return Err(WgpuError::BadBuffer("reading it back needs COPY_SRC usage".into()));
+        if !self.chunks[0]
+            .buffer
+            .usage()
+            .contains(wgpu::BufferUsages::COPY_SRC)
+        {
+            return Err(WgpuError::BadBuffer(
+                "reading it back needs COPY_SRC usage".into(),
+            ));
         }
         let scope = ErrorScope::push(&self.device);
         let mut encoder = self.device.create_command_encoder(&Default::default());
@@ -693,7 +798,9 @@ impl Backend for WgpuBackend {
         }
         let mut start = 0;
         for (chunk, buffer) in self.chunks.iter().zip(&staging) {
-            let view = buffer.get_mapped_range(..).map_err(|e| WgpuError::Gpu(e.to_string()))?;
+            let view = buffer
+                .get_mapped_range(..)
+                .map_err(|e| WgpuError::Gpu(e.to_string()))?;
             let n = chunk.count as usize;
             out[start..start + n].copy_from_slice(bytemuck::cast_slice(&view));
             start += n;

@@ -25,6 +25,7 @@ mod backend;
 pub mod shader;
 
 pub use backend::{
-    ChunkParams, RunParams, WgpuBackend, WgpuError, DEFAULT_CHUNK_PARTICLES, HINT_BYTES, PARTICLE_BYTES, STEPS_PER_SUBMIT,
+    ChunkParams, RunParams, WgpuBackend, WgpuError, DEFAULT_CHUNK_PARTICLES, HINT_BYTES,
+    PARTICLE_BYTES, STEPS_PER_SUBMIT,
 };
 pub use wgpu;

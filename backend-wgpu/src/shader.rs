@@ -97,7 +97,9 @@ pub fn shared_constants() -> Vec<(&'static str, SharedValue)> {
 
 /// The generated WGSL prefix: one `const` per [`shared_constants`] entry.
 pub fn constants_wgsl() -> String {
-    let mut out = String::from("// Generated from Rust by octoproxy_wgpu::shader::constants_wgsl; do not edit.\n");
+    let mut out = String::from(
+        "// Generated from Rust by octoproxy_wgpu::shader::constants_wgsl; do not edit.\n",
+    );
     for (name, value) in shared_constants() {
         let line = match value {
             SharedValue::U32(v) => format!("const {name}: u32 = {v}u;\n"),

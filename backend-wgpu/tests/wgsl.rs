@@ -28,10 +28,17 @@ fn whole() -> Module {
 fn every_wgsl_file_parses_and_validates_after_the_ones_it_needs() {
     for (i, (name, _)) in FILES.iter().enumerate() {
         let module = parse(&shader::source_upto(i + 1), name);
-        assert!(!module.functions.is_empty() || !module.types.is_empty(), "{name} defines nothing");
+        assert!(
+            !module.functions.is_empty() || !module.types.is_empty(),
+            "{name} defines nothing"
+        );
     }
     let module = whole();
-    let entries: Vec<&str> = module.entry_points.iter().map(|e| e.name.as_str()).collect();
+    let entries: Vec<&str> = module
+        .entry_points
+        .iter()
+        .map(|e| e.name.as_str())
+        .collect();
     assert_eq!(entries, ["step_kernel", "integrate_kernel"]);
 }
 
@@ -42,9 +49,14 @@ fn wgsl_struct(module: &Module, layouter: &Layouter, name: &str) -> (Vec<(String
         .iter()
         .find(|(_, t)| t.name.as_deref() == Some(name))
         .unwrap_or_else(|| panic!("no struct {name} in the WGSL"));
-    let TypeInner::Struct { members, span } = &ty.inner else { panic!("{name} is not a struct") };
+    let TypeInner::Struct { members, span } = &ty.inner else {
+        panic!("{name} is not a struct")
+    };
     let layout = layouter[handle];
-    let members = members.iter().map(|m| (m.name.clone().unwrap_or_default(), m.offset)).collect();
+    let members = members
+        .iter()
+        .map(|m| (m.name.clone().unwrap_or_default(), m.offset))
+        .collect();
     (members, *span, layout.alignment * 1u32)
 }
 
@@ -55,7 +67,10 @@ fn layouter(module: &Module) -> Layouter {
 }
 
 fn owned(members: &[(&str, usize)]) -> Vec<(String, u32)> {
-    members.iter().map(|(n, o)| (n.to_string(), *o as u32)).collect()
+    members
+        .iter()
+        .map(|(n, o)| (n.to_string(), *o as u32))
+        .collect()
 }
 
 #[test]
@@ -69,7 +84,10 @@ fn particle_layout_matches_core() {
         ("velocity", offset_of!(Particle, velocity)),
         ("flags", offset_of!(Particle, flags)),
     ]);
-    assert_eq!(members, rust, "Particle members (name, offset): WGSL vs Rust");
+    assert_eq!(
+        members, rust,
+        "Particle members (name, offset): WGSL vs Rust"
+    );
     assert_eq!(size as usize, size_of::<Particle>());
     // vec3<f32> aligns to 16 in WGSL: a Rust array of Particles must have the same stride.
     assert_eq!(align, 16);
@@ -80,7 +98,9 @@ fn particle_layout_matches_core() {
         .iter()
         .find(|(_, v)| v.name.as_deref() == Some("particles"))
         .expect("particles binding");
-    let TypeInner::Array { stride, .. } = module.types[var.ty].inner else { panic!("particles is not an array") };
+    let TypeInner::Array { stride, .. } = module.types[var.ty].inner else {
+        panic!("particles is not an array")
+    };
     assert_eq!(stride as usize, size_of::<Particle>());
 }
 
@@ -90,8 +110,14 @@ fn hint_binding_is_core_leaf_hints() {
     assert_eq!(offset_of!(octoproxy_core::LeafHint, xy), 0);
     assert_eq!(offset_of!(octoproxy_core::LeafHint, z_depth_label), 4);
     let module = whole();
-    let (_, var) = module.global_variables.iter().find(|(_, v)| v.name.as_deref() == Some("hints")).expect("hints");
-    let TypeInner::Array { base, stride, .. } = module.types[var.ty].inner else { panic!("hints is not an array") };
+    let (_, var) = module
+        .global_variables
+        .iter()
+        .find(|(_, v)| v.name.as_deref() == Some("hints"))
+        .expect("hints");
+    let TypeInner::Array { base, stride, .. } = module.types[var.ty].inner else {
+        panic!("hints is not an array")
+    };
     assert_eq!(stride as usize, size_of::<octoproxy_core::LeafHint>());
     assert_eq!(stride as u64, octoproxy_wgpu::HINT_BYTES);
     assert!(matches!(
@@ -103,8 +129,14 @@ fn hint_binding_is_core_leaf_hints() {
 #[test]
 fn proxy_binding_is_the_word_array() {
     let module = whole();
-    let (_, var) = module.global_variables.iter().find(|(_, v)| v.name.as_deref() == Some("proxy")).expect("proxy");
-    let TypeInner::Array { base, stride, .. } = module.types[var.ty].inner else { panic!("proxy is not an array") };
+    let (_, var) = module
+        .global_variables
+        .iter()
+        .find(|(_, v)| v.name.as_deref() == Some("proxy"))
+        .expect("proxy");
+    let TypeInner::Array { base, stride, .. } = module.types[var.ty].inner else {
+        panic!("proxy is not an array")
+    };
     assert_eq!(stride, 4);
     assert!(matches!(module.types[base].inner, TypeInner::Scalar(s) if s == naga::Scalar::U32));
     let layouter = layouter(&module);
@@ -176,7 +208,9 @@ fn shared_constants_have_the_rust_values() {
         };
         match (found, value) {
             // Bit equality: the WGSL literal must read back to the very same f32.
-            (SharedValue::F32(a), SharedValue::F32(b)) => assert_eq!(a.to_bits(), b.to_bits(), "{name}"),
+            (SharedValue::F32(a), SharedValue::F32(b)) => {
+                assert_eq!(a.to_bits(), b.to_bits(), "{name}")
+            }
             (a, b) => assert_eq!(a, b, "{name}"),
         }
         checked += 1;
@@ -184,6 +218,9 @@ fn shared_constants_have_the_rust_values() {
     assert!(checked >= 40, "only {checked} constants checked");
     // The hand-written files define no numeric constants of their own: all come from Rust.
     for (name, text) in FILES {
-        assert!(!text.contains("\nconst "), "{name} defines its own const; generate it from Rust instead");
+        assert!(
+            !text.contains("\nconst "),
+            "{name} defines its own const; generate it from Rust instead"
+        );
     }
 }

@@ -121,7 +121,12 @@ impl Label {
         // A table, not a `match`: a `match` compiles to a jump table, and which label a leaf
         // has is a coin toss for the predictor of that indirect jump (a tenth of the
         // mispredictions of a two-leaf step).
-        const LABELS: [Option<Label>; 4] = [Some(Label::None), Some(Label::Front), Some(Label::Back), None];
+        const LABELS: [Option<Label>; 4] = [
+            Some(Label::None),
+            Some(Label::Front),
+            Some(Label::Back),
+            None,
+        ];
         if bits < 4 {
             LABELS[bits as usize]
         } else {
@@ -150,7 +155,12 @@ const _: () = assert!(core::mem::size_of::<NodeRecord>() == NODE_WORDS * 4);
 
 impl NodeRecord {
     /// An internal node record.
-    pub const fn internal(first_child: u32, child_mask: u8, internal_mask: u8, labels: u16) -> Self {
+    pub const fn internal(
+        first_child: u32,
+        child_mask: u8,
+        internal_mask: u8,
+        labels: u16,
+    ) -> Self {
         Self {
             a: first_child & !LEAF_BIT,
             b: (child_mask as u32) << CHILD_MASK_SHIFT
@@ -162,7 +172,10 @@ impl NodeRecord {
     /// A surface leaf record with the given (encoded) normal and plane offset.
     pub fn surface(normal_bits: u32, two_sided: bool, plane_offset: f32) -> Self {
         let two = if two_sided { TWO_SIDED_BIT } else { 0 };
-        Self { a: LEAF_BIT | two | (normal_bits & oct_mask()), b: plane_offset.to_bits() }
+        Self {
+            a: LEAF_BIT | two | (normal_bits & oct_mask()),
+            b: plane_offset.to_bits(),
+        }
     }
 
     /// Surface leaf: the offset `d` of the surface's mean plane `n · (x - c) = d`, with `n`
@@ -247,7 +260,10 @@ pub fn encode_normal(n: Vec3) -> u32 {
     let (u, v) = if p.z >= 0.0 {
         (p.x, p.y)
     } else {
-        ((1.0 - math::abs(p.y)) * sign(p.x), (1.0 - math::abs(p.x)) * sign(p.y))
+        (
+            (1.0 - math::abs(p.y)) * sign(p.x),
+            (1.0 - math::abs(p.x)) * sign(p.y),
+        )
     };
     encode_components(u, v)
 }
@@ -256,7 +272,11 @@ fn encode_components(u: f32, v: f32) -> u32 {
     let q = |c: f32| -> u32 {
         let c = c.clamp(-1.0, 1.0) * OCT_MAX as f32;
         // Round half away from zero, then centre on OCT_MAX.
-        let r = if c >= 0.0 { math::floor(c + 0.5) } else { -math::floor(-c + 0.5) };
+        let r = if c >= 0.0 {
+            math::floor(c + 0.5)
+        } else {
+            -math::floor(-c + 0.5)
+        };
         (r as i32 + OCT_MAX as i32) as u32
     };
     q(u) | q(v) << OCT_BITS
@@ -273,7 +293,10 @@ pub fn decode_normal(bits: u32) -> Vec3 {
     let (x, y) = if z >= 0.0 {
         (u, v)
     } else {
-        ((1.0 - math::abs(v)) * sign(u), (1.0 - math::abs(u)) * sign(v))
+        (
+            (1.0 - math::abs(v)) * sign(u),
+            (1.0 - math::abs(u)) * sign(v),
+        )
     };
     let n = Vec3::new(x, y, z);
     n * (1.0 / math::sqrt(n.dot(n)))

@@ -59,12 +59,13 @@ pub use format::{Label, NodeRecord, FORMAT_VERSION, MAX_DEPTH, MAX_LUT_DEPTH};
 pub use particle::*;
 pub use query::{Aabb, LeafInfo, LeafKind};
 pub use step::{
-    initial_side, max_leaves_per_step, pinch, respond, step_particle, step_particle_hinted, step_particle_traced, LeafHint,
-    ParamError, StepOutcome, StepParams, MAX_LEAVES_PER_STEP, PINCH_PARALLEL,
+    initial_side, max_leaves_per_step, pinch, respond, step_particle, step_particle_hinted,
+    step_particle_traced, LeafHint, ParamError, StepOutcome, StepParams, MAX_LEAVES_PER_STEP,
+    PINCH_PARALLEL,
 };
-pub use view::{lut_target, ulp, FormatError, Header, ProxyView};
 #[cfg(feature = "alloc")]
 pub use view::OwnedProxy;
+pub use view::{lut_target, ulp, FormatError, Header, ProxyView};
 
 #[cfg(test)]
 mod tests;

@@ -43,7 +43,12 @@ const _: () = assert!(core::mem::size_of::<Particle>() == 32);
 impl Particle {
     /// A particle at rest state with the given position and velocity, in front, no flags.
     pub const fn new(position: [f32; 3], velocity: [f32; 3]) -> Self {
-        Self { position, side: SIDE_FRONT, velocity, flags: 0 }
+        Self {
+            position,
+            side: SIDE_FRONT,
+            velocity,
+            flags: 0,
+        }
     }
 
     /// Number of collisions this particle has had (saturates at [`MAX_COLLISIONS`]).

@@ -85,7 +85,10 @@ impl ProxyView<'_> {
     #[inline]
     pub fn cell_aabb(&self, cell: UVec3, depth: u32) -> Aabb {
         let (min, max) = self.cell_box(cell, depth);
-        Aabb { min: min.into(), max: max.into() }
+        Aabb {
+            min: min.into(),
+            max: max.into(),
+        }
     }
 
     /// [`Self::cell_aabb`] as SIMD vectors, `(min, max)`: the planes `plane(a, cell[a] << s)`
@@ -107,7 +110,9 @@ impl ProxyView<'_> {
     #[inline]
     pub fn root_contains(&self, p: Vec3, dir: Vec3) -> bool {
         let (lo, hi) = (self.root_aabb().min, self.root_aabb().max);
-        (0..3).fold(true, |inside, a| inside & upper(p[a], lo[a], dir[a]) & !upper(p[a], hi[a], dir[a]))
+        (0..3).fold(true, |inside, a| {
+            inside & upper(p[a], lo[a], dir[a]) & !upper(p[a], hi[a], dir[a])
+        })
     }
 
     /// The leaf holding `p` (ties go to the upper cell), or `None` outside the root cube.
@@ -202,7 +207,15 @@ impl ProxyView<'_> {
     /// agree: every plane is the same float wherever it is computed, and the tie rule puts a
     /// point on a plane on one side of it at every depth.
     #[inline(always)]
-    fn descend(&self, mut index: u32, mut depth: u32, mut cell: UVec3, known: (UVec3, u32), p: Vec3, dir: Vec3) -> LeafInfo {
+    fn descend(
+        &self,
+        mut index: u32,
+        mut depth: u32,
+        mut cell: UVec3,
+        known: (UVec3, u32),
+        p: Vec3,
+        dir: Vec3,
+    ) -> LeafInfo {
         let nodes = self.nodes();
         let (pa, da) = (p.to_array(), dir.to_array());
         let (known_cell, known_depth) = (known.0.to_array(), known.1);
@@ -252,7 +265,13 @@ impl ProxyView<'_> {
     }
 
     #[inline]
-    pub(crate) fn empty_leaf(&self, cell: UVec3, depth: u32, parent: u32, label: Label) -> LeafInfo {
+    pub(crate) fn empty_leaf(
+        &self,
+        cell: UVec3,
+        depth: u32,
+        parent: u32,
+        label: Label,
+    ) -> LeafInfo {
         LeafInfo {
             aabb: self.cell_aabb(cell, depth),
             kind: LeafKind::Empty,

@@ -80,10 +80,15 @@ pub enum ParamError {
 impl core::fmt::Display for ParamError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match *self {
-            ParamError::BadDt(dt) => write!(f, "dt must be a positive finite number of seconds, got {dt}"),
+            ParamError::BadDt(dt) => write!(
+                f,
+                "dt must be a positive finite number of seconds, got {dt}"
+            ),
             ParamError::BadGravity => write!(f, "gravity must be three finite numbers"),
             ParamError::BadRestitution(r) => write!(f, "restitution must be in [0, 1], got {r}"),
-            ParamError::BadFriction(m) => write!(f, "friction must be a finite number >= 0, got {m}"),
+            ParamError::BadFriction(m) => {
+                write!(f, "friction must be a finite number >= 0, got {m}")
+            }
         }
     }
 }
@@ -92,7 +97,13 @@ impl core::error::Error for ParamError {}
 
 impl Default for StepParams {
     fn default() -> Self {
-        Self { gravity: [0.0, -9.81, 0.0], dt: 1.0 / 60.0, restitution: 0.5, friction: 0.1, _pad: [0; 2] }
+        Self {
+            gravity: [0.0, -9.81, 0.0],
+            dt: 1.0 / 60.0,
+            restitution: 0.5,
+            friction: 0.1,
+            _pad: [0; 2],
+        }
     }
 }
 
@@ -140,7 +151,11 @@ pub fn respond(v: Vec3, n: Vec3, restitution: f32, friction: f32) -> Vec3 {
     let v_t = v - v_n;
     let t_len = math::sqrt(v_t.dot(v_t));
     let impulse = friction * (1.0 + restitution) * -vn;
-    let keep = if t_len > impulse { 1.0 - impulse / t_len } else { 0.0 };
+    let keep = if t_len > impulse {
+        1.0 - impulse / t_len
+    } else {
+        0.0
+    };
     v_t * keep - v_n * restitution
 }
 
@@ -157,7 +172,11 @@ pub const PINCH_PARALLEL: f32 = 1e-6;
 #[inline]
 pub fn pinch(v: Vec3, n: Vec3, m: Vec3) -> Vec3 {
     // `n × m`, written out so that WGSL's mirror does the same operations.
-    let c = Vec3::new(n.y * m.z - m.y * n.z, n.z * m.x - m.z * n.x, n.x * m.y - m.x * n.y);
+    let c = Vec3::new(
+        n.y * m.z - m.y * n.z,
+        n.z * m.x - m.z * n.x,
+        n.x * m.y - m.x * n.y,
+    );
     let cc = c.dot(c);
     if cc > PINCH_PARALLEL {
         c * (v.dot(c) / cc)
@@ -188,7 +207,12 @@ fn face_normal(axes: u32, signs: Vec3) -> Vec3 {
 /// enters through. Empty when `x` is strictly inside.
 #[inline]
 fn entry_faces(b: &Aabb, x: Vec3, v: Vec3) -> u32 {
-    let (bmin, bmax, xa, va) = (b.min.to_array(), b.max.to_array(), x.to_array(), v.to_array());
+    let (bmin, bmax, xa, va) = (
+        b.min.to_array(),
+        b.max.to_array(),
+        x.to_array(),
+        v.to_array(),
+    );
     let mut axes = 0;
     for a in 0..3 {
         if (xa[a] == bmin[a] && va[a] > 0.0) || (xa[a] == bmax[a] && va[a] < 0.0) {
@@ -205,7 +229,12 @@ fn exit_box(b: &Aabb, x: Vec3, v: Vec3) -> (f32, Vec3, u32) {
     // Selects, not branches: the signs of a velocity are coin tosses for the branch
     // predictor. Per axis this is `(bmax - x) / v` for `v > 0`, `(bmin - x) / v` for `v < 0`
     // and infinity for `v == 0`, clamped below at 0, exactly as written out with `if`s.
-    let (bmin, bmax, xa, va) = (b.min.to_array(), b.max.to_array(), x.to_array(), v.to_array());
+    let (bmin, bmax, xa, va) = (
+        b.min.to_array(),
+        b.max.to_array(),
+        x.to_array(),
+        v.to_array(),
+    );
     let mut ts = [f32::INFINITY; 3];
     let mut far = [0.0f32; 3];
     for a in 0..3 {
@@ -310,7 +339,10 @@ const _: () = assert!(core::mem::size_of::<LeafHint>() == 8);
 
 impl LeafHint {
     /// No hint: the step descends from the lookup table (or the root).
-    pub const NONE: LeafHint = LeafHint { xy: 0, z_depth_label: 0 };
+    pub const NONE: LeafHint = LeafHint {
+        xy: 0,
+        z_depth_label: 0,
+    };
     /// Set in `z_depth_label` when the hint holds a leaf.
     pub const VALID: u32 = 1 << 31;
     /// Mask of one cell coordinate (a leaf is at most [`MAX_DEPTH`] = 16 deep).
@@ -347,7 +379,11 @@ impl LeafHint {
         if w & Self::VALID == 0 || depth == 0 || depth > MAX_DEPTH {
             return None;
         }
-        let cell = UVec3::new(self.xy & Self::CELL_MASK, self.xy >> Self::Y_SHIFT, w & Self::CELL_MASK);
+        let cell = UVec3::new(
+            self.xy & Self::CELL_MASK,
+            self.xy >> Self::Y_SHIFT,
+            w & Self::CELL_MASK,
+        );
         if (cell.x | cell.y | cell.z) >> depth != 0 {
             return None;
         }
@@ -405,7 +441,8 @@ fn settle_leaving_root(view: &ProxyView<'_>, p: &mut Particle, params: &StepPara
     let leaving = (x0.cmplt(root.min) & v.cmple(zero)) | (x0.cmpgt(root.max) & v.cmpge(zero));
     // A finite `v` means a finite starting velocity too; a non-finite end would be
     // `Invalid` in the march; `dt > 0` is the march's loop condition.
-    let settled = leaving.any() & x0.is_finite() & v.is_finite() & end.is_finite() & (params.dt > 0.0);
+    let settled =
+        leaving.any() & x0.is_finite() & v.is_finite() & end.is_finite() & (params.dt > 0.0);
     if !settled {
         return false;
     }
@@ -423,11 +460,20 @@ fn settle_leaving_root(view: &ProxyView<'_>, p: &mut Particle, params: &StepPara
 /// label and the checks are folded into values, not tested one by one. `true` when settled;
 /// the hint is then still the particle's.
 #[inline(always)]
-fn settle_in_hinted_leaf(view: &ProxyView<'_>, p: &mut Particle, params: &StepParams, hint: LeafHint) -> bool {
+fn settle_in_hinted_leaf(
+    view: &ProxyView<'_>,
+    p: &mut Particle,
+    params: &StepParams,
+    hint: LeafHint,
+) -> bool {
     let w = hint.z_depth_label;
     let depth = (w >> LeafHint::DEPTH_SHIFT) & LeafHint::DEPTH_MASK;
     let label_bits = (w >> LeafHint::LABEL_SHIFT) & 3;
-    let cell = UVec3::new(hint.xy & LeafHint::CELL_MASK, hint.xy >> LeafHint::Y_SHIFT, w & LeafHint::CELL_MASK);
+    let cell = UVec3::new(
+        hint.xy & LeafHint::CELL_MASK,
+        hint.xy >> LeafHint::Y_SHIFT,
+        w & LeafHint::CELL_MASK,
+    );
     // `LeafHint::leaf`'s shape checks; `depth - 1 < MAX_DEPTH` is `1 <= depth <= MAX_DEPTH`.
     let shape_ok = (w & LeafHint::VALID != 0)
         & (depth.wrapping_sub(1) < MAX_DEPTH)
@@ -454,9 +500,14 @@ fn settle_in_hinted_leaf(view: &ProxyView<'_>, p: &mut Particle, params: &StepPa
     p.velocity = v.to_array();
     // An unlabelled leaf keeps the side (normalised as the march does); a labelled one stamps
     // it: label bits 1 (front) and 2 (back) are sides 0 and 1.
-    const _: () = assert!(SIDE_FRONT == Label::Front.bits() - 1 && SIDE_BACK == Label::Back.bits() - 1);
+    const _: () =
+        assert!(SIDE_FRONT == Label::Front.bits() - 1 && SIDE_BACK == Label::Back.bits() - 1);
     let kept = (p.side == SIDE_BACK) as u32;
-    p.side = if label_bits == 0 { kept } else { label_bits - 1 };
+    p.side = if label_bits == 0 {
+        kept
+    } else {
+        label_bits - 1
+    };
     p.flags &= !FLAG_STEP_STATUS;
     true
 }
@@ -464,7 +515,12 @@ fn settle_in_hinted_leaf(view: &ProxyView<'_>, p: &mut Particle, params: &StepPa
 /// The march of [`step_particle_hinted`], out of line: the settled case above is the hot
 /// loop's, and stays small without it.
 #[inline(never)]
-fn march_from_hint(view: &ProxyView<'_>, p: &mut Particle, params: &StepParams, hint: &mut LeafHint) -> StepOutcome {
+fn march_from_hint(
+    view: &ProxyView<'_>,
+    p: &mut Particle,
+    params: &StepParams,
+    hint: &mut LeafHint,
+) -> StepOutcome {
     march(view, p, params, hint, &mut |_, _| {})
 }
 
@@ -500,7 +556,13 @@ pub fn step_particle_traced<F: FnMut(Vec3, Vec3)>(
 /// scene per step). Such a start is not "sliding along the solid leaf's face": the march does
 /// not move it out of the leaf again.
 #[inline]
-fn start_beside_shell(view: &ProxyView<'_>, leaf: LeafInfo, x: Vec3, v: Vec3, side: u32) -> LeafInfo {
+fn start_beside_shell(
+    view: &ProxyView<'_>,
+    leaf: LeafInfo,
+    x: Vec3,
+    v: Vec3,
+    side: u32,
+) -> LeafInfo {
     if leaf.kind != LeafKind::Empty || leaf.label == Label::None || side_of(leaf.label) == side {
         return leaf;
     }
@@ -540,7 +602,11 @@ fn march<F: FnMut(Vec3, Vec3)>(
     let (e, mu) = (params.restitution, params.friction);
     let mut v = v0 + Vec3::from_array(params.gravity) * params.dt;
     let mut x = x0;
-    let mut side = if p.side == SIDE_BACK { SIDE_BACK } else { SIDE_FRONT };
+    let mut side = if p.side == SIDE_BACK {
+        SIDE_BACK
+    } else {
+        SIDE_FRONT
+    };
     let mut hinted = start_hint.leaf(view, x0);
     let mut remaining = params.dt;
     let mut collisions = 0u32;
@@ -575,7 +641,10 @@ fn march<F: FnMut(Vec3, Vec3)>(
         // leaf is found from that leaf's cell.
         let mut leaf = if let Some(leaf) = hinted.take() {
             leaf
-        } else if let Some(leaf) = last_leaf.as_ref().and_then(|from| view.locate_next(from, x, v)) {
+        } else if let Some(leaf) = last_leaf
+            .as_ref()
+            .and_then(|from| view.locate_next(from, x, v))
+        {
             leaf
         } else {
             if !view.root_contains(x, v) {
@@ -660,7 +729,11 @@ fn march<F: FnMut(Vec3, Vec3)>(
                         if collisions > 0 && x == hit_x && v.dot(hit_n) < 0.0 {
                             // Pinched; pinched again at the same point (rounding left the
                             // velocity a hair into a surface), it stops there.
-                            v = if pinched { Vec3::ZERO } else { pinch(v, n, hit_n) };
+                            v = if pinched {
+                                Vec3::ZERO
+                            } else {
+                                pinch(v, n, hit_n)
+                            };
                             pinched = true;
                         } else {
                             pinched = false;

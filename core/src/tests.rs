@@ -53,7 +53,12 @@ fn grid_planes_are_exact_for_quantised_sizes() {
 
 #[test]
 fn record_accessors() {
-    let r = NodeRecord::internal(42, 0b1010_0110, 0b0010_0100, (1 << 0) | (2 << 2) | (1 << 14));
+    let r = NodeRecord::internal(
+        42,
+        0b1010_0110,
+        0b0010_0100,
+        (1 << 0) | (2 << 2) | (1 << 14),
+    );
     assert!(!r.is_leaf());
     assert_eq!(r.first_child(), 42);
     assert_eq!(r.child_mask(), 0b1010_0110);
@@ -100,7 +105,12 @@ fn cell_boxes_are_the_grid_planes_at_every_depth() {
     // of the planes that the march and the descent compare against, for any valid root.
     let mut s = 99u64;
     let mut r = || xorshift(&mut s) >> 16;
-    let roots = [([0.0f32; 3], 1.0f32), ([-3.25, 17.0, -0.001], 2.2), ([1.0e5, -7.5e4, 3.0], 495.3), ([-1.0e-3, 2.0e-3, 5.0e-4], 3.7e-3)];
+    let roots = [
+        ([0.0f32; 3], 1.0f32),
+        ([-3.25, 17.0, -0.001], 2.2),
+        ([1.0e5, -7.5e4, 3.0], 495.3),
+        ([-1.0e-3, 2.0e-3, 5.0e-4], 3.7e-3),
+    ];
     for (min, size) in roots {
         let mut w = tiny();
         for a in 0..3 {
@@ -113,13 +123,25 @@ fn cell_boxes_are_the_grid_planes_at_every_depth() {
             let n = 1u64 << depth;
             for k in 0..64u64 {
                 // The corners of the grid, then random cells.
-                let c = if k < 8 { [k & 1, k >> 1 & 1, k >> 2].map(|b| b * (n - 1)) } else { [r() % n, r() % n, r() % n] };
+                let c = if k < 8 {
+                    [k & 1, k >> 1 & 1, k >> 2].map(|b| b * (n - 1))
+                } else {
+                    [r() % n, r() % n, r() % n]
+                };
                 let cell = glam::UVec3::new(c[0] as u32, c[1] as u32, c[2] as u32);
                 let b = view.cell_aabb(cell, depth);
                 let sh = MAX_DEPTH - depth;
                 for a in 0..3 {
-                    assert_eq!(b.min[a].to_bits(), view.plane(a, cell[a] << sh).to_bits(), "{min:?} {size} {depth} {cell}");
-                    assert_eq!(b.max[a].to_bits(), view.plane(a, (cell[a] + 1) << sh).to_bits(), "{min:?} {size} {depth} {cell}");
+                    assert_eq!(
+                        b.min[a].to_bits(),
+                        view.plane(a, cell[a] << sh).to_bits(),
+                        "{min:?} {size} {depth} {cell}"
+                    );
+                    assert_eq!(
+                        b.max[a].to_bits(),
+                        view.plane(a, (cell[a] + 1) << sh).to_bits(),
+                        "{min:?} {size} {depth} {cell}"
+                    );
                 }
             }
         }
@@ -130,8 +152,14 @@ fn cell_boxes_are_the_grid_planes_at_every_depth() {
 fn validation_of_hand_made_buffers() {
     let w = tiny();
     let view = ProxyView::new(&w).expect("the tiny proxy is valid");
-    assert_eq!(view.locate_leaf(Vec3::splat(0.25)).unwrap().kind, LeafKind::Surface);
-    assert_eq!(view.locate_leaf(Vec3::splat(0.75)).unwrap().kind, LeafKind::Empty);
+    assert_eq!(
+        view.locate_leaf(Vec3::splat(0.25)).unwrap().kind,
+        LeafKind::Surface
+    );
+    assert_eq!(
+        view.locate_leaf(Vec3::splat(0.75)).unwrap().kind,
+        LeafKind::Empty
+    );
     assert!(view.locate_leaf(Vec3::splat(1.5)).is_none());
     let bad = |f: &dyn Fn(&mut [u32; HEADER_WORDS + 4])| {
         let mut w = tiny();
@@ -139,25 +167,57 @@ fn validation_of_hand_made_buffers() {
         ProxyView::new(&w).unwrap_err()
     };
     assert_eq!(bad(&|w| w[0] = 0), FormatError::BadMagic { found: 0 });
-    assert_eq!(bad(&|w| w[1] = 1), FormatError::UnsupportedVersion { found: 1 });
-    assert!(matches!(bad(&|w| w[header::ROOT_SIZE] = f32::NAN.to_bits()), FormatError::BadRootBox));
-    assert!(matches!(bad(&|w| w[header::ROOT_SIZE] = 1.1f32.to_bits()), FormatError::BadRootBox));
+    assert_eq!(
+        bad(&|w| w[1] = 1),
+        FormatError::UnsupportedVersion { found: 1 }
+    );
+    assert!(matches!(
+        bad(&|w| w[header::ROOT_SIZE] = f32::NAN.to_bits()),
+        FormatError::BadRootBox
+    ));
+    assert!(matches!(
+        bad(&|w| w[header::ROOT_SIZE] = 1.1f32.to_bits()),
+        FormatError::BadRootBox
+    ));
     // Child pointer not where breadth-first order puts it.
-    assert!(matches!(bad(&|w| w[HEADER_WORDS] = 0), FormatError::ChildOutOfRange { .. }));
+    assert!(matches!(
+        bad(&|w| w[HEADER_WORDS] = 0),
+        FormatError::ChildOutOfRange { .. }
+    ));
     // A label on a child that has a record.
-    assert!(matches!(bad(&|w| w[HEADER_WORDS + 1] |= 1 << LABEL_SHIFT), FormatError::BadNode { .. }));
+    assert!(matches!(
+        bad(&|w| w[HEADER_WORDS + 1] |= 1 << LABEL_SHIFT),
+        FormatError::BadNode { .. }
+    ));
     // Kind mask says internal, the record is a leaf.
-    assert!(matches!(bad(&|w| w[HEADER_WORDS + 1] |= 1 << INTERNAL_MASK_SHIFT), FormatError::BadNode { .. }));
+    assert!(matches!(
+        bad(&|w| w[HEADER_WORDS + 1] |= 1 << INTERNAL_MASK_SHIFT),
+        FormatError::BadNode { .. }
+    ));
     // Plane offset outside the leaf.
-    assert!(matches!(bad(&|w| w[HEADER_WORDS + 3] = 5.0f32.to_bits()), FormatError::BadNode { .. }));
+    assert!(matches!(
+        bad(&|w| w[HEADER_WORDS + 3] = 5.0f32.to_bits()),
+        FormatError::BadNode { .. }
+    ));
     // Root a leaf.
-    assert_eq!(bad(&|w| w[HEADER_WORDS] = LEAF_BIT), FormatError::RootIsLeaf);
+    assert_eq!(
+        bad(&|w| w[HEADER_WORDS] = LEAF_BIT),
+        FormatError::RootIsLeaf
+    );
     // Header counts that disagree with the length.
-    assert!(matches!(bad(&|w| w[header::NODE_COUNT] = 3), FormatError::BadHeader { .. }));
+    assert!(matches!(
+        bad(&|w| w[header::NODE_COUNT] = 3),
+        FormatError::BadHeader { .. }
+    ));
     // Byte entry: misaligned lengths are an error.
     let bytes: &[u8] = bytemuck::cast_slice(&w);
     assert!(ProxyView::from_bytes(bytes).is_ok());
-    assert_eq!(ProxyView::from_bytes(&bytes[..bytes.len() - 1]).unwrap_err(), FormatError::Misaligned { len: bytes.len() - 1 });
+    assert_eq!(
+        ProxyView::from_bytes(&bytes[..bytes.len() - 1]).unwrap_err(),
+        FormatError::Misaligned {
+            len: bytes.len() - 1
+        }
+    );
 }
 
 #[test]
@@ -185,16 +245,34 @@ fn the_leaf_bound_covers_a_straight_crossing() {
     assert!(p.validate().is_ok());
     assert!(StepParams { dt: f32::NAN, ..p }.validate().is_err());
     assert!(StepParams { dt: 0.0, ..p }.validate().is_err());
-    assert!(StepParams { restitution: 1.5, ..p }.validate().is_err());
-    assert!(StepParams { friction: -1.0, ..p }.validate().is_err());
-    assert!(StepParams { gravity: [0.0, f32::INFINITY, 0.0], ..p }.validate().is_err());
+    assert!(StepParams {
+        restitution: 1.5,
+        ..p
+    }
+    .validate()
+    .is_err());
+    assert!(StepParams {
+        friction: -1.0,
+        ..p
+    }
+    .validate()
+    .is_err());
+    assert!(StepParams {
+        gravity: [0.0, f32::INFINITY, 0.0],
+        ..p
+    }
+    .validate()
+    .is_err());
 }
 
 #[test]
 fn leaf_hints_change_nothing_but_the_work() {
     let w = tiny();
     let view = ProxyView::new(&w).unwrap();
-    let params = StepParams { gravity: [0.0; 3], ..StepParams::default() };
+    let params = StepParams {
+        gravity: [0.0; 3],
+        ..StepParams::default()
+    };
     let slow = Particle::new([0.75, 0.75, 0.75], [0.6, 0.0, 0.0]);
     // A step that ends in an empty leaf leaves it as the hint; one that ends in a surface leaf
     // leaves none.
@@ -202,7 +280,10 @@ fn leaf_hints_change_nothing_but_the_work() {
     let mut p = slow;
     step_particle_hinted(&view, &mut p, &params, &mut hint);
     assert_eq!(hint.xy, 1 | 1 << LeafHint::Y_SHIFT);
-    assert_eq!(hint.z_depth_label, 1 | 1 << LeafHint::DEPTH_SHIFT | LeafHint::VALID);
+    assert_eq!(
+        hint.z_depth_label,
+        1 | 1 << LeafHint::DEPTH_SHIFT | LeafHint::VALID
+    );
     let mut q = Particle::new([0.25, 0.3, 0.25], [0.0, 0.6, 0.0]);
     let mut none = hint;
     step_particle_hinted(&view, &mut q, &params, &mut none);
@@ -212,25 +293,54 @@ fn leaf_hints_change_nothing_but_the_work() {
     let (good_xy, good_z) = (hint.xy, hint.z_depth_label);
     let mut hints = vec![
         hint,
-        LeafHint { xy: good_xy, z_depth_label: good_z & !LeafHint::VALID },
-        LeafHint { xy: good_xy, z_depth_label: good_z | 3 << LeafHint::LABEL_SHIFT },
-        LeafHint { xy: 2, z_depth_label: good_z },
-        LeafHint { xy: 0, z_depth_label: 1 << LeafHint::DEPTH_SHIFT | LeafHint::VALID },
-        LeafHint { xy: u32::MAX, z_depth_label: u32::MAX },
+        LeafHint {
+            xy: good_xy,
+            z_depth_label: good_z & !LeafHint::VALID,
+        },
+        LeafHint {
+            xy: good_xy,
+            z_depth_label: good_z | 3 << LeafHint::LABEL_SHIFT,
+        },
+        LeafHint {
+            xy: 2,
+            z_depth_label: good_z,
+        },
+        LeafHint {
+            xy: 0,
+            z_depth_label: 1 << LeafHint::DEPTH_SHIFT | LeafHint::VALID,
+        },
+        LeafHint {
+            xy: u32::MAX,
+            z_depth_label: u32::MAX,
+        },
     ];
     // The root is never a leaf.
-    hints.push(LeafHint { xy: 0, z_depth_label: LeafHint::VALID });
+    hints.push(LeafHint {
+        xy: 0,
+        z_depth_label: LeafHint::VALID,
+    });
     for depth in 17..32 {
-        hints.push(LeafHint { xy: 0, z_depth_label: depth << LeafHint::DEPTH_SHIFT | LeafHint::VALID });
+        hints.push(LeafHint {
+            xy: 0,
+            z_depth_label: depth << LeafHint::DEPTH_SHIFT | LeafHint::VALID,
+        });
     }
-    for start in [slow, Particle::new([0.75, 0.75, 0.75], [-40.0, -40.0, -40.0]), Particle::new([0.5, 0.75, 0.75], [1.0, 0.0, 0.0])] {
+    for start in [
+        slow,
+        Particle::new([0.75, 0.75, 0.75], [-40.0, -40.0, -40.0]),
+        Particle::new([0.5, 0.75, 0.75], [1.0, 0.0, 0.0]),
+    ] {
         let mut expected = start;
         step_particle(&view, &mut expected, &params);
         for h in &hints {
             let mut got = start;
             let mut h = *h;
             step_particle_hinted(&view, &mut got, &params, &mut h);
-            assert_eq!(bytemuck::bytes_of(&got), bytemuck::bytes_of(&expected), "hint {h:?}");
+            assert_eq!(
+                bytemuck::bytes_of(&got),
+                bytemuck::bytes_of(&expected),
+                "hint {h:?}"
+            );
         }
     }
     // Unvalidated parameters (dt <= 0) take the march, which does not move the particle; so
@@ -242,7 +352,11 @@ fn leaf_hints_change_nothing_but_the_work() {
         step_particle(&view, &mut expected, &bad);
         let (mut got, mut h) = (start, hint);
         step_particle_hinted(&view, &mut got, &bad, &mut h);
-        assert_eq!(bytemuck::bytes_of(&got), bytemuck::bytes_of(&expected), "dt {dt}");
+        assert_eq!(
+            bytemuck::bytes_of(&got),
+            bytemuck::bytes_of(&expected),
+            "dt {dt}"
+        );
     }
     // A hint is believed once it passes those checks: one made up by hand that calls the
     // surface leaf's cell empty hides the surface (so the test above did use the good hint).
@@ -250,7 +364,13 @@ fn leaf_hints_change_nothing_but_the_work() {
     let mut plain = falling;
     step_particle(&view, &mut plain, &params);
     assert_eq!(plain.collisions(), 1);
-    let (mut fooled, mut made_up) = (falling, LeafHint { xy: 0, z_depth_label: 1 << LeafHint::DEPTH_SHIFT | LeafHint::VALID });
+    let (mut fooled, mut made_up) = (
+        falling,
+        LeafHint {
+            xy: 0,
+            z_depth_label: 1 << LeafHint::DEPTH_SHIFT | LeafHint::VALID,
+        },
+    );
     step_particle_hinted(&view, &mut fooled, &params, &mut made_up);
     assert_eq!(fooled.collisions(), 0);
 }
@@ -259,12 +379,26 @@ fn leaf_hints_change_nothing_but_the_work() {
 fn particles_leaving_the_root_step_as_the_march_steps_them() {
     let w = tiny();
     let view = ProxyView::new(&w).unwrap();
-    let side = |p: [f32; 3], v: [f32; 3], s: u32, flags: u32| Particle { side: s, flags, ..Particle::new(p, v) };
+    let side = |p: [f32; 3], v: [f32; 3], s: u32, flags: u32| Particle {
+        side: s,
+        flags,
+        ..Particle::new(p, v)
+    };
     let mut starts = vec![
         // Beyond a face and moving away, or along it: settled without the march.
-        side([-0.5, 0.5, 0.5], [-1.0, 0.0, 0.0], SIDE_BACK, FLAG_BLOCKED | 3 << COLLISION_SHIFT),
+        side(
+            [-0.5, 0.5, 0.5],
+            [-1.0, 0.0, 0.0],
+            SIDE_BACK,
+            FLAG_BLOCKED | 3 << COLLISION_SHIFT,
+        ),
         side([0.5, 1.5, 0.5], [0.0, 0.0, 2.0], 7, FLAG_BOUND_HIT),
-        side([0.5, 0.5, -2.0], [0.3, -0.2, -0.1], SIDE_FRONT, FLAG_INVALID),
+        side(
+            [0.5, 0.5, -2.0],
+            [0.3, -0.2, -0.1],
+            SIDE_FRONT,
+            FLAG_INVALID,
+        ),
         // Coming back, on the face itself (inside by the tie rule), or a corner away from one
         // face and toward another: the march.
         side([-0.5, 0.5, 0.5], [40.0, 0.0, 0.0], SIDE_FRONT, 0),
@@ -278,12 +412,24 @@ fn particles_leaving_the_root_step_as_the_march_steps_them() {
     ];
     starts.push(side([2.0, 2.0, 2.0], [1.0, 1.0, 1.0], SIDE_BACK, 0));
     for params in [
-        StepParams { gravity: [0.0; 3], ..StepParams::default() },
+        StepParams {
+            gravity: [0.0; 3],
+            ..StepParams::default()
+        },
         StepParams::default(),
-        StepParams { gravity: [0.0, 1e38, 0.0], ..StepParams::default() },
+        StepParams {
+            gravity: [0.0, 1e38, 0.0],
+            ..StepParams::default()
+        },
         // Unvalidated: the march does not move a particle for dt <= 0, nor does this.
-        StepParams { dt: 0.0, ..StepParams::default() },
-        StepParams { dt: -1.0, ..StepParams::default() },
+        StepParams {
+            dt: 0.0,
+            ..StepParams::default()
+        },
+        StepParams {
+            dt: -1.0,
+            ..StepParams::default()
+        },
     ] {
         for start in &starts {
             let mut expected = *start;
@@ -291,8 +437,15 @@ fn particles_leaving_the_root_step_as_the_march_steps_them() {
             let (mut got, mut hint) = (*start, LeafHint::NONE);
             let outcome = step_particle_hinted(&view, &mut got, &params, &mut hint);
             assert_eq!(outcome, want, "{start:?} {params:?}");
-            assert_eq!(bytemuck::bytes_of(&got), bytemuck::bytes_of(&expected), "{start:?} {params:?}");
-            if !view.root_contains(Vec3::from_array(got.position), Vec3::from_array(got.velocity)) {
+            assert_eq!(
+                bytemuck::bytes_of(&got),
+                bytemuck::bytes_of(&expected),
+                "{start:?} {params:?}"
+            );
+            if !view.root_contains(
+                Vec3::from_array(got.position),
+                Vec3::from_array(got.velocity),
+            ) {
                 assert_eq!(hint, LeafHint::NONE);
             }
         }
@@ -320,7 +473,12 @@ fn facing_leaves() -> [u32; HEADER_WORDS + 6] {
 fn a_particle_pinched_between_facing_surfaces_slides_instead_of_bouncing_to_the_bound() {
     let w = facing_leaves();
     let view = ProxyView::new(&w).unwrap();
-    let params = StepParams { gravity: [0.0; 3], restitution: 0.5, friction: 0.0, ..StepParams::default() };
+    let params = StepParams {
+        gravity: [0.0; 3],
+        restitution: 0.5,
+        friction: 0.0,
+        ..StepParams::default()
+    };
     // On the shared face, moving down into the lower leaf. Reflecting off one surface sends it
     // into the other; each reflection halves the speed across them, so without the pinch rule
     // it bounced some 300 times at this point until the leaf bound (72 at depth 1) stopped it.
@@ -328,13 +486,20 @@ fn a_particle_pinched_between_facing_surfaces_slides_instead_of_bouncing_to_the_
     let outcome = step_particle(&view, &mut p, &params);
     assert_eq!(outcome, StepOutcome::Done);
     assert_eq!(p.flags & FLAG_BOUND_HIT, 0);
-    assert_eq!(p.collisions(), 2, "one reflection off each surface, then the pinch");
+    assert_eq!(
+        p.collisions(),
+        2,
+        "one reflection off each surface, then the pinch"
+    );
     // It keeps the part of its velocity along both surfaces, and slides along the face.
     assert_eq!(p.velocity, [1.0, 0.0, 0.0]);
     assert_eq!(p.position[1], 0.5);
     assert!(p.position[0] > 0.2);
     // The pinch itself: facing normals keep the common plane's part; meeting ones the crease's.
-    assert_eq!(pinch(Vec3::new(1.0, -0.75, 2.0), -Vec3::Y, Vec3::Y), Vec3::new(1.0, 0.0, 2.0));
+    assert_eq!(
+        pinch(Vec3::new(1.0, -0.75, 2.0), -Vec3::Y, Vec3::Y),
+        Vec3::new(1.0, 0.0, 2.0)
+    );
     let crease = pinch(Vec3::new(0.5, -1.0, 3.0), Vec3::X, Vec3::Y);
     assert_eq!(crease, Vec3::new(0.0, 0.0, 3.0));
 }

@@ -9,7 +9,8 @@ use glam::Vec3;
 use crate::query::Aabb;
 
 use crate::format::{
-    self, header, Label, NodeRecord, FORMAT_VERSION, HEADER_WORDS, LUT_INDEX_MASK, MAGIC, MAX_DEPTH, MAX_LUT_DEPTH, NODE_WORDS,
+    self, header, Label, NodeRecord, FORMAT_VERSION, HEADER_WORDS, LUT_INDEX_MASK, MAGIC,
+    MAX_DEPTH, MAX_LUT_DEPTH, NODE_WORDS,
 };
 
 /// Why a buffer is not a valid proxy. Every variant carries numbers, never text.
@@ -180,10 +181,10 @@ pub struct ProxyView<'a> {
 }
 
 fn word(words: &[u32], i: usize) -> Result<u32, FormatError> {
-    words
-        .get(i)
-        .copied()
-        .ok_or(FormatError::Truncated { needed_words: HEADER_WORDS, have_words: words.len() })
+    words.get(i).copied().ok_or(FormatError::Truncated {
+        needed_words: HEADER_WORDS,
+        have_words: words.len(),
+    })
 }
 
 impl<'a> ProxyView<'a> {
@@ -198,10 +199,16 @@ impl<'a> ProxyView<'a> {
             return Err(FormatError::UnsupportedVersion { found: version });
         }
         if words.len() < HEADER_WORDS {
-            return Err(FormatError::Truncated { needed_words: HEADER_WORDS, have_words: words.len() });
+            return Err(FormatError::Truncated {
+                needed_words: HEADER_WORDS,
+                have_words: words.len(),
+            });
         }
         let h = |i: usize| words[i];
-        let bad = |i: usize| FormatError::BadHeader { word: i, value: words[i] };
+        let bad = |i: usize| FormatError::BadHeader {
+            word: i,
+            value: words[i],
+        };
         if h(header::HEADER_WORDS) as usize != HEADER_WORDS {
             return Err(bad(header::HEADER_WORDS));
         }
@@ -241,10 +248,16 @@ impl<'a> ProxyView<'a> {
             return Err(bad(header::TOTAL_WORDS));
         }
         if words.len() < total {
-            return Err(FormatError::Truncated { needed_words: total, have_words: words.len() });
+            return Err(FormatError::Truncated {
+                needed_words: total,
+                have_words: words.len(),
+            });
         }
         if words.len() > total {
-            return Err(FormatError::TrailingWords { expected_words: total, have_words: words.len() });
+            return Err(FormatError::TrailingWords {
+                expected_words: total,
+                have_words: words.len(),
+            });
         }
         let epsilon = f32::from_bits(h(header::EPSILON));
         if !(epsilon >= 0.0) || !epsilon.is_finite() {
@@ -261,11 +274,24 @@ impl<'a> ProxyView<'a> {
         }
         let nodes: &[NodeRecord] = bytemuck::cast_slice(&words[nodes_offset..lut_offset]);
         let lut = &words[lut_offset..total];
-        let header = Header { node_count, lut_depth, tree_depth, dmin, dmax, epsilon, root_min, root_size };
+        let header = Header {
+            node_count,
+            lut_depth,
+            tree_depth,
+            dmin,
+            dmax,
+            epsilon,
+            root_min,
+            root_size,
+        };
         validate_nodes(nodes, tree_depth, root_size)?;
         let cell_unit = root_size * (1.0 / (1u32 << MAX_DEPTH) as f32);
         // The root cube's planes, by the one formula every other plane comes from.
-        let root_plane = |i: u32| Vec3::from_array(core::array::from_fn(|a| format::grid_plane(root_min[a], cell_unit, i)));
+        let root_plane = |i: u32| {
+            Vec3::from_array(core::array::from_fn(|a| {
+                format::grid_plane(root_min[a], cell_unit, i)
+            }))
+        };
         let view = ProxyView {
             words,
             nodes,
@@ -273,7 +299,10 @@ impl<'a> ProxyView<'a> {
             header,
             cell_unit,
             root_min: root_min.to_array(),
-            root: Aabb { min: root_plane(0), max: root_plane(1 << MAX_DEPTH) },
+            root: Aabb {
+                min: root_plane(0),
+                max: root_plane(1 << MAX_DEPTH),
+            },
             use_lut: lut_depth > 0,
         };
         view.validate_lut()?;
@@ -281,7 +310,10 @@ impl<'a> ProxyView<'a> {
         // offsets, labels, root box, informational fields) is caught here.
         let expected = format::checksum(words);
         if h(header::CHECKSUM) != expected {
-            return Err(FormatError::BadChecksum { expected, found: h(header::CHECKSUM) });
+            return Err(FormatError::BadChecksum {
+                expected,
+                found: h(header::CHECKSUM),
+            });
         }
         Ok(view)
     }
@@ -289,8 +321,8 @@ impl<'a> ProxyView<'a> {
     /// Validates little-endian bytes. They must be 4-byte aligned (as `Vec<u32>` storage or
     /// a GPU mapping is); copy into a `Vec<u32>` first otherwise.
     pub fn from_bytes(bytes: &'a [u8]) -> Result<Self, FormatError> {
-        let words: &[u32] =
-            bytemuck::try_cast_slice(bytes).map_err(|_| FormatError::Misaligned { len: bytes.len() })?;
+        let words: &[u32] = bytemuck::try_cast_slice(bytes)
+            .map_err(|_| FormatError::Misaligned { len: bytes.len() })?;
         Self::new(words)
     }
 
@@ -383,12 +415,16 @@ pub fn lut_target(nodes: &[NodeRecord], cell: [u32; 3], depth: u32) -> u32 {
     let mut index = 0u32;
     let mut d = 0u32;
     while d < depth {
-        let Some(rec) = nodes.get(index as usize).copied() else { break };
+        let Some(rec) = nodes.get(index as usize).copied() else {
+            break;
+        };
         if rec.is_leaf() {
             break;
         }
         let shift = depth - d - 1;
-        let octant = ((cell[0] >> shift) & 1) | ((cell[1] >> shift) & 1) << 1 | ((cell[2] >> shift) & 1) << 2;
+        let octant = ((cell[0] >> shift) & 1)
+            | ((cell[1] >> shift) & 1) << 1
+            | ((cell[2] >> shift) & 1) << 2;
         if rec.child_mask() & (1 << octant) == 0 {
             break;
         }
@@ -429,7 +465,11 @@ pub fn ulp(x: f32) -> f32 {
 }
 
 /// Checks breadth-first layout, masks, labels and depths in one pass with no allocation.
-fn validate_nodes(nodes: &[NodeRecord], tree_depth: u32, root_size: f32) -> Result<(), FormatError> {
+fn validate_nodes(
+    nodes: &[NodeRecord],
+    tree_depth: u32,
+    root_size: f32,
+) -> Result<(), FormatError> {
     let count = nodes.len() as u32;
     if nodes[0].is_leaf() {
         return Err(FormatError::RootIsLeaf);
@@ -451,7 +491,10 @@ fn validate_nodes(nodes: &[NodeRecord], tree_depth: u32, root_size: f32) -> Resu
         if rec.is_leaf() {
             // Every bit of a surface leaf's first word means something (leaf, two-sided, two
             // 15-bit normal components), and every pattern decodes to a unit normal.
-            const _: () = assert!(format::LEAF_BIT | format::TWO_SIDED_BIT | ((1 << (2 * format::OCT_BITS)) - 1) == u32::MAX);
+            const _: () = assert!(
+                format::LEAF_BIT | format::TWO_SIDED_BIT | ((1 << (2 * format::OCT_BITS)) - 1)
+                    == u32::MAX
+            );
             if depth == 0 || depth > tree_depth {
                 return Err(FormatError::TooDeep { node: i });
             }
@@ -480,7 +523,10 @@ fn validate_nodes(nodes: &[NodeRecord], tree_depth: u32, root_size: f32) -> Resu
         let first = rec.first_child();
         let n = child_mask.count_ones();
         if first != next || first.checked_add(n).is_none_or(|end| end > count) {
-            return Err(FormatError::ChildOutOfRange { node: i, child: first });
+            return Err(FormatError::ChildOutOfRange {
+                node: i,
+                child: first,
+            });
         }
         for octant in 0..8 {
             if child_mask & (1 << octant) != 0 {
@@ -521,7 +567,14 @@ impl OwnedProxy {
         let nodes_end = nodes_start + view.nodes.len() * NODE_WORDS;
         let lut = nodes_end..nodes_end + view.lut.len();
         let (header, cell_unit, root) = (view.header, view.cell_unit, view.root);
-        Ok(Self { words, header, cell_unit, root, nodes: nodes_start..nodes_end, lut })
+        Ok(Self {
+            words,
+            header,
+            cell_unit,
+            root,
+            nodes: nodes_start..nodes_end,
+            lut,
+        })
     }
 
     /// A view of the words, with no second validation.

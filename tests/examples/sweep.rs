@@ -9,35 +9,105 @@ use octoproxy_tests::{ground_truth::GroundTruth, harness::*, meshes, scenes};
 fn main() {
     let dt = 1.0 / 60.0;
     let mut cases: Vec<(String, scenes::Mesh, bool)> = vec![
-        ("sphere".into(), scenes::uv_sphere([0.0; 3], 1.0, 48, 24), true),
-        ("torus".into(), scenes::torus([0.0; 3], 1.0, 0.35, 48, 24), true),
+        (
+            "sphere".into(),
+            scenes::uv_sphere([0.0; 3], 1.0, 48, 24),
+            true,
+        ),
+        (
+            "torus".into(),
+            scenes::torus([0.0; 3], 1.0, 0.35, 48, 24),
+            true,
+        ),
         ("wedge".into(), scenes::wedge(8.0, 1.5, 1.0), true),
-        ("slab".into(), scenes::slab([0.0; 3], [2.0, 0.01, 2.0]), true),
+        (
+            "slab".into(),
+            scenes::slab([0.0; 3], [2.0, 0.01, 2.0]),
+            true,
+        ),
         ("star".into(), scenes::star_prism(6, 1.0, 0.35, 0.6), true),
         ("shells".into(), scenes::nested_shells(1.0, 0.3), true),
         ("sheet".into(), scenes::flat_sheet([0.0; 3], 2.0, 8), false),
-        ("dome".into(), scenes::hemisphere([0.0; 3], 1.0, 48, 12), false),
+        (
+            "dome".into(),
+            scenes::hemisphere([0.0; 3], 1.0, 48, 12),
+            false,
+        ),
     ];
-    for (n, c) in meshes::ALL { if let Some(m) = meshes::load(n) { cases.push((n.to_string(), m, *c)); } }
+    for (n, c) in meshes::ALL {
+        if let Some(m) = meshes::load(n) {
+            cases.push((n.to_string(), m, *c));
+        }
+    }
     for (name, mesh, closed) in &cases {
         for dmax in [6, 8] {
-            let (words, _) = bake(&[MeshRef::from(mesh)], &BuildParams { dmax, ..Default::default() }, &()).unwrap();
+            let (words, _) = bake(
+                &[MeshRef::from(mesh)],
+                &BuildParams {
+                    dmax,
+                    ..Default::default()
+                },
+                &(),
+            )
+            .unwrap();
             let view = ProxyView::new(&words).unwrap();
             let g = GroundTruth::new(&mesh.positions, &mesh.triangles);
-            let leaf = view.finest_leaf_size(); let scene = view.header().root_size;
-            let speeds: Vec<f32> = [0.1 * leaf, 0.5 * leaf, 2.0 * leaf, 5.0 * leaf, 20.0 * leaf, scene].iter().map(|d| d / dt).collect();
-            let mut pen = 0; let mut steps = 0; let mut ex = vec![];
+            let leaf = view.finest_leaf_size();
+            let scene = view.header().root_size;
+            let speeds: Vec<f32> = [
+                0.1 * leaf,
+                0.5 * leaf,
+                2.0 * leaf,
+                5.0 * leaf,
+                20.0 * leaf,
+                scene,
+            ]
+            .iter()
+            .map(|d| d / dt)
+            .collect();
+            let mut pen = 0;
+            let mut steps = 0;
+            let mut ex = vec![];
             for (i, params) in [
-                StepParams { gravity: [0.0; 3], dt, restitution: 1.0, friction: 0.0, _pad: [0; 2] },
-                StepParams { gravity: [0.0, -9.81, 0.0], dt, restitution: 0.0, friction: 1.0, _pad: [0; 2] },
-                StepParams { gravity: [0.0, -9.81, 0.0], dt, restitution: 1.0, friction: 0.0, _pad: [0; 2] },
-                StepParams { dt, ..StepParams::default() },
-            ].iter().enumerate() {
+                StepParams {
+                    gravity: [0.0; 3],
+                    dt,
+                    restitution: 1.0,
+                    friction: 0.0,
+                    _pad: [0; 2],
+                },
+                StepParams {
+                    gravity: [0.0, -9.81, 0.0],
+                    dt,
+                    restitution: 0.0,
+                    friction: 1.0,
+                    _pad: [0; 2],
+                },
+                StepParams {
+                    gravity: [0.0, -9.81, 0.0],
+                    dt,
+                    restitution: 1.0,
+                    friction: 0.0,
+                    _pad: [0; 2],
+                },
+                StepParams {
+                    dt,
+                    ..StepParams::default()
+                },
+            ]
+            .iter()
+            .enumerate()
+            {
                 let mut ps = random_particles(&view, &g, 3000, &speeds, 100 + i as u64);
                 let r = run_check(&view, &g, &mut ps, 60, params, *closed);
-                pen += r.penetrations; steps += r.particle_steps; ex.extend(r.examples.into_iter().map(|e| (i, e)));
+                pen += r.penetrations;
+                steps += r.particle_steps;
+                ex.extend(r.examples.into_iter().map(|e| (i, e)));
             }
-            println!("{name} dmax {dmax}: {pen} penetrations in {steps} particle-steps {:?}", ex.first());
+            println!(
+                "{name} dmax {dmax}: {pen} penetrations in {steps} particle-steps {:?}",
+                ex.first()
+            );
         }
     }
 }

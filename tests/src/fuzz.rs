@@ -13,8 +13,8 @@ use arbitrary::{Arbitrary, Result, Unstructured};
 use glam::Vec3;
 use octoproxy_core::format::{HEADER_WORDS, MAX_DEPTH, MAX_LUT_DEPTH};
 use octoproxy_core::{
-    initial_side, step_particle, step_particle_hinted, step_particle_traced, LeafHint, Particle, ProxyView, StepOutcome,
-    StepParams, FLAG_INVALID, SIDE_BACK, SIDE_FRONT,
+    initial_side, step_particle, step_particle_hinted, step_particle_traced, LeafHint, Particle,
+    ProxyView, StepOutcome, StepParams, FLAG_INVALID, SIDE_BACK, SIDE_FRONT,
 };
 use octoproxy_cpu::build::{bake, BuildError, BuildParams, MeshRef};
 use octoproxy_cpu::mesh::{parse_mesh, Mesh};
@@ -1014,7 +1014,8 @@ fn penetration_inner(u: &mut Unstructured<'_>) -> Result<()> {
             for a in 0..3 {
                 if u.arbitrary()? {
                     let cells = 1u32 << d;
-                    let i = ((position[a] - root.min[a]) / scene * cells as f32).clamp(0.0, cells as f32) as u32;
+                    let i = ((position[a] - root.min[a]) / scene * cells as f32)
+                        .clamp(0.0, cells as f32) as u32;
                     position[a] = view.plane(a, i << (MAX_DEPTH - d));
                 }
             }

@@ -127,7 +127,11 @@ impl GroundTruth {
         for w in 0..by_pos.len() {
             let i = by_pos[w];
             let same = w > 0 && key(by_pos[w - 1]) == key(i);
-            canon[i as usize] = if same { canon[by_pos[w - 1] as usize] } else { i };
+            canon[i as usize] = if same {
+                canon[by_pos[w - 1] as usize]
+            } else {
+                i
+            };
         }
         let mut tris = Vec::with_capacity(triangles.len());
         let mut ids = Vec::with_capacity(triangles.len());
@@ -240,7 +244,9 @@ impl GroundTruth {
         let mut half = 0.0;
         for l in &self.loops[n.cap_start as usize..n.cap_end as usize] {
             let verts = &self.loop_verts[l[0] as usize..l[1] as usize];
-            let Some((first, rest)) = verts.split_first() else { continue };
+            let Some((first, rest)) = verts.split_first() else {
+                continue;
+            };
             let a0 = *first - p;
             let (mut a, mut la, mut ao) = (a0, a0.length(), a0.dot(o));
             // A pending cone, as (den, num): it is folded with the next one when both lie
@@ -273,14 +279,21 @@ impl GroundTruth {
     /// in the triangle count: meant for checking [`GroundTruth::winding_number`].
     pub fn winding_number_exact(&self, p: [f32; 3]) -> f64 {
         let p = to_d(p);
-        self.tris.iter().map(|t| half_solid_angle(t, p)).sum::<f64>() / (2.0 * core::f64::consts::PI)
+        self.tris
+            .iter()
+            .map(|t| half_solid_angle(t, p))
+            .sum::<f64>()
+            / (2.0 * core::f64::consts::PI)
     }
 
     /// Half the solid angle of the subtree at `i`, triangle by triangle.
     fn exact_subtree(&self, i: usize, p: DVec3) -> f64 {
         let n = &self.nodes[i];
         if n.right == 0 {
-            self.tris[n.start as usize..(n.start + n.count) as usize].iter().map(|t| half_solid_angle(t, p)).sum()
+            self.tris[n.start as usize..(n.start + n.count) as usize]
+                .iter()
+                .map(|t| half_solid_angle(t, p))
+                .sum()
         } else {
             self.exact_subtree(n.start as usize, p) + self.exact_subtree(n.right as usize, p)
         }
@@ -332,7 +345,11 @@ impl GroundTruth {
             let dl = bound(&self.nodes[n.start as usize]);
             let dr = bound(&self.nodes[n.right as usize]);
             // The nearer child goes on top, to be visited first.
-            let (near, far) = if dl <= dr { ((n.start, dl), (n.right, dr)) } else { ((n.right, dr), (n.start, dl)) };
+            let (near, far) = if dl <= dr {
+                ((n.start, dl), (n.right, dr))
+            } else {
+                ((n.right, dr), (n.start, dl))
+            };
             if top + 2 <= STACK {
                 if far.1 < best {
                     stack[top] = far;
@@ -362,7 +379,8 @@ impl GroundTruth {
                 .map(|t| (closest_point(p, t) - p).length_squared())
                 .fold(f64::INFINITY, f64::min)
         } else {
-            self.distance2_subtree(n.start as usize, p).min(self.distance2_subtree(n.right as usize, p))
+            self.distance2_subtree(n.start as usize, p)
+                .min(self.distance2_subtree(n.right as usize, p))
         }
     }
 
@@ -422,7 +440,8 @@ impl GroundTruth {
                 .map(|t| segment_hits_triangle(a, b, t) as u32)
                 .sum()
         } else {
-            self.crossings_subtree(n.start as usize, a, b) + self.crossings_subtree(n.right as usize, a, b)
+            self.crossings_subtree(n.start as usize, a, b)
+                + self.crossings_subtree(n.right as usize, a, b)
         }
     }
 }
@@ -461,7 +480,9 @@ fn boundary_loops(edges: &[Edge]) -> Vec<Vec<u32>> {
     // The first unused out-edge of a vertex: binary search, then a short scan.
     let next_out = |v: u32, used: &[bool]| {
         let first = directed.partition_point(|e| e.0 < v);
-        (first..directed.len()).take_while(|&j| directed[j].0 == v).find(|&j| !used[j])
+        (first..directed.len())
+            .take_while(|&j| directed[j].0 == v)
+            .find(|&j| !used[j])
     };
     let mut loops = Vec::new();
     for s in 0..directed.len() {
@@ -567,7 +588,12 @@ impl Builder<'_> {
             has_cap: false,
         };
         self.nodes.push(node);
-        self.far.push(Far { c, n, m, far2: BETA * BETA * r2 });
+        self.far.push(Far {
+            c,
+            n,
+            m,
+            far2: BETA * BETA * r2,
+        });
         if end - start <= LEAF_SIZE {
             let mut edges = Vec::with_capacity(3 * (end - start));
             for &k in &self.order[start..end] {
@@ -583,8 +609,9 @@ impl Builder<'_> {
         let split = (chi - clo).max_position();
         let mid = (start + end) / 2;
         let cent = self.centroids;
-        self.order[start..end]
-            .select_nth_unstable_by(mid - start, |&x, &y| cent[x as usize][split].total_cmp(&cent[y as usize][split]));
+        self.order[start..end].select_nth_unstable_by(mid - start, |&x, &y| {
+            cent[x as usize][split].total_cmp(&cent[y as usize][split])
+        });
         let (left, mut edges) = self.build(start, mid);
         let (right, right_edges) = self.build(mid, end);
         edges.extend(right_edges);
@@ -595,12 +622,20 @@ impl Builder<'_> {
         if has_cap {
             for l in boundary_loops(&edges) {
                 let first = self.loop_verts.len() as u32;
-                self.loop_verts.extend(l.iter().map(|&v| to_d(self.positions[v as usize])));
+                self.loop_verts
+                    .extend(l.iter().map(|&v| to_d(self.positions[v as usize])));
                 self.loops.push([first, self.loop_verts.len() as u32]);
             }
         }
         let cap_end = self.loops.len() as u32;
-        self.nodes[id as usize] = Node { start: left, right, cap_start, cap_end, has_cap, ..node };
+        self.nodes[id as usize] = Node {
+            start: left,
+            right,
+            cap_start,
+            cap_end,
+            has_cap,
+            ..node
+        };
         (id, edges)
     }
 }
@@ -777,7 +812,9 @@ mod exact {
     /// `e * b` (Scale-Expansion with zero elimination).
     fn scale(e: &[f64], b: f64) -> Vec<f64> {
         let mut out = Vec::with_capacity(2 * e.len());
-        let Some((&first, rest)) = e.split_first() else { return out };
+        let Some((&first, rest)) = e.split_first() else {
+            return out;
+        };
         let (mut q, h) = two_product(first, b);
         out.push(h);
         for &x in rest {
@@ -893,7 +930,10 @@ mod tests {
 
     impl Lcg {
         fn next(&mut self) -> u64 {
-            self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            self.0 = self
+                .0
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             self.0 >> 11
         }
         fn range(&mut self, lo: f32, hi: f32) -> f32 {
@@ -923,7 +963,8 @@ mod tests {
             let v = t.map(|i| glam::Vec3::from_array(m.positions[i as usize]));
             let c = (v[0] + v[1] + v[2]) / 3.0;
             let base = soup.positions.len() as u32;
-            soup.positions.extend(v.iter().map(|p| (c + (*p - c) * 0.98).to_array()));
+            soup.positions
+                .extend(v.iter().map(|p| (c + (*p - c) * 0.98).to_array()));
             soup.triangles.push([base, base + 1, base + 2]);
         }
         soup
@@ -949,11 +990,15 @@ mod tests {
             // The fourth point in the plane of the first three, then (half the time) nudged by
             // at most one unit.
             let (u, w) = (rng.int(3), rng.int(3));
-            q[3] = core::array::from_fn(|k| q[0][k] + u * (q[1][k] - q[0][k]) + w * (q[2][k] - q[0][k]));
+            q[3] = core::array::from_fn(|k| {
+                q[0][k] + u * (q[1][k] - q[0][k]) + w * (q[2][k] - q[0][k])
+            });
             if i % 2 == 0 {
                 q[3][rng.next() as usize % 3] += rng.int(1);
             }
-            let d = |k: usize| [q[k][0] - q[0][0], q[k][1] - q[0][1], q[k][2] - q[0][2]].map(|x| x as i128);
+            let d = |k: usize| {
+                [q[k][0] - q[0][0], q[k][1] - q[0][1], q[k][2] - q[0][2]].map(|x| x as i128)
+            };
             let (a, b, c) = (d(1), d(2), d(3));
             let det = a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
                 + a[2] * (b[0] * c[1] - b[1] * c[0]);
@@ -964,7 +1009,10 @@ mod tests {
             assert_eq!(exact::orient3d_sign(f(1), f(2), f(3), f(0)), s, "{q:?}");
             zeros += (det == 0) as u32;
         }
-        assert!(zeros > 5000, "the test should exercise exactly coplanar cases ({zeros})");
+        assert!(
+            zeros > 5000,
+            "the test should exercise exactly coplanar cases ({zeros})"
+        );
     }
 
     #[test]
@@ -972,13 +1020,32 @@ mod tests {
         let m = scenes::cube([-1.0; 3], [1.0; 3]);
         let g = gt(&m);
         assert_eq!(g.triangle_count(), 12);
-        for p in [[0.0, 0.0, 0.0], [0.9, -0.9, 0.5], [-0.99, 0.3, 0.99], [0.5, 0.5, -0.2]] {
-            assert!((g.winding_number(p) - 1.0).abs() < 1e-6, "{p:?}: {}", g.winding_number(p));
+        for p in [
+            [0.0, 0.0, 0.0],
+            [0.9, -0.9, 0.5],
+            [-0.99, 0.3, 0.99],
+            [0.5, 0.5, -0.2],
+        ] {
+            assert!(
+                (g.winding_number(p) - 1.0).abs() < 1e-6,
+                "{p:?}: {}",
+                g.winding_number(p)
+            );
             assert!((g.winding_number_exact(p) - 1.0).abs() < 1e-6);
             assert!(g.is_inside(p));
         }
-        for p in [[1.01, 0.0, 0.0], [2.0, 2.0, 2.0], [0.0, -1.5, 0.3], [-1.2, 1.2, 0.0], [10.0, 3.0, -2.0]] {
-            assert!(g.winding_number(p).abs() < 1e-6, "{p:?}: {}", g.winding_number(p));
+        for p in [
+            [1.01, 0.0, 0.0],
+            [2.0, 2.0, 2.0],
+            [0.0, -1.5, 0.3],
+            [-1.2, 1.2, 0.0],
+            [10.0, 3.0, -2.0],
+        ] {
+            assert!(
+                g.winding_number(p).abs() < 1e-6,
+                "{p:?}: {}",
+                g.winding_number(p)
+            );
             assert!(g.winding_number_exact(p).abs() < 1e-6);
             assert!(!g.is_inside(p));
         }
@@ -1015,7 +1082,11 @@ mod tests {
             } else {
                 let v = m.positions[rng.next() as usize % m.positions.len()];
                 let s = rng.range(0.97, 1.03);
-                [0.2 + (v[0] - 0.2) * s, -0.1 + (v[1] + 0.1) * s, 0.3 + (v[2] - 0.3) * s]
+                [
+                    0.2 + (v[0] - 0.2) * s,
+                    -0.1 + (v[1] + 0.1) * s,
+                    0.3 + (v[2] - 0.3) * s,
+                ]
             };
             let (fast, slow) = (g.winding_number(p), g.winding_number_exact(p));
             worst = worst.max((fast - slow).abs());
@@ -1043,11 +1114,17 @@ mod tests {
                 worst_near = worst_near.max((fast - slow).abs());
             }
         }
-        assert!(worst_far < 1e-3 && worst_near < 1e-3, "far {worst_far}, near {worst_near}");
+        assert!(
+            worst_far < 1e-3 && worst_near < 1e-3,
+            "far {worst_far}, near {worst_near}"
+        );
         // Far away the expansion is used from the root down, and is far better than 1e-3.
         for p in [[30.0, 0.0, 0.0], [-20.0, 25.0, 3.0]] {
             let (fast, slow) = (g.winding_number(p), g.winding_number_exact(p));
-            assert!((fast - slow).abs() < 1e-5, "{p:?}: fast {fast}, exact {slow}");
+            assert!(
+                (fast - slow).abs() < 1e-5,
+                "{p:?}: fast {fast}, exact {slow}"
+            );
         }
         // The soup leaks a little (4 % of the area is gone) but still reads as inside.
         let w = g.winding_number([0.1, 0.2, 0.3]);
@@ -1066,7 +1143,10 @@ mod tests {
         let mut rng = Lcg(23);
         for _ in 0..500 {
             let p = rng.point(-2.0, 2.0);
-            assert!((g.winding_number(p) - g.winding_number_exact(p)).abs() < 1e-9, "{p:?}");
+            assert!(
+                (g.winding_number(p) - g.winding_number_exact(p)).abs() < 1e-9,
+                "{p:?}"
+            );
         }
     }
 
@@ -1107,9 +1187,16 @@ mod tests {
         for _ in 0..500 {
             let p = rng.point(-2.0, 2.0);
             let q = to_d(p);
-            let brute = g.tris.iter().map(|t| (closest_point(q, t) - q).length()).fold(f64::INFINITY, f64::min);
+            let brute = g
+                .tris
+                .iter()
+                .map(|t| (closest_point(q, t) - q).length())
+                .fold(f64::INFINITY, f64::min);
             assert!((g.distance(p) - brute).abs() < 1e-12, "{p:?}");
-            assert!((g.distance_capped(p, 0.3) - brute.min(0.3)).abs() < 1e-12, "{p:?}");
+            assert!(
+                (g.distance_capped(p, 0.3) - brute.min(0.3)).abs() < 1e-12,
+                "{p:?}"
+            );
         }
     }
 
@@ -1136,7 +1223,10 @@ mod tests {
         // Through two opposite corners, where several triangles of three faces meet.
         assert_eq!(g.segment_crossings([-2.0, -2.0, -2.0], [2.0, 2.0, 2.0]), 2);
         // Along an edge of the cube from outside: it touches the surface only.
-        assert_eq!(g.segment_crossings([1.0, 1.0, -3.0], [1.0, 1.0, 3.0]) % 2, 0);
+        assert_eq!(
+            g.segment_crossings([1.0, 1.0, -3.0], [1.0, 1.0, 3.0]) % 2,
+            0
+        );
         // Lying in a face's plane does not count for that face.
         assert_eq!(g.segment_crossings([1.0, -0.5, -0.5], [1.0, 0.5, 0.5]), 0);
     }
@@ -1166,21 +1256,52 @@ mod tests {
         // diagonal. Straight through a vertex where six triangles meet, through an edge, and
         // through a diagonal's midpoint: once each.
         let sheet = gt(&scenes::flat_sheet([0.0; 3], 2.0, 4));
-        assert_eq!(sheet.segment_crossings([0.0, -1.0, 0.0], [0.0, 1.0, 0.0]), 1);
-        assert_eq!(sheet.segment_crossings([0.5, 1.0, -0.5], [-0.5, -1.0, 0.5]), 1);
-        assert_eq!(sheet.segment_crossings([0.25, -1.0, 0.0], [0.25, 1.0, 0.0]), 1);
-        assert_eq!(sheet.segment_crossings([0.25, -1.0, 0.25], [0.25, 1.0, 0.25]), 1);
+        assert_eq!(
+            sheet.segment_crossings([0.0, -1.0, 0.0], [0.0, 1.0, 0.0]),
+            1
+        );
+        assert_eq!(
+            sheet.segment_crossings([0.5, 1.0, -0.5], [-0.5, -1.0, 0.5]),
+            1
+        );
+        assert_eq!(
+            sheet.segment_crossings([0.25, -1.0, 0.0], [0.25, 1.0, 0.0]),
+            1
+        );
+        assert_eq!(
+            sheet.segment_crossings([0.25, -1.0, 0.25], [0.25, 1.0, 0.25]),
+            1
+        );
         // Along the sheet, across its edges and vertices: never.
-        assert_eq!(sheet.segment_crossings([-0.9, 0.0, -0.9], [0.9, 0.0, 0.7]), 0);
+        assert_eq!(
+            sheet.segment_crossings([-0.9, 0.0, -0.9], [0.9, 0.0, 0.7]),
+            0
+        );
         // A roof: two triangles meeting at the ridge x = 0, y = 1, sloping down to y = 0.
-        let positions = [[0.0, 1.0, -1.0], [0.0, 1.0, 1.0], [1.0, 0.0, -1.0], [-1.0, 0.0, -1.0], [1.0, 0.0, 1.0], [-1.0, 0.0, 1.0]];
+        let positions = [
+            [0.0, 1.0, -1.0],
+            [0.0, 1.0, 1.0],
+            [1.0, 0.0, -1.0],
+            [-1.0, 0.0, -1.0],
+            [1.0, 0.0, 1.0],
+            [-1.0, 0.0, 1.0],
+        ];
         let roof = GroundTruth::new(&positions, &[[0, 1, 2], [2, 1, 4], [1, 0, 3], [1, 3, 5]]);
         // Grazing the ridge from above, it stays above: an even count.
-        assert_eq!(roof.segment_crossings([-1.0, 1.5, 0.0], [1.0, 0.5, 0.0]) % 2, 0);
-        assert_eq!(roof.segment_crossings([-1.0, 2.0, 0.0], [1.0, 0.0, 0.0]) % 2, 0);
+        assert_eq!(
+            roof.segment_crossings([-1.0, 1.5, 0.0], [1.0, 0.5, 0.0]) % 2,
+            0
+        );
+        assert_eq!(
+            roof.segment_crossings([-1.0, 2.0, 0.0], [1.0, 0.0, 0.0]) % 2,
+            0
+        );
         // Through the ridge from above to beneath: once.
         assert_eq!(roof.segment_crossings([0.0, 2.0, 0.0], [0.0, 0.5, 0.0]), 1);
-        assert_eq!(roof.segment_crossings([-0.5, 2.0, 0.3], [0.5, 0.0, -0.3]), 1);
+        assert_eq!(
+            roof.segment_crossings([-0.5, 2.0, 0.3], [0.5, 0.0, -0.3]),
+            1
+        );
     }
 
     /// `segment_hits_triangle` against an explicit translation by `(2^-16, 2^-32, 2^-48)`, on
@@ -1193,7 +1314,8 @@ mod tests {
     #[test]
     fn perturbed_hits_match_an_explicit_translation() {
         let mut rng = Lcg(29);
-        let lattice = |rng: &mut Lcg| DVec3::new(rng.int(8) as f64, rng.int(8) as f64, rng.int(8) as f64);
+        let lattice =
+            |rng: &mut Lcg| DVec3::new(rng.int(8) as f64, rng.int(8) as f64, rng.int(8) as f64);
         let delta = DVec3::new(2f64.powi(-16), 2f64.powi(-32), 2f64.powi(-48));
         let mut degenerate = 0;
         let mut hits = 0;
@@ -1210,7 +1332,11 @@ mod tests {
                 _ => lattice(&mut rng),
             };
             // Through it, or ending there.
-            let b = if rng.next().is_multiple_of(4) { through } else { through + (through - a) };
+            let b = if rng.next().is_multiple_of(4) {
+                through
+            } else {
+                through + (through - a)
+            };
             if a == b {
                 continue;
             }
@@ -1226,7 +1352,11 @@ mod tests {
             let ends = [orient(v[0], v[1], v[2], at), orient(v[0], v[1], v[2], bt)];
             assert!(!ends.contains(&0), "{a} {b} {v:?}");
             let translated = ends[0] != ends[1] && {
-                let edges = [orient(at, bt, v[0], v[1]), orient(at, bt, v[1], v[2]), orient(at, bt, v[2], v[0])];
+                let edges = [
+                    orient(at, bt, v[0], v[1]),
+                    orient(at, bt, v[1], v[2]),
+                    orient(at, bt, v[2], v[0]),
+                ];
                 // Crossing the plane, the segment is not parallel to any edge.
                 assert!(!edges.contains(&0), "{a} {b} {v:?}");
                 edges.iter().all(|&e| e > 0) || edges.iter().all(|&e| e < 0)
@@ -1234,7 +1364,10 @@ mod tests {
             assert_eq!(segment_hits_triangle(a, b, &v), translated, "{a} {b} {v:?}");
             hits += translated as u32;
         }
-        assert!(degenerate > 2000 && hits > 1000, "{degenerate} degenerate cases, {hits} hits");
+        assert!(
+            degenerate > 2000 && hits > 1000,
+            "{degenerate} degenerate cases, {hits} hits"
+        );
     }
 
     /// On a closed mesh whose vertices, edges and faces are all on a coarse lattice, the
@@ -1243,7 +1376,10 @@ mod tests {
     /// where it started.
     #[test]
     fn path_crossings_have_the_parity_of_the_side_on_a_lattice_mesh() {
-        let g = gt(&scenes::merge(&[scenes::cube([-2.0; 3], [2.0; 3]), scenes::cube([-1.0, -1.0, -1.0], [1.0, 3.0, 1.0])]));
+        let g = gt(&scenes::merge(&[
+            scenes::cube([-2.0; 3], [2.0; 3]),
+            scenes::cube([-1.0, -1.0, -1.0], [1.0, 3.0, 1.0]),
+        ]));
         let inside = |p: [f32; 3]| g.winding_number(p).round() as i64 % 2 != 0;
         let mut rng = Lcg(31);
         let mut checked = 0;
@@ -1269,9 +1405,22 @@ mod tests {
 
     #[test]
     fn invalid_input_is_skipped() {
-        let positions = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [2.0, 0.0, 0.0], [f32::NAN, 0.0, 0.0]];
+        let positions = [
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [2.0, 0.0, 0.0],
+            [f32::NAN, 0.0, 0.0],
+        ];
         // Out of range, degenerate (collinear, repeated), non-finite, and one good triangle.
-        let triangles = [[0, 1, 7], [0, 1, 3], [0, 0, 2], [0, 1, 4], [0, 1, 2], [u32::MAX, 0, 1]];
+        let triangles = [
+            [0, 1, 7],
+            [0, 1, 3],
+            [0, 0, 2],
+            [0, 1, 4],
+            [0, 1, 2],
+            [u32::MAX, 0, 1],
+        ];
         let g = GroundTruth::new(&positions, &triangles);
         assert_eq!(g.triangle_count(), 1);
         assert_eq!(g.segment_crossings([0.2, 0.2, -1.0], [0.2, 0.2, 1.0]), 1);
@@ -1281,5 +1430,4 @@ mod tests {
         assert_eq!(empty.winding_number([0.0; 3]), 0.0);
         assert_eq!(empty.segment_crossings([0.0; 3], [1.0; 3]), 0);
     }
-
 }

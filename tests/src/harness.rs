@@ -14,7 +14,8 @@
 
 use glam::Vec3;
 use octoproxy_core::{
-    initial_side, step_particle_traced, Particle, ProxyView, StepParams, FLAG_BLOCKED, FLAG_BOUND_HIT, FLAG_INVALID, MAX_DEPTH,
+    initial_side, step_particle_traced, Particle, ProxyView, StepParams, FLAG_BLOCKED,
+    FLAG_BOUND_HIT, FLAG_INVALID, MAX_DEPTH,
 };
 use octoproxy_cpu::emit::Rng;
 use rayon::prelude::*;
@@ -56,7 +57,13 @@ impl CheckReport {
 
 /// Random particles in the root cube at least `2 * tolerance` from the surface, moving in
 /// random directions at speeds drawn from `speeds` (units per second).
-pub fn random_particles(view: &ProxyView<'_>, gt: &GroundTruth, n: usize, speeds: &[f32], seed: u64) -> Vec<Particle> {
+pub fn random_particles(
+    view: &ProxyView<'_>,
+    gt: &GroundTruth,
+    n: usize,
+    speeds: &[f32],
+    seed: u64,
+) -> Vec<Particle> {
     let root = view.root_aabb();
     let tol = tolerance(view);
     let mut rng = Rng::new(seed);
@@ -85,7 +92,13 @@ pub fn random_particles(view: &ProxyView<'_>, gt: &GroundTruth, n: usize, speeds
 /// from the surface, moving along an axis, along an exact face or space diagonal (through
 /// cell edges and corners), or at rest (to fall down a grid line under gravity), at speeds
 /// drawn from `speeds`: the float edge cases of point location and of the march.
-pub fn grid_aligned_particles(view: &ProxyView<'_>, gt: &GroundTruth, n: usize, speeds: &[f32], seed: u64) -> Vec<Particle> {
+pub fn grid_aligned_particles(
+    view: &ProxyView<'_>,
+    gt: &GroundTruth,
+    n: usize,
+    speeds: &[f32],
+    seed: u64,
+) -> Vec<Particle> {
     let root = view.root_aabb();
     let size = view.header().root_size;
     let depth = view.header().tree_depth;
@@ -104,7 +117,11 @@ pub fn grid_aligned_particles(view: &ProxyView<'_>, gt: &GroundTruth, n: usize, 
         for (a, c) in p.iter_mut().enumerate() {
             let on_plane = (a + 3 - first) % 3 < snapped;
             let i = below(cells << 8);
-            *c = if on_plane { view.plane(a, (i >> 8) << (MAX_DEPTH - d)) } else { root.min[a] + size * (i as f32 / (cells << 8) as f32) };
+            *c = if on_plane {
+                view.plane(a, (i >> 8) << (MAX_DEPTH - d))
+            } else {
+                root.min[a] + size * (i as f32 / (cells << 8) as f32)
+            };
         }
         if gt.distance_capped(p, 4.0 * tol as f64) <= 2.0 * tol as f64 {
             continue;
@@ -123,8 +140,17 @@ pub fn grid_aligned_particles(view: &ProxyView<'_>, gt: &GroundTruth, n: usize, 
 /// `skip`, the two axes other than `skip` (an exact face diagonal) or all three (a space
 /// diagonal), so that a path meets cell faces, edges and corners exactly. `negative()` is
 /// asked once for each moving axis, in axis order, whether it moves down that axis.
-pub fn aligned_velocity(axes: usize, skip: usize, speed: f32, mut negative: impl FnMut() -> bool) -> Vec3 {
-    let s = if axes == 0 { 0.0 } else { speed / (axes as f32).sqrt() };
+pub fn aligned_velocity(
+    axes: usize,
+    skip: usize,
+    speed: f32,
+    mut negative: impl FnMut() -> bool,
+) -> Vec3 {
+    let s = if axes == 0 {
+        0.0
+    } else {
+        speed / (axes as f32).sqrt()
+    };
     let mut v = Vec3::ZERO;
     for a in 0..3 {
         let moving = match axes {
@@ -150,7 +176,9 @@ pub fn tolerance(view: &ProxyView<'_>) -> f32 {
 /// it does not travel the jump, so it counts for the parity of crossings (an open mesh's side
 /// along the path) but is not a path through the mesh.
 pub fn jumps_back(pieces: &[(Vec3, Vec3)], flags: u32) -> bool {
-    let Some((&(_, to), earlier)) = pieces.split_last() else { return false };
+    let Some((&(_, to), earlier)) = pieces.split_last() else {
+        return false;
+    };
     flags & (FLAG_BLOCKED | FLAG_BOUND_HIT) != 0 && earlier.iter().any(|&(from, _)| from == to)
 }
 
@@ -158,7 +186,13 @@ pub fn jumps_back(pieces: &[(Vec3, Vec3)], flags: u32) -> bool {
 /// excluded) that is on the other side of a closed mesh from `inside` and farther than `tol`
 /// from its surface: a path that goes through the mesh, or into it and back. Only a piece that
 /// crosses the surface (`GroundTruth::segment_crossings`) can have one.
-pub fn deep_on_the_other_side(gt: &GroundTruth, a: Vec3, b: Vec3, inside: bool, tol: f64) -> Option<[f32; 3]> {
+pub fn deep_on_the_other_side(
+    gt: &GroundTruth,
+    a: Vec3,
+    b: Vec3,
+    inside: bool,
+    tol: f64,
+) -> Option<[f32; 3]> {
     let n = ((((b - a).length() as f64) / (0.5 * tol)).ceil() as usize).clamp(1, 4096);
     (1..n)
         .map(|i| (a + (b - a) * (i as f32 / n as f32)).to_array())
@@ -203,43 +237,46 @@ pub fn run_check(
             tunnelled: false,
         })
         .collect();
-    particles.par_iter_mut().zip(states.par_iter_mut()).for_each(|(p, s)| {
-        let mut pieces = Vec::new();
-        for _ in 0..steps {
-            if s.bad || s.non_finite {
-                break;
-            }
-            pieces.clear();
-            step_particle_traced(view, p, params, &mut |a: Vec3, b: Vec3| pieces.push((a, b)));
-            let jump = jumps_back(&pieces, p.flags);
-            for (i, &(a, b)) in pieces.iter().enumerate() {
-                if a == b {
-                    continue;
+    particles
+        .par_iter_mut()
+        .zip(states.par_iter_mut())
+        .for_each(|(p, s)| {
+            let mut pieces = Vec::new();
+            for _ in 0..steps {
+                if s.bad || s.non_finite {
+                    break;
                 }
-                let k = gt.segment_crossings(a.to_array(), b.to_array());
-                if !closed {
-                    s.crossings += k as u64;
-                } else if k > 0 && !s.tunnelled && !(jump && i + 1 == pieces.len()) {
-                    s.tunnelled = deep_on_the_other_side(gt, a, b, s.inside, tol).is_some();
+                pieces.clear();
+                step_particle_traced(view, p, params, &mut |a: Vec3, b: Vec3| pieces.push((a, b)));
+                let jump = jumps_back(&pieces, p.flags);
+                for (i, &(a, b)) in pieces.iter().enumerate() {
+                    if a == b {
+                        continue;
+                    }
+                    let k = gt.segment_crossings(a.to_array(), b.to_array());
+                    if !closed {
+                        s.crossings += k as u64;
+                    } else if k > 0 && !s.tunnelled && !(jump && i + 1 == pieces.len()) {
+                        s.tunnelled = deep_on_the_other_side(gt, a, b, s.inside, tol).is_some();
+                    }
+                }
+                s.bad |= s.tunnelled;
+                if p.flags & FLAG_INVALID != 0 || !Vec3::from_array(p.position).is_finite() {
+                    s.non_finite = true;
+                    break;
+                }
+                s.blocked += (p.flags & FLAG_BLOCKED != 0) as u64;
+                s.bound += (p.flags & FLAG_BOUND_HIT != 0) as u64;
+                let far = gt.distance_capped(p.position, 2.0 * tol) > tol;
+                if !closed && far && s.crossings % 2 == 1 {
+                    s.bad = true;
+                }
+                if closed && far && gt.is_inside(p.position) != s.inside {
+                    s.bad = true;
+                    s.escaped = s.inside;
                 }
             }
-            s.bad |= s.tunnelled;
-            if p.flags & FLAG_INVALID != 0 || !Vec3::from_array(p.position).is_finite() {
-                s.non_finite = true;
-                break;
-            }
-            s.blocked += (p.flags & FLAG_BLOCKED != 0) as u64;
-            s.bound += (p.flags & FLAG_BOUND_HIT != 0) as u64;
-            let far = gt.distance_capped(p.position, 2.0 * tol) > tol;
-            if !closed && far && s.crossings % 2 == 1 {
-                s.bad = true;
-            }
-            if closed && far && gt.is_inside(p.position) != s.inside {
-                s.bad = true;
-                s.escaped = s.inside;
-            }
-        }
-    });
+        });
     let mut report = CheckReport {
         particles: particles.len(),
         particle_steps: particles.len() as u64 * steps as u64,

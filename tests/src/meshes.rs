@@ -16,9 +16,15 @@ pub fn load(name: &str) -> Option<Mesh> {
     let path = dir().join(name);
     if !path.exists() {
         if std::env::var("CI").as_deref() == Ok("true") {
-            panic!("{} is missing, and CI=true requires the shared meshes", path.display());
+            panic!(
+                "{} is missing, and CI=true requires the shared meshes",
+                path.display()
+            );
         }
-        eprintln!("skipped: {} not found (the shared meshes live in ../shared/meshes)", path.display());
+        eprintln!(
+            "skipped: {} not found (the shared meshes live in ../shared/meshes)",
+            path.display()
+        );
         return None;
     }
     match load_mesh(&path) {

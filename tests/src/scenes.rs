@@ -28,7 +28,11 @@ impl MeshExt for Mesh {
     fn is_closed(&self) -> bool {
         let mut uses: HashMap<(u32, u32), u32> = HashMap::with_capacity(self.triangles.len() * 2);
         for t in &self.triangles {
-            if t.iter().any(|&i| i as usize >= self.positions.len()) || t[0] == t[1] || t[1] == t[2] || t[2] == t[0] {
+            if t.iter().any(|&i| i as usize >= self.positions.len())
+                || t[0] == t[1]
+                || t[1] == t[2]
+                || t[2] == t[0]
+            {
                 return false;
             }
             for k in 0..3 {
@@ -51,9 +55,16 @@ impl MeshExt for Mesh {
 
     fn signed_volume(&self) -> f64 {
         let p = |i: u32| {
-            self.positions.get(i as usize).map_or(glam::DVec3::ZERO, |v| glam::DVec3::from_array(v.map(f64::from)))
+            self.positions
+                .get(i as usize)
+                .map_or(glam::DVec3::ZERO, |v| {
+                    glam::DVec3::from_array(v.map(f64::from))
+                })
         };
-        self.triangles.iter().map(|t| p(t[0]).dot(p(t[1]).cross(p(t[2]))) / 6.0).sum()
+        self.triangles
+            .iter()
+            .map(|t| p(t[0]).dot(p(t[1]).cross(p(t[2]))) / 6.0)
+            .sum()
     }
 }
 
@@ -81,16 +92,29 @@ pub fn cube(min: [f32; 3], max: [f32; 3]) -> Mesh {
     }
     let mut triangles = Vec::with_capacity(12);
     // Faces -z, +z, -y, +y, -x, +x, each counter-clockwise seen from outside.
-    for q in [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]] {
+    for q in [
+        [0, 2, 3, 1],
+        [4, 5, 7, 6],
+        [0, 1, 5, 4],
+        [2, 6, 7, 3],
+        [0, 4, 6, 2],
+        [1, 3, 7, 5],
+    ] {
         quad(&mut triangles, q[0], q[1], q[2], q[3]);
     }
-    Mesh { positions, triangles }
+    Mesh {
+        positions,
+        triangles,
+    }
 }
 
 /// A closed box centred at `center` with edge lengths `size`; meant to be thin in one axis.
 pub fn slab(center: [f32; 3], size: [f32; 3]) -> Mesh {
     let h = size.map(|s| s * 0.5);
-    cube([center[0] - h[0], center[1] - h[1], center[2] - h[2]], [center[0] + h[0], center[1] + h[1], center[2] + h[2]])
+    cube(
+        [center[0] - h[0], center[1] - h[1], center[2] - h[2]],
+        [center[0] + h[0], center[1] + h[1], center[2] + h[2]],
+    )
 }
 
 /// A closed UV sphere around the y axis: `segments` around (at least 3), `rings` from pole
@@ -119,10 +143,19 @@ pub fn uv_sphere(center: [f32; 3], radius: f32, segments: u32, rings: u32) -> Me
     }
     for r in 1..rings - 1 {
         for s in 0..segments {
-            quad(&mut triangles, idx(r, s), idx(r, s + 1), idx(r + 1, s + 1), idx(r + 1, s));
+            quad(
+                &mut triangles,
+                idx(r, s),
+                idx(r, s + 1),
+                idx(r + 1, s + 1),
+                idx(r + 1, s),
+            );
         }
     }
-    Mesh { positions, triangles }
+    Mesh {
+        positions,
+        triangles,
+    }
 }
 
 /// A closed torus around the y axis: tube centre line of radius `major`, tube radius
@@ -136,17 +169,30 @@ pub fn torus(center: [f32; 3], major: f32, minor: f32, seg_major: u32, seg_minor
         for j in 0..seg_minor {
             let v = TAU * j as f32 / seg_minor as f32;
             let r = major + minor * v.cos();
-            positions.push([center[0] + r * u.cos(), center[1] + minor * v.sin(), center[2] + r * u.sin()]);
+            positions.push([
+                center[0] + r * u.cos(),
+                center[1] + minor * v.sin(),
+                center[2] + r * u.sin(),
+            ]);
         }
     }
     let idx = |i: u32, j: u32| (i % seg_major) * seg_minor + (j % seg_minor);
     let mut triangles = Vec::with_capacity(2 * (seg_major * seg_minor) as usize);
     for i in 0..seg_major {
         for j in 0..seg_minor {
-            quad(&mut triangles, idx(i, j), idx(i, j + 1), idx(i + 1, j + 1), idx(i + 1, j));
+            quad(
+                &mut triangles,
+                idx(i, j),
+                idx(i, j + 1),
+                idx(i + 1, j + 1),
+                idx(i + 1, j),
+            );
         }
     }
-    Mesh { positions, triangles }
+    Mesh {
+        positions,
+        triangles,
+    }
 }
 
 /// A closed prism: the polygon `outline` (in xy, counter-clockwise) extruded along z from
@@ -154,7 +200,9 @@ pub fn torus(center: [f32; 3], major: f32, minor: f32, seg_major: u32, seg_minor
 /// the outline must be star-shaped around that point (convex outlines and stars are).
 pub fn prism(outline: &[[f32; 2]], depth: f32) -> Mesh {
     let n = outline.len() as u32;
-    let c = outline.iter().fold([0.0, 0.0], |a, p| [a[0] + p[0] / n as f32, a[1] + p[1] / n as f32]);
+    let c = outline.iter().fold([0.0, 0.0], |a, p| {
+        [a[0] + p[0] / n as f32, a[1] + p[1] / n as f32]
+    });
     let mut positions = Vec::with_capacity(2 * n as usize + 2);
     for z in [-depth * 0.5, depth * 0.5] {
         positions.extend(outline.iter().map(|p| [p[0], p[1], z]));
@@ -169,7 +217,10 @@ pub fn prism(outline: &[[f32; 2]], depth: f32) -> Mesh {
         triangles.push([tc, t + i, t + j]);
         quad(&mut triangles, b + i, b + j, t + j, t + i);
     }
-    Mesh { positions, triangles }
+    Mesh {
+        positions,
+        triangles,
+    }
 }
 
 /// A closed wedge: a triangular prism (along z, `depth` deep) whose cross-section has a
@@ -224,10 +275,19 @@ pub fn flat_sheet(center: [f32; 3], size: f32, subdivisions: u32) -> Mesh {
     let mut triangles = Vec::with_capacity(2 * (n * n) as usize);
     for i in 0..n {
         for j in 0..n {
-            quad(&mut triangles, idx(i, j), idx(i, j + 1), idx(i + 1, j + 1), idx(i + 1, j));
+            quad(
+                &mut triangles,
+                idx(i, j),
+                idx(i, j + 1),
+                idx(i + 1, j + 1),
+                idx(i + 1, j),
+            );
         }
     }
-    Mesh { positions, triangles }
+    Mesh {
+        positions,
+        triangles,
+    }
 }
 
 /// An open dome: the upper half (y ≥ center.y) of a sphere, facing out, open at the bottom
@@ -254,10 +314,19 @@ pub fn hemisphere(center: [f32; 3], radius: f32, segments: u32, rings: u32) -> M
     }
     for r in 1..rings {
         for s in 0..segments {
-            quad(&mut triangles, idx(r, s), idx(r, s + 1), idx(r + 1, s + 1), idx(r + 1, s));
+            quad(
+                &mut triangles,
+                idx(r, s),
+                idx(r, s + 1),
+                idx(r + 1, s + 1),
+                idx(r + 1, s),
+            );
         }
     }
-    Mesh { positions, triangles }
+    Mesh {
+        positions,
+        triangles,
+    }
 }
 
 /// A closed cone along +x: its apex at `(length, 0, 0)`, its base a circle of `radius` on
@@ -278,7 +347,10 @@ pub fn cone(length: f32, radius: f32, segments: u32) -> Mesh {
         triangles.push([0, a, b]);
         triangles.push([1, b, a]);
     }
-    Mesh { positions, triangles }
+    Mesh {
+        positions,
+        triangles,
+    }
 }
 
 /// An open V-groove: two unit wings meeting along the x axis at `angle_deg`, opening up
@@ -287,7 +359,14 @@ pub fn cone(length: f32, radius: f32, segments: u32) -> Mesh {
 pub fn v_groove(angle_deg: f32, tilt_deg: f32) -> Mesh {
     let (s, c) = (0.5 * angle_deg).to_radians().sin_cos();
     let wings = Mesh {
-        positions: vec![[-1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, c, s], [-1.0, c, s], [1.0, c, -s], [-1.0, c, -s]],
+        positions: vec![
+            [-1.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [1.0, c, s],
+            [-1.0, c, s],
+            [1.0, c, -s],
+            [-1.0, c, -s],
+        ],
         triangles: vec![[0, 1, 2], [0, 2, 3], [0, 4, 1], [0, 5, 4]],
     };
     rotated(&wings, tilt_deg, 0.0)
@@ -304,8 +383,13 @@ pub fn funnel(half_angle_deg: f32, segments: u32) -> Mesh {
         let th = TAU * s as f32 / segments as f32;
         positions.push([r * th.cos(), 1.0, r * th.sin()]);
     }
-    let triangles = (0..segments).map(|s| [0, 1 + (s + 1) % segments, 1 + s]).collect();
-    Mesh { positions, triangles }
+    let triangles = (0..segments)
+        .map(|s| [0, 1 + (s + 1) % segments, 1 + s])
+        .collect();
+    Mesh {
+        positions,
+        triangles,
+    }
 }
 
 /// `mesh` turned by `about_z_deg` about z, then by `about_x_deg` about x (through the origin).
@@ -320,7 +404,10 @@ pub fn rotated(mesh: &Mesh, about_z_deg: f32, about_x_deg: f32) -> Mesh {
             [x, y * cx - z * sx, y * sx + z * cx]
         })
         .collect();
-    Mesh { positions, triangles: mesh.triangles.clone() }
+    Mesh {
+        positions,
+        triangles: mesh.triangles.clone(),
+    }
 }
 
 /// Faces, edges and corners exactly on the octree's cell planes for a bake with `params`
@@ -349,14 +436,27 @@ pub fn on_cell_planes(params: &octoproxy_cpu::BuildParams) -> Mesh {
     for s in 0..3u32 {
         let ([xa, ya, _], [xb, yb, _]) = (at(5, [8 + s, 20 + s, 0]), at(5, [9 + s, 21 + s, 0]));
         let i = stairs.positions.len() as u32;
-        stairs.positions.extend([[xa, ya, z0], [xa, yb, z0], [xa, yb, z1], [xa, ya, z1], [xb, yb, z0], [xb, yb, z1]]);
-        stairs.triangles.extend([[i, i + 1, i + 2], [i, i + 2, i + 3], [i + 1, i + 4, i + 5], [i + 1, i + 5, i + 2]]);
+        stairs.positions.extend([
+            [xa, ya, z0],
+            [xa, yb, z0],
+            [xa, yb, z1],
+            [xa, ya, z1],
+            [xb, yb, z0],
+            [xb, yb, z1],
+        ]);
+        stairs.triangles.extend([
+            [i, i + 1, i + 2],
+            [i, i + 2, i + 3],
+            [i + 1, i + 4, i + 5],
+            [i + 1, i + 5, i + 2],
+        ]);
     }
     let scene = merge(&[outer, a, b, quad, stairs]);
     let (words, _) = bake(&[MeshRef::from(&scene)], params, &()).expect("the scene bakes");
     let moved = ProxyView::new(&words).expect("valid");
     assert!(
-        moved.root_aabb().min == view.root_aabb().min && moved.header().root_size == view.header().root_size,
+        moved.root_aabb().min == view.root_aabb().min
+            && moved.header().root_size == view.header().root_size,
         "the inner parts moved the root"
     );
     scene
@@ -367,7 +467,9 @@ pub fn on_cell_planes(params: &octoproxy_cpu::BuildParams) -> Mesh {
 /// holds several.
 pub fn sheet_stack(count: u32, gap: f32) -> Mesh {
     let half = (count.max(1) - 1) as f32 * 0.5;
-    let sheets: Vec<Mesh> = (0..count).map(|i| flat_sheet([0.0, (i as f32 - half) * gap, 0.0], 2.0, 4)).collect();
+    let sheets: Vec<Mesh> = (0..count)
+        .map(|i| flat_sheet([0.0, (i as f32 - half) * gap, 0.0], 2.0, 4))
+        .collect();
     merge(&sheets)
 }
 
@@ -378,14 +480,21 @@ pub fn triangle_soup(count: u32, seed: u64) -> Mesh {
     let mut rng = octoproxy_cpu::emit::Rng::new(seed);
     let mut positions = Vec::with_capacity(3 * count as usize);
     for _ in 0..count {
-        let c = [rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0)];
+        let c = [
+            rng.range(-1.0, 1.0),
+            rng.range(-1.0, 1.0),
+            rng.range(-1.0, 1.0),
+        ];
         let size = rng.range(0.01, 0.4);
         for _ in 0..3 {
             positions.push(c.map(|x| x + size * rng.range(-1.0, 1.0)));
         }
     }
     let triangles = (0..count).map(|i| [3 * i, 3 * i + 1, 3 * i + 2]).collect();
-    Mesh { positions, triangles }
+    Mesh {
+        positions,
+        triangles,
+    }
 }
 
 /// One mesh holding all of `meshes` (vertices appended, indices shifted; nothing welded).
@@ -394,7 +503,8 @@ pub fn merge(meshes: &[Mesh]) -> Mesh {
     for m in meshes {
         let base = out.positions.len() as u32;
         out.positions.extend_from_slice(&m.positions);
-        out.triangles.extend(m.triangles.iter().map(|t| t.map(|i| i + base)));
+        out.triangles
+            .extend(m.triangles.iter().map(|t| t.map(|i| i + base)));
     }
     out
 }
@@ -407,16 +517,27 @@ pub fn subdivide(mesh: &Mesh) -> Mesh {
     let mut mid = |a: u32, b: u32, positions: &mut Vec<[f32; 3]>| -> u32 {
         *mids.entry((a.min(b), a.max(b))).or_insert_with(|| {
             let (p, q) = (positions[a as usize], positions[b as usize]);
-            positions.push([(p[0] + q[0]) * 0.5, (p[1] + q[1]) * 0.5, (p[2] + q[2]) * 0.5]);
+            positions.push([
+                (p[0] + q[0]) * 0.5,
+                (p[1] + q[1]) * 0.5,
+                (p[2] + q[2]) * 0.5,
+            ]);
             positions.len() as u32 - 1
         })
     };
     let mut triangles = Vec::with_capacity(mesh.triangles.len() * 4);
     for &[a, b, c] in &mesh.triangles {
-        let (ab, bc, ca) = (mid(a, b, &mut positions), mid(b, c, &mut positions), mid(c, a, &mut positions));
+        let (ab, bc, ca) = (
+            mid(a, b, &mut positions),
+            mid(b, c, &mut positions),
+            mid(c, a, &mut positions),
+        );
         triangles.extend_from_slice(&[[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]]);
     }
-    Mesh { positions, triangles }
+    Mesh {
+        positions,
+        triangles,
+    }
 }
 
 #[cfg(test)]
@@ -431,21 +552,45 @@ mod tests {
     }
 
     /// Closed, oriented, outward, non-degenerate, and inside/outside by winding number.
-    fn check_closed(name: &str, m: &Mesh, inside: &[[f32; 3]], outside: &[[f32; 3]]) -> GroundTruth {
+    fn check_closed(
+        name: &str,
+        m: &Mesh,
+        inside: &[[f32; 3]],
+        outside: &[[f32; 3]],
+    ) -> GroundTruth {
         assert!(m.is_closed(), "{name} is not closed");
         assert!(is_closed(m));
-        assert!(m.is_consistently_oriented(), "{name} is not consistently oriented");
-        assert!(m.signed_volume() > 0.0, "{name} faces in (volume {})", m.signed_volume());
-        assert!(m.triangles.iter().all(|t| normal(m, t).length() > 0.0), "{name} has a degenerate triangle");
+        assert!(
+            m.is_consistently_oriented(),
+            "{name} is not consistently oriented"
+        );
+        assert!(
+            m.signed_volume() > 0.0,
+            "{name} faces in (volume {})",
+            m.signed_volume()
+        );
+        assert!(
+            m.triangles.iter().all(|t| normal(m, t).length() > 0.0),
+            "{name} has a degenerate triangle"
+        );
         let gt = GroundTruth::new(&m.positions, &m.triangles);
         assert_eq!(gt.triangle_count(), m.triangles.len());
         for p in inside {
             let w = gt.winding_number(*p);
-            assert!((w - 1.0).abs() < 1e-6, "{name}: {p:?} should be inside (winding number {w})");
+            assert!(
+                (w - 1.0).abs() < 1e-6,
+                "{name}: {p:?} should be inside (winding number {w})"
+            );
         }
-        for p in outside.iter().chain([[5.0, 5.0, 5.0], [-9.0, 0.1, 0.0]].iter()) {
+        for p in outside
+            .iter()
+            .chain([[5.0, 5.0, 5.0], [-9.0, 0.1, 0.0]].iter())
+        {
             let w = gt.winding_number(*p);
-            assert!(w.abs() < 1e-6, "{name}: {p:?} should be outside (winding number {w})");
+            assert!(
+                w.abs() < 1e-6,
+                "{name}: {p:?} should be outside (winding number {w})"
+            );
         }
         gt
     }
@@ -454,10 +599,20 @@ mod tests {
     fn cube_and_slab() {
         let m = cube([-1.0, 0.0, 2.0], [1.0, 0.5, 3.0]);
         assert_eq!((m.positions.len(), m.triangles.len()), (8, 12));
-        check_closed("cube", &m, &[[0.0, 0.25, 2.5], [0.99, 0.49, 2.01]], &[[0.0, 0.25, 1.9], [1.01, 0.25, 2.5]]);
+        check_closed(
+            "cube",
+            &m,
+            &[[0.0, 0.25, 2.5], [0.99, 0.49, 2.01]],
+            &[[0.0, 0.25, 1.9], [1.01, 0.25, 2.5]],
+        );
         assert!((m.signed_volume() - 1.0).abs() < 1e-6);
         let s = slab([0.0; 3], [2.0, 0.01, 2.0]);
-        check_closed("slab", &s, &[[0.3, 0.004, -0.7]], &[[0.3, 0.006, -0.7], [0.3, -0.006, -0.7]]);
+        check_closed(
+            "slab",
+            &s,
+            &[[0.3, 0.004, -0.7]],
+            &[[0.3, 0.006, -0.7], [0.3, -0.006, -0.7]],
+        );
         assert!((s.signed_volume() - 0.04).abs() < 1e-6);
     }
 
@@ -466,10 +621,25 @@ mod tests {
         let m = uv_sphere([1.0, 2.0, 3.0], 0.5, 32, 16);
         assert_eq!(m.positions.len(), 2 + 32 * 15);
         assert_eq!(m.triangles.len(), 2 * 32 * 15);
-        check_closed("sphere", &m, &[[1.0, 2.0, 3.0], [1.0, 2.45, 3.0]], &[[1.0, 2.55, 3.0], [0.0; 3]]);
+        check_closed(
+            "sphere",
+            &m,
+            &[[1.0, 2.0, 3.0], [1.0, 2.45, 3.0]],
+            &[[1.0, 2.55, 3.0], [0.0; 3]],
+        );
         // The coarsest sphere, a triangular bipyramid, is still closed.
-        check_closed("low-poly sphere", &uv_sphere([0.0; 3], 1.0, 3, 2), &[[0.0, 0.1, 0.0]], &[[0.0, 1.1, 0.0]]);
-        check_closed("low-poly convex", &uv_sphere([0.0; 3], 1.0, 6, 3), &[[0.0; 3]], &[[1.01, 0.0, 0.0]]);
+        check_closed(
+            "low-poly sphere",
+            &uv_sphere([0.0; 3], 1.0, 3, 2),
+            &[[0.0, 0.1, 0.0]],
+            &[[0.0, 1.1, 0.0]],
+        );
+        check_closed(
+            "low-poly convex",
+            &uv_sphere([0.0; 3], 1.0, 6, 3),
+            &[[0.0; 3]],
+            &[[1.01, 0.0, 0.0]],
+        );
         let t = torus([0.0, 1.0, 0.0], 1.0, 0.3, 48, 24);
         assert_eq!(t.triangles.len(), 2 * 48 * 24);
         check_closed(
@@ -495,19 +665,39 @@ mod tests {
         let area = (10f32).to_radians().tan();
         assert!((w.signed_volume() as f32 - area).abs() < 1e-5);
         // A knife: 8 degrees.
-        check_closed("knife wedge", &wedge(8.0, 1.5, 1.0), &[[1.4, 0.0, 0.0]], &[[1.4, 0.02, 0.0]]);
+        check_closed(
+            "knife wedge",
+            &wedge(8.0, 1.5, 1.0),
+            &[[1.4, 0.0, 0.0]],
+            &[[1.4, 0.02, 0.0]],
+        );
         let s = star_prism(5, 1.0, 0.4, 0.5);
         assert_eq!(s.triangles.len(), 4 * 10);
         // A tip is solid; the notch between two tips (at 36°, radius 0.6) is not.
         let notch = [0.6 * (PI / 5.0).cos(), 0.6 * (PI / 5.0).sin(), 0.0];
-        check_closed("star prism", &s, &[[0.0; 3], [0.9, 0.0, 0.2]], &[notch, [0.0, 0.0, 0.3]]);
-        check_closed("six-point star", &star_prism(6, 1.0, 0.35, 0.6), &[[0.0; 3]], &[[0.0, 0.0, 0.31]]);
+        check_closed(
+            "star prism",
+            &s,
+            &[[0.0; 3], [0.9, 0.0, 0.2]],
+            &[notch, [0.0, 0.0, 0.3]],
+        );
+        check_closed(
+            "six-point star",
+            &star_prism(6, 1.0, 0.35, 0.6),
+            &[[0.0; 3]],
+            &[[0.0, 0.0, 0.31]],
+        );
     }
 
     #[test]
     fn nested_shells_are_hollow() {
         let m = nested_shells(1.0, 0.2);
-        let gt = check_closed("nested shells", &m, &[[0.0, 0.9, 0.0], [0.0, 0.0, -0.85]], &[[0.0; 3], [0.5, 0.0, 0.0]]);
+        let gt = check_closed(
+            "nested shells",
+            &m,
+            &[[0.0, 0.9, 0.0], [0.0, 0.0, -0.85]],
+            &[[0.0; 3], [0.5, 0.0, 0.0]],
+        );
         assert!(!gt.is_inside([0.0; 3]));
         // The shell's volume: the outer ball minus the inner one (both polygonal).
         let v = m.signed_volume() as f32;
@@ -525,7 +715,10 @@ mod tests {
             let n = normal(&s, t);
             assert!(n.y > 0.0 && n.x == 0.0 && n.z == 0.0, "{n}");
         }
-        assert!(s.positions.iter().all(|p| p[1] == 1.0 && p[0].abs() <= 1.0 && p[2].abs() <= 1.0));
+        assert!(s
+            .positions
+            .iter()
+            .all(|p| p[1] == 1.0 && p[0].abs() <= 1.0 && p[2].abs() <= 1.0));
         let h = hemisphere([0.0, -1.0, 0.0], 2.0, 32, 8);
         assert!(!h.is_closed());
         assert!(h.is_consistently_oriented());
@@ -543,15 +736,26 @@ mod tests {
                 *uses.entry((a.min(b), a.max(b))).or_insert(0) += 1;
             }
         }
-        let rim: Vec<_> = uses.iter().filter(|(_, &n)| n == 1).map(|(e, _)| *e).collect();
+        let rim: Vec<_> = uses
+            .iter()
+            .filter(|(_, &n)| n == 1)
+            .map(|(e, _)| *e)
+            .collect();
         assert_eq!(rim.len(), 32);
-        assert!(rim.iter().all(|&(a, b)| [a, b].iter().all(|&i| (h.positions[i as usize][1] + 1.0).abs() < 1e-5)));
+        assert!(rim.iter().all(|&(a, b)| [a, b]
+            .iter()
+            .all(|&i| (h.positions[i as usize][1] + 1.0).abs() < 1e-5)));
     }
 
     #[test]
     fn cones_stacks_and_soups() {
         let c = cone(2.0, 0.1, 16);
-        check_closed("cone", &c, &[[0.5, 0.0, 0.0], [1.9, 0.0, 0.0]], &[[2.01, 0.0, 0.0], [1.0, 0.06, 0.0], [-0.01, 0.0, 0.0]]);
+        check_closed(
+            "cone",
+            &c,
+            &[[0.5, 0.0, 0.0], [1.9, 0.0, 0.0]],
+            &[[2.01, 0.0, 0.0], [1.0, 0.06, 0.0], [-0.01, 0.0, 0.0]],
+        );
         // A regular 16-gon of circumradius 0.1 has area 8 · 0.1² · sin(π/8); the cone a third
         // of that times its length.
         let want = 8.0 * 0.01 * (PI / 8.0).sin() * 2.0 / 3.0;
@@ -578,14 +782,25 @@ mod tests {
         assert_eq!(m.positions.len(), a.positions.len() + b.positions.len());
         assert_eq!(m.triangles.len(), a.triangles.len() + b.triangles.len());
         assert_eq!(m.triangles[12], b.triangles[0].map(|i| i + 8));
-        check_closed("merged", &m, &[[-0.5; 3], [2.0, 0.0, 0.0]], &[[1.0, 0.0, 0.0]]);
+        check_closed(
+            "merged",
+            &m,
+            &[[-0.5; 3], [2.0, 0.0, 0.0]],
+            &[[1.0, 0.0, 0.0]],
+        );
         let s = uv_sphere([0.0; 3], 1.0, 16, 8);
         let d = subdivide(&s);
         assert_eq!(d.triangles.len(), 4 * s.triangles.len());
         // Euler: a closed triangle mesh has 3F/2 edges, one new vertex each.
-        assert_eq!(d.positions.len(), s.positions.len() + 3 * s.triangles.len() / 2);
+        assert_eq!(
+            d.positions.len(),
+            s.positions.len() + 3 * s.triangles.len() / 2
+        );
         check_closed("subdivided sphere", &d, &[[0.0; 3]], &[[0.0, 1.01, 0.0]]);
-        assert!((d.signed_volume() - s.signed_volume()).abs() < 1e-6, "midpoint subdivision keeps the shape");
+        assert!(
+            (d.signed_volume() - s.signed_volume()).abs() < 1e-6,
+            "midpoint subdivision keeps the shape"
+        );
         check_closed(
             "subdivided torus",
             &subdivide(&torus([0.0; 3], 1.0, 0.3, 12, 8)),

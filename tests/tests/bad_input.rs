@@ -149,7 +149,10 @@ fn proxy_bit_flips_are_rejected_or_harmless() {
             }
         }
     }
-    assert!(checksum_caught > 0, "the checksum caught nothing the structure missed");
+    assert!(
+        checksum_caught > 0,
+        "the checksum caught nothing the structure missed"
+    );
     // The flips that must be caught, with their exact variants.
     let flip = |i: usize, bit: u32| {
         let mut w = words.clone();

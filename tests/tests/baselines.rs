@@ -19,8 +19,15 @@ fn cube() -> Mesh {
 fn methods(mesh: &Mesh, sdf_budget: usize, closed: bool) -> Vec<Box<dyn Method>> {
     vec![
         Box::new(TriangleOctree::new(&mesh.positions, &mesh.triangles, 8, 4)),
-        Box::new(ParryTriMesh::new(&mesh.positions, &mesh.triangles).expect("parry accepts the mesh")),
-        Box::new(SdfGrid::new(&mesh.positions, &mesh.triangles, sdf_budget, closed)),
+        Box::new(
+            ParryTriMesh::new(&mesh.positions, &mesh.triangles).expect("parry accepts the mesh"),
+        ),
+        Box::new(SdfGrid::new(
+            &mesh.positions,
+            &mesh.triangles,
+            sdf_budget,
+            closed,
+        )),
     ]
 }
 
@@ -37,8 +44,19 @@ fn particle_dropped_on_a_cube_rests_on_top() {
     // (method, how far below the top it may end, how far above). A particle at rest hops
     // by about `e (g dt) dt` every step (1.4e-3 here); the grid may be off by a cell.
     let cases: Vec<(Box<dyn Method>, f32, f32)> = vec![
-        (Box::new(TriangleOctree::new(&mesh.positions, &mesh.triangles, 8, 4)), 0.0, 0.01),
-        (Box::new(ParryTriMesh::new(&mesh.positions, &mesh.triangles).expect("parry accepts the mesh")), 0.0, 0.01),
+        (
+            Box::new(TriangleOctree::new(&mesh.positions, &mesh.triangles, 8, 4)),
+            0.0,
+            0.01,
+        ),
+        (
+            Box::new(
+                ParryTriMesh::new(&mesh.positions, &mesh.triangles)
+                    .expect("parry accepts the mesh"),
+            ),
+            0.0,
+            0.01,
+        ),
         (Box::new(grid), cell, cell),
     ];
     for (m, below, above) in cases {
@@ -50,7 +68,12 @@ fn particle_dropped_on_a_cube_rests_on_top() {
             let [x, y, z] = p.position;
             assert!(p.collisions() > 0, "{}: never collided: {p:?}", m.name());
             assert_eq!(p.flags & FLAG_INVALID, 0, "{}", m.name());
-            assert!(y >= 1.0 - below && y <= 1.0 + above, "{}: from {start:?} ended at {:?}", m.name(), p.position);
+            assert!(
+                y >= 1.0 - below && y <= 1.0 + above,
+                "{}: from {start:?} ended at {:?}",
+                m.name(),
+                p.position
+            );
             assert!(
                 (x - start[0]).abs() < 0.05 && (z - start[2]).abs() < 0.05,
                 "{}: slid to {:?}",
@@ -59,7 +82,11 @@ fn particle_dropped_on_a_cube_rests_on_top() {
             );
             // At rest: what is left of its speed is one step of gravity at most.
             let speed = glam::Vec3::from_array(p.velocity).length();
-            assert!(speed <= 9.81 / 60.0 + 1e-3, "{}: still moving at {speed}", m.name());
+            assert!(
+                speed <= 9.81 / 60.0 + 1e-3,
+                "{}: still moving at {speed}",
+                m.name()
+            );
         }
     }
 }
@@ -67,10 +94,16 @@ fn particle_dropped_on_a_cube_rests_on_top() {
 #[test]
 fn fast_particles_do_not_end_inside_the_cube() {
     let mesh = cube();
-    let params = StepParams { gravity: [0.0; 3], restitution: 0.5, ..StepParams::default() };
+    let params = StepParams {
+        gravity: [0.0; 3],
+        restitution: 0.5,
+        ..StepParams::default()
+    };
     let exact: Vec<Box<dyn Method>> = vec![
         Box::new(TriangleOctree::new(&mesh.positions, &mesh.triangles, 8, 4)),
-        Box::new(ParryTriMesh::new(&mesh.positions, &mesh.triangles).expect("parry accepts the mesh")),
+        Box::new(
+            ParryTriMesh::new(&mesh.positions, &mesh.triangles).expect("parry accepts the mesh"),
+        ),
     ];
     // From every side, at the whole scene (and more) per step, off the faces' diagonals.
     let mut shots = Vec::new();
@@ -96,9 +129,17 @@ fn fast_particles_do_not_end_inside_the_cube() {
             let mut p = Particle::new(x, v);
             for step in 0..20 {
                 m.step(&mut p, &params);
-                assert!(!inside_cube(p.position), "{}: shot {x:?} at {v:?} is inside at step {step}: {p:?}", m.name());
+                assert!(
+                    !inside_cube(p.position),
+                    "{}: shot {x:?} at {v:?} is inside at step {step}: {p:?}",
+                    m.name()
+                );
             }
-            assert!(p.collisions() >= 1, "{}: shot {x:?} at {v:?} never hit: {p:?}", m.name());
+            assert!(
+                p.collisions() >= 1,
+                "{}: shot {x:?} at {v:?} never hit: {p:?}",
+                m.name()
+            );
         }
     }
 }
@@ -107,16 +148,27 @@ fn fast_particles_do_not_end_inside_the_cube() {
 fn particle_inside_stays_inside_the_exact_methods() {
     // Both sides collide: a particle inside the cube bounces around in it.
     let mesh = cube();
-    let params = StepParams { gravity: [0.0, -9.81, 0.0], restitution: 0.9, friction: 0.0, ..StepParams::default() };
+    let params = StepParams {
+        gravity: [0.0, -9.81, 0.0],
+        restitution: 0.9,
+        friction: 0.0,
+        ..StepParams::default()
+    };
     let exact: Vec<Box<dyn Method>> = vec![
         Box::new(TriangleOctree::new(&mesh.positions, &mesh.triangles, 8, 4)),
-        Box::new(ParryTriMesh::new(&mesh.positions, &mesh.triangles).expect("parry accepts the mesh")),
+        Box::new(
+            ParryTriMesh::new(&mesh.positions, &mesh.triangles).expect("parry accepts the mesh"),
+        ),
     ];
     for m in &exact {
         let mut p = Particle::new([0.4, 0.6, 0.45], [37.0, 23.0, -41.0]);
         for step in 0..300 {
             m.step(&mut p, &params);
-            assert!(inside_cube(p.position), "{}: left the cube at step {step}: {p:?}", m.name());
+            assert!(
+                inside_cube(p.position),
+                "{}: left the cube at step {step}: {p:?}",
+                m.name()
+            );
         }
         assert!(p.collisions() > 10, "{}", m.name());
     }
@@ -137,15 +189,37 @@ fn nan_and_infinite_input_is_flagged_and_unchanged() {
             let mut p = before;
             m.step(&mut p, &params);
             assert_ne!(p.flags & FLAG_INVALID, 0, "{}: {p:?}", m.name());
-            assert_eq!(p.position.map(f32::to_bits), before.position.map(f32::to_bits), "{}", m.name());
-            assert_eq!(p.velocity.map(f32::to_bits), before.velocity.map(f32::to_bits), "{}", m.name());
+            assert_eq!(
+                p.position.map(f32::to_bits),
+                before.position.map(f32::to_bits),
+                "{}",
+                m.name()
+            );
+            assert_eq!(
+                p.velocity.map(f32::to_bits),
+                before.velocity.map(f32::to_bits),
+                "{}",
+                m.name()
+            );
         }
         // A finite particle whose integrated velocity overflows is flagged too.
         let mut p = Particle::new([0.5, 2.0, 0.5], [0.0, -f32::MAX, 0.0]);
         let before = p;
-        m.step(&mut p, &StepParams { gravity: [0.0, -f32::MAX, 0.0], dt: 2.0, ..params });
+        m.step(
+            &mut p,
+            &StepParams {
+                gravity: [0.0, -f32::MAX, 0.0],
+                dt: 2.0,
+                ..params
+            },
+        );
         assert_ne!(p.flags & FLAG_INVALID, 0, "{}: {p:?}", m.name());
-        assert_eq!((p.position, p.velocity), (before.position, before.velocity), "{}", m.name());
+        assert_eq!(
+            (p.position, p.velocity),
+            (before.position, before.velocity),
+            "{}",
+            m.name()
+        );
     }
 }
 
@@ -188,7 +262,11 @@ fn sdf_grid_signs_and_shell() {
     let sheet = scenes::flat_sheet([0.0; 3], 2.0, 8);
     let g = SdfGrid::new(&sheet.positions, &sheet.triangles, 256 << 10, false);
     let h = g.cell_size();
-    let normal_axis = if sheet.positions.iter().all(|p| p[1] == 0.0) { 1 } else { 2 };
+    let normal_axis = if sheet.positions.iter().all(|p| p[1] == 0.0) {
+        1
+    } else {
+        2
+    };
     let mut at = glam::Vec3::ZERO;
     assert!(g.sample(at).unwrap() < 0.0);
     at[normal_axis] = 1.5 * h;
@@ -204,7 +282,10 @@ fn sdf_grid_matches_ground_truth() {
     let meshes = [
         scenes::cube([0.0; 3], [1.0; 3]),
         scenes::torus([0.1, 0.2, 0.3], 1.0, 0.35, 48, 24),
-        scenes::merge(&[scenes::cube([0.0; 3], [1.0; 3]), scenes::cube([1.3, 0.0, 0.0], [2.0, 0.5, 0.5])]),
+        scenes::merge(&[
+            scenes::cube([0.0; 3], [1.0; 3]),
+            scenes::cube([1.3, 0.0, 0.0], [2.0, 0.5, 0.5]),
+        ]),
     ];
     let mut s = 0x2545_f491_4f6c_dd1du64;
     let mut r = move || {
@@ -226,12 +307,19 @@ fn sdf_grid_matches_ground_truth() {
                 }
             }
             for _ in 0..2000 {
-                let p: [f32; 3] = std::array::from_fn(|k| lo[k] - 0.1 + (hi[k] - lo[k] + 0.2) * r());
-                let Some(v) = g.sample(glam::Vec3::from_array(p)) else { continue };
+                let p: [f32; 3] =
+                    std::array::from_fn(|k| lo[k] - 0.1 + (hi[k] - lo[k] + 0.2) * r());
+                let Some(v) = g.sample(glam::Vec3::from_array(p)) else {
+                    continue;
+                };
                 let exact = gt.distance(p);
                 let signed = if gt.is_inside(p) { -exact } else { exact };
                 if exact > 1.5 * h {
-                    assert_eq!(v < 0.0, signed < 0.0, "sign at {p:?}: grid {v}, exact {signed}");
+                    assert_eq!(
+                        v < 0.0,
+                        signed < 0.0,
+                        "sign at {p:?}: grid {v}, exact {signed}"
+                    );
                 }
                 // Trilinear interpolation is off by up to about a cell; the chamfer fill is
                 // long by up to about 10 %, by less than 8 % on these meshes.
@@ -248,11 +336,25 @@ fn sdf_grid_matches_ground_truth() {
 fn a_particle_falling_through_an_open_sheet_is_stopped_by_the_exact_methods() {
     // An open mesh: a flat sheet, hit from above and from below.
     let sheet = scenes::flat_sheet([0.0; 3], 2.0, 8);
-    let normal_axis = if sheet.positions.iter().all(|p| p[1] == 0.0) { 1 } else { 2 };
-    let params = StepParams { gravity: [0.0; 3], ..StepParams::default() };
+    let normal_axis = if sheet.positions.iter().all(|p| p[1] == 0.0) {
+        1
+    } else {
+        2
+    };
+    let params = StepParams {
+        gravity: [0.0; 3],
+        ..StepParams::default()
+    };
     let exact: Vec<Box<dyn Method>> = vec![
-        Box::new(TriangleOctree::new(&sheet.positions, &sheet.triangles, 8, 4)),
-        Box::new(ParryTriMesh::new(&sheet.positions, &sheet.triangles).expect("parry accepts the mesh")),
+        Box::new(TriangleOctree::new(
+            &sheet.positions,
+            &sheet.triangles,
+            8,
+            4,
+        )),
+        Box::new(
+            ParryTriMesh::new(&sheet.positions, &sheet.triangles).expect("parry accepts the mesh"),
+        ),
     ];
     for m in &exact {
         for sign in [-1.0f32, 1.0] {
@@ -263,7 +365,11 @@ fn a_particle_falling_through_an_open_sheet_is_stopped_by_the_exact_methods() {
             let mut p = Particle::new(x, v);
             for _ in 0..10 {
                 m.step(&mut p, &params);
-                assert!(p.position[normal_axis] * sign > 0.0, "{}: crossed the sheet: {p:?}", m.name());
+                assert!(
+                    p.position[normal_axis] * sign > 0.0,
+                    "{}: crossed the sheet: {p:?}",
+                    m.name()
+                );
             }
             assert_eq!(p.collisions(), 1, "{}", m.name());
         }
@@ -280,7 +386,8 @@ fn degenerate_and_bad_triangles_are_left_out() {
     mesh.triangles.push([0, 1, n]); // NaN vertex
     let oct = TriangleOctree::new(&mesh.positions, &mesh.triangles, 8, 4);
     assert_eq!(oct.dropped_triangles(), 3);
-    let parry = ParryTriMesh::new(&mesh.positions, &mesh.triangles).expect("parry accepts the rest");
+    let parry =
+        ParryTriMesh::new(&mesh.positions, &mesh.triangles).expect("parry accepts the rest");
     assert_eq!(parry.dropped_triangles(), 3);
     let params = StepParams::default();
     for m in [&oct as &dyn Method, &parry] {
@@ -288,7 +395,11 @@ fn degenerate_and_bad_triangles_are_left_out() {
         for _ in 0..100 {
             m.step(&mut p, &params);
         }
-        assert!(p.position[1] >= 1.0 && p.position[1] < 1.01, "{}: {p:?}", m.name());
+        assert!(
+            p.position[1] >= 1.0 && p.position[1] < 1.01,
+            "{}: {p:?}",
+            m.name()
+        );
     }
     // Nothing usable at all: parry says so instead of panicking; the others build empty.
     assert!(ParryTriMesh::new(&[[0.0; 3]; 3], &[[0, 1, 2]]).is_err());
@@ -311,8 +422,13 @@ fn degenerate_and_bad_triangles_are_left_out() {
 fn measure_on_the_bunny() {
     use rayon::prelude::*;
     use std::time::Instant;
-    let Some(mesh) = octoproxy_tests::meshes::load("stanford-bunny.obj.gz") else { return };
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
+    let Some(mesh) = octoproxy_tests::meshes::load("stanford-bunny.obj.gz") else {
+        return;
+    };
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .build()
+        .unwrap();
     pool.install(|| {
         let (mut lo, mut hi) = (glam::Vec3::splat(f32::INFINITY), glam::Vec3::splat(f32::NEG_INFINITY));
         for p in &mesh.positions {

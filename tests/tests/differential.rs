@@ -13,7 +13,9 @@
 //! and positions within `POSITION_TOLERANCE_LEAVES` of a finest leaf.
 
 use glam::Vec3;
-use octoproxy_core::{step_particle, Backend, Particle, ProxyView, StepParams, FLAG_INVALID, MAX_DEPTH};
+use octoproxy_core::{
+    step_particle, Backend, Particle, ProxyView, StepParams, FLAG_INVALID, MAX_DEPTH,
+};
 use octoproxy_cpu::emit::Rng;
 use octoproxy_cpu::{bake, BuildParams, CpuBackend, MeshRef};
 use octoproxy_tests::ground_truth::GroundTruth;
@@ -63,7 +65,10 @@ struct Agreement {
 }
 
 fn compare(cpu: &[Particle], gpu: &[Particle], leaf: f32) -> Agreement {
-    let mut a = Agreement { particles: cpu.len(), ..Agreement::default() };
+    let mut a = Agreement {
+        particles: cpu.len(),
+        ..Agreement::default()
+    };
     for (i, (c, g)) in cpu.iter().zip(gpu).enumerate() {
         a.collisions += c.collisions() as u64;
         a.identical += (bytemuck::bytes_of(c) == bytemuck::bytes_of(g)) as usize;
@@ -73,7 +78,10 @@ fn compare(cpu: &[Particle], gpu: &[Particle], leaf: f32) -> Agreement {
         if c.flags & FLAG_INVALID != 0 {
             continue;
         }
-        let d = (Vec3::from_array(c.position) - Vec3::from_array(g.position)).abs().max_element() / leaf;
+        let d = (Vec3::from_array(c.position) - Vec3::from_array(g.position))
+            .abs()
+            .max_element()
+            / leaf;
         // NaN counts as the worst.
         if !(d <= a.worst_leaves) {
             a.worst_leaves = d;
@@ -143,7 +151,10 @@ fn hand_placed(view: &ProxyView<'_>, n: usize, seed: u64) -> Vec<Particle> {
     }
     // Far outside, flying away; and a velocity whose step overflows.
     out.push(Particle::new([1e30, 1e30, 1e30], [1.0, 1.0, 1.0]));
-    out.push(Particle::new((root.min - Vec3::ONE).to_array(), [3e38, 3e38, 3e38]));
+    out.push(Particle::new(
+        (root.min - Vec3::ONE).to_array(),
+        [3e38, 3e38, 3e38],
+    ));
     out
 }
 
@@ -160,13 +171,23 @@ fn differential(name: &str, mesh: &Mesh, build: &BuildParams, steps: u32, chunk:
     let gt = GroundTruth::new(&mesh.positions, &mesh.triangles);
     let leaf = view.finest_leaf_size();
     let scene = view.header().root_size;
-    let speeds: Vec<f32> = [0.1 * leaf, leaf, 5.0 * leaf, 0.5 * scene].iter().map(|d| d / DT).collect();
+    let speeds: Vec<f32> = [0.1 * leaf, leaf, 5.0 * leaf, 0.5 * scene]
+        .iter()
+        .map(|d| d / DT)
+        .collect();
     let mut particles = random_particles(&view, &gt, 3000, &speeds, 5);
     particles.extend(hand_placed(&view, 2000, 6));
     if let (Some(gpu), Some(n)) = (gpu.as_mut(), chunk) {
         gpu.upload_particles(&particles).unwrap();
-        assert_eq!(gpu.chunk_count(), particles.len().div_ceil(n as usize), "{name}: chunks");
-        assert!(gpu.dispatch_size(n).1 > 1, "{name}: the dispatch is not folded");
+        assert_eq!(
+            gpu.chunk_count(),
+            particles.len().div_ceil(n as usize),
+            "{name}: chunks"
+        );
+        assert!(
+            gpu.dispatch_size(n).1 > 1,
+            "{name}: the dispatch is not folded"
+        );
     }
     let mut cpu = CpuBackend::new();
     cpu.upload_proxy(&words).unwrap();
@@ -175,9 +196,24 @@ fn differential(name: &str, mesh: &Mesh, build: &BuildParams, steps: u32, chunk:
     }
     let mut worst = 0f32;
     for (k, params) in [
-        StepParams { dt: DT, ..StepParams::default() },
-        StepParams { gravity: [0.0; 3], dt: DT, restitution: 1.0, friction: 0.0, _pad: [0; 2] },
-        StepParams { gravity: [0.0, -9.81, 0.0], dt: DT, restitution: 0.0, friction: 1.0, _pad: [0; 2] },
+        StepParams {
+            dt: DT,
+            ..StepParams::default()
+        },
+        StepParams {
+            gravity: [0.0; 3],
+            dt: DT,
+            restitution: 1.0,
+            friction: 0.0,
+            _pad: [0; 2],
+        },
+        StepParams {
+            gravity: [0.0, -9.81, 0.0],
+            dt: DT,
+            restitution: 0.0,
+            friction: 1.0,
+            _pad: [0; 2],
+        },
     ]
     .into_iter()
     .enumerate()
@@ -196,9 +232,15 @@ fn differential(name: &str, mesh: &Mesh, build: &BuildParams, steps: u32, chunk:
                 step_particle(&plain_view, p, &params);
             });
         }
-        let unhinted_differ =
-            plain.iter().zip(cpu.particles()).filter(|(a, b)| bytemuck::bytes_of(*a) != bytemuck::bytes_of(*b)).count();
-        assert_eq!(unhinted_differ, 0, "{name}: stepping with leaf hints changed {unhinted_differ} particles");
+        let unhinted_differ = plain
+            .iter()
+            .zip(cpu.particles())
+            .filter(|(a, b)| bytemuck::bytes_of(*a) != bytemuck::bytes_of(*b))
+            .count();
+        assert_eq!(
+            unhinted_differ, 0,
+            "{name}: stepping with leaf hints changed {unhinted_differ} particles"
+        );
         let Some(gpu) = gpu.as_mut() else { continue };
         gpu.set_use_lut(use_lut);
         gpu.upload_particles(&particles).unwrap();
@@ -211,7 +253,10 @@ fn differential(name: &str, mesh: &Mesh, build: &BuildParams, steps: u32, chunk:
             if use_lut { "" } else { " (no LUT)" },
             a.particles, a.collisions, a.identical, a.collisions_differ, a.side_differs, a.flags_differ, a.worst_leaves, a.worst_index, a.worst_velocity
         );
-        assert!(a.collisions > 0, "{name}: nothing collided, the test tests nothing");
+        assert!(
+            a.collisions > 0,
+            "{name}: nothing collided, the test tests nothing"
+        );
         let i = a.worst_index;
         assert_eq!(
             (a.collisions_differ, a.side_differs, a.flags_differ),
@@ -239,18 +284,26 @@ fn differential(name: &str, mesh: &Mesh, build: &BuildParams, steps: u32, chunk:
 }
 
 fn build(dmax: u32) -> BuildParams {
-    BuildParams { dmin: 3, dmax, ..BuildParams::default() }
+    BuildParams {
+        dmin: 3,
+        dmax,
+        ..BuildParams::default()
+    }
 }
 
 #[test]
 fn bunny_open_mesh() {
-    let Some(mesh) = meshes::load("stanford-bunny.obj.gz") else { return };
+    let Some(mesh) = meshes::load("stanford-bunny.obj.gz") else {
+        return;
+    };
     differential("bunny", &mesh, &build(7), 120, None);
 }
 
 #[test]
 fn nefertiti_closed_scan() {
-    let Some(mesh) = meshes::load("nefertiti.obj.gz") else { return };
+    let Some(mesh) = meshes::load("nefertiti.obj.gz") else {
+        return;
+    };
     differential("nefertiti", &mesh, &build(7), 120, None);
 }
 
@@ -266,7 +319,9 @@ fn far_from_the_origin() {
 fn fandisk_creases_at_a_coarse_depth() {
     // At dmax 6 the CAD part's narrow grooves put surface leaves that face each other side
     // by side: particles are pinched between them (the step's `pinch`).
-    let Some(mesh) = meshes::load("fandisk.obj.gz") else { return };
+    let Some(mesh) = meshes::load("fandisk.obj.gz") else {
+        return;
+    };
     differential("fandisk", &mesh, &build(6), 120, None);
 }
 
@@ -297,7 +352,10 @@ fn thin_plates() {
 
 #[test]
 fn sharp_wedges_and_star() {
-    let mesh = scenes::merge(&[scenes::wedge(8.0, 2.0, 1.0), scenes::star_prism(7, 1.5, 0.4, 1.0)]);
+    let mesh = scenes::merge(&[
+        scenes::wedge(8.0, 2.0, 1.0),
+        scenes::star_prism(7, 1.5, 0.4, 1.0),
+    ]);
     differential("wedge + star", &mesh, &build(7), 150, None);
 }
 
@@ -320,7 +378,13 @@ fn nested_shells_in_small_chunks() {
 #[test]
 fn faces_on_cell_planes() {
     // Float ties everywhere: the hand-placed particles start on the very planes the faces lie in.
-    differential("faces on cell planes", &scenes::on_cell_planes(&build(6)), &build(6), 120, None);
+    differential(
+        "faces on cell planes",
+        &scenes::on_cell_planes(&build(6)),
+        &build(6),
+        120,
+        None,
+    );
 }
 
 #[test]
@@ -340,21 +404,47 @@ fn leaf_hints_are_forgotten_when_the_proxy_changes() {
     // proxy; used with the second, it would carry particles through the sheet. Both backends
     // must give what stepping without hints gives. (The first proxy's sheet, high up and
     // facing down, only makes both proxies stamp the particles' side the same: front.)
-    let cubes = [scenes::cube([-1.0, -1.0, -1.0], [-0.9, -0.9, -0.9]), scenes::cube([0.9, 0.9, 0.9], [1.0, 1.0, 1.0])];
+    let cubes = [
+        scenes::cube([-1.0, -1.0, -1.0], [-0.9, -0.9, -0.9]),
+        scenes::cube([0.9, 0.9, 0.9], [1.0, 1.0, 1.0]),
+    ];
     let mut ceiling = scenes::flat_sheet([0.0, 0.95, 0.0], 1.8, 4);
     ceiling.triangles.iter_mut().for_each(|t| t.swap(1, 2));
     let corner = scenes::merge(&[cubes[0].clone(), cubes[1].clone(), ceiling]);
-    let sheet = scenes::merge(&[cubes[0].clone(), cubes[1].clone(), scenes::flat_sheet([0.0, 0.0, 0.0], 1.8, 4)]);
+    let sheet = scenes::merge(&[
+        cubes[0].clone(),
+        cubes[1].clone(),
+        scenes::flat_sheet([0.0, 0.0, 0.0], 1.8, 4),
+    ]);
     let (a, _) = bake(&[MeshRef::from(&corner)], &build(6), &()).expect("bakes");
     let (b, _) = bake(&[MeshRef::from(&sheet)], &build(6), &()).expect("bakes");
     let (view_a, view_b) = (ProxyView::new(&a).unwrap(), ProxyView::new(&b).unwrap());
-    assert_eq!(view_a.root_aabb(), view_b.root_aabb(), "the test needs the same root box");
+    assert_eq!(
+        view_a.root_aabb(),
+        view_b.root_aabb(),
+        "the test needs the same root box"
+    );
     // Falling particles above the sheet, slow enough to stay in their leaf for a while.
     let mut rng = Rng::new(11);
     let particles: Vec<Particle> = (0..2000)
-        .map(|_| Particle::new([rng.range(-0.8, 0.8), rng.range(0.3, 0.6), rng.range(-0.8, 0.8)], [0.0, -0.5, 0.0]))
+        .map(|_| {
+            Particle::new(
+                [
+                    rng.range(-0.8, 0.8),
+                    rng.range(0.3, 0.6),
+                    rng.range(-0.8, 0.8),
+                ],
+                [0.0, -0.5, 0.0],
+            )
+        })
         .collect();
-    let params = StepParams { gravity: [0.0, -2.0, 0.0], dt: DT, restitution: 0.0, friction: 0.5, _pad: [0; 2] };
+    let params = StepParams {
+        gravity: [0.0, -2.0, 0.0],
+        dt: DT,
+        restitution: 0.0,
+        friction: 0.5,
+        _pad: [0; 2],
+    };
     let mut expected = particles.clone();
     for (view, steps) in [(&view_a, 10), (&view_b, 60)] {
         for _ in 0..steps {
@@ -364,8 +454,19 @@ fn leaf_hints_are_forgotten_when_the_proxy_changes() {
         }
     }
     let below: Vec<_> = expected.iter().filter(|p| p.position[1] < 0.0).collect();
-    assert!(below.is_empty(), "without hints, {} particles fell through the sheet, e.g. {:?}", below.len(), below[0]);
-    fn swapped<B: Backend>(mut backend: B, a: &[u32], b: &[u32], particles: &[Particle], params: &StepParams) -> Vec<Particle> {
+    assert!(
+        below.is_empty(),
+        "without hints, {} particles fell through the sheet, e.g. {:?}",
+        below.len(),
+        below[0]
+    );
+    fn swapped<B: Backend>(
+        mut backend: B,
+        a: &[u32],
+        b: &[u32],
+        particles: &[Particle],
+        params: &StepParams,
+    ) -> Vec<Particle> {
         backend.upload_proxy(a).unwrap();
         backend.upload_particles(particles).unwrap();
         backend.step(params, 10).unwrap();
@@ -377,8 +478,15 @@ fn leaf_hints_are_forgotten_when_the_proxy_changes() {
     }
     // The CPU runs the very code of `step_particle`: the same bits.
     let got = swapped(CpuBackend::new(), &a, &b, &particles, &params);
-    let differ = got.iter().zip(&expected).filter(|(g, e)| bytemuck::bytes_of(*g) != bytemuck::bytes_of(*e)).count();
-    assert_eq!(differ, 0, "cpu: {differ} particles differ from stepping without hints");
+    let differ = got
+        .iter()
+        .zip(&expected)
+        .filter(|(g, e)| bytemuck::bytes_of(*g) != bytemuck::bytes_of(*e))
+        .count();
+    assert_eq!(
+        differ, 0,
+        "cpu: {differ} particles differ from stepping without hints"
+    );
     // The GPU within the tolerances of the module documentation; a stale hint would carry
     // particles through the sheet, collisions and all.
     if let Some(gpu) = gpu() {
@@ -386,10 +494,17 @@ fn leaf_hints_are_forgotten_when_the_proxy_changes() {
         let agreement = compare(&expected, &got, view_b.finest_leaf_size());
         assert!(agreement.collisions > 0, "nothing collided with the sheet");
         assert_eq!(
-            (agreement.collisions_differ, agreement.side_differs, agreement.flags_differ),
+            (
+                agreement.collisions_differ,
+                agreement.side_differs,
+                agreement.flags_differ
+            ),
             (0, 0, 0),
             "wgpu differs from stepping without hints: {agreement:?}"
         );
-        assert!(agreement.worst_leaves <= POSITION_TOLERANCE_LEAVES, "wgpu: {agreement:?}");
+        assert!(
+            agreement.worst_leaves <= POSITION_TOLERANCE_LEAVES,
+            "wgpu: {agreement:?}"
+        );
     }
 }

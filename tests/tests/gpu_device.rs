@@ -2,8 +2,8 @@
 //! it: the engine's buffer (usable as a vertex buffer too) is stepped in place and read back
 //! by the engine itself; and every misuse is an error value.
 
-use octoproxy_core::{Backend, Particle, StepParams};
 use glam::Vec3;
+use octoproxy_core::{Backend, Particle, StepParams};
 use octoproxy_cpu::emit::emit_box;
 use octoproxy_cpu::{bake, BuildParams, CpuBackend, MeshRef};
 use octoproxy_tests::scenes;
@@ -16,7 +16,8 @@ fn ci() -> bool {
 
 /// The caller's own device, opened with plain wgpu (any adapter, lavapipe included).
 fn callers_device() -> Option<(wgpu::Device, wgpu::Queue)> {
-    let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+    let instance =
+        wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
     let adapter = match pollster::block_on(instance.request_adapter(&Default::default())) {
         Ok(a) => a,
         Err(e) if ci() => panic!("CI=true needs a GPU adapter (lavapipe: apt install mesa-vulkan-drivers libvulkan1): {e}"),
@@ -29,17 +30,38 @@ fn callers_device() -> Option<(wgpu::Device, wgpu::Queue)> {
 }
 
 fn proxy() -> Vec<u32> {
-    let mesh = scenes::merge(&[scenes::uv_sphere([0.0, 0.0, 0.0], 0.5, 24, 12), scenes::flat_sheet([0.0, -0.7, 0.0], 1.8, 4)]);
-    bake(&[MeshRef::from(&mesh)], &BuildParams { dmin: 3, dmax: 6, ..BuildParams::default() }, &()).expect("bakes").0
+    let mesh = scenes::merge(&[
+        scenes::uv_sphere([0.0, 0.0, 0.0], 0.5, 24, 12),
+        scenes::flat_sheet([0.0, -0.7, 0.0], 1.8, 4),
+    ]);
+    bake(
+        &[MeshRef::from(&mesh)],
+        &BuildParams {
+            dmin: 3,
+            dmax: 6,
+            ..BuildParams::default()
+        },
+        &(),
+    )
+    .expect("bakes")
+    .0
 }
 
 fn particles(n: usize) -> Vec<Particle> {
-    emit_box(n, Vec3::new(-0.9, -0.5, -0.9), Vec3::new(0.9, 0.9, 0.9), 2.0, 3)
+    emit_box(
+        n,
+        Vec3::new(-0.9, -0.5, -0.9),
+        Vec3::new(0.9, 0.9, 0.9),
+        2.0,
+        3,
+    )
 }
 
 #[test]
 fn steps_a_callers_buffer_in_place() {
-    let Some((device, queue)) = callers_device() else { return };
+    let Some((device, queue)) = callers_device() else {
+        return;
+    };
     let words = proxy();
     let start = particles(3000);
     // The engine's buffer: particles at byte offset 256, drawable as vertices.
@@ -55,10 +77,12 @@ fn steps_a_callers_buffer_in_place() {
     });
     queue.write_buffer(&buffer, offset, bytemuck::cast_slice(&start));
 
-    let mut gpu = WgpuBackend::from_device(&device, &queue).expect("backend on the caller's device");
+    let mut gpu =
+        WgpuBackend::from_device(&device, &queue).expect("backend on the caller's device");
     gpu.set_chunk_particles(1024); // three chunks, all views into the caller's buffer
     gpu.upload_proxy(&words).unwrap();
-    gpu.use_particle_buffer(&buffer, offset, start.len()).unwrap();
+    gpu.use_particle_buffer(&buffer, offset, start.len())
+        .unwrap();
     assert_eq!(gpu.chunk_count(), 3);
     let params = StepParams::default();
     gpu.step(&params, 90).unwrap();
@@ -85,19 +109,30 @@ fn steps_a_callers_buffer_in_place() {
     let collisions: u32 = cpu.particles().iter().map(|p| p.collisions()).sum();
     assert!(collisions > 0, "nothing collided");
     for (i, (c, g)) in cpu.particles().iter().zip(on_gpu).enumerate() {
-        assert_eq!((c.collisions(), c.side, c.flags), (g.collisions(), g.side, g.flags), "particle {i}");
-        let d = (0..3).map(|a| (c.position[a] - g.position[a]).abs()).fold(0.0, f32::max);
+        assert_eq!(
+            (c.collisions(), c.side, c.flags),
+            (g.collisions(), g.side, g.flags),
+            "particle {i}"
+        );
+        let d = (0..3)
+            .map(|a| (c.position[a] - g.position[a]).abs())
+            .fold(0.0, f32::max);
         assert!(d < 1e-4, "particle {i} differs by {d}");
     }
     // The backend's own read-back sees the same thing.
     let mut out = vec![Particle::default(); start.len()];
     gpu.download_particles(&mut out).unwrap();
-    assert_eq!(bytemuck::cast_slice::<Particle, u8>(&out), bytemuck::cast_slice::<Particle, u8>(on_gpu));
+    assert_eq!(
+        bytemuck::cast_slice::<Particle, u8>(&out),
+        bytemuck::cast_slice::<Particle, u8>(on_gpu)
+    );
 }
 
 #[test]
 fn misuse_is_an_error_not_a_panic() {
-    let Some((device, queue)) = callers_device() else { return };
+    let Some((device, queue)) = callers_device() else {
+        return;
+    };
     let mut gpu = WgpuBackend::from_device(&device, &queue).unwrap();
     let params = StepParams::default();
     // Stepping before a proxy.
@@ -106,32 +141,81 @@ fn misuse_is_an_error_not_a_panic() {
     // A hostile proxy is refused before it reaches the GPU.
     let mut words = proxy();
     words[1] ^= 0xff;
-    assert!(matches!(gpu.upload_proxy(&words), Err(WgpuError::Format(_))));
-    assert!(matches!(gpu.upload_proxy(&words[..5]), Err(WgpuError::Format(_))));
+    assert!(matches!(
+        gpu.upload_proxy(&words),
+        Err(WgpuError::Format(_))
+    ));
+    assert!(matches!(
+        gpu.upload_proxy(&words[..5]),
+        Err(WgpuError::Format(_))
+    ));
     gpu.upload_proxy(&proxy()).unwrap();
     // Bad step parameters.
-    let bad = StepParams { dt: f32::NAN, ..params };
+    let bad = StepParams {
+        dt: f32::NAN,
+        ..params
+    };
     assert!(matches!(gpu.step(&bad, 1), Err(WgpuError::Params(_))));
     // A read-back slice of the wrong length.
     let mut out = vec![Particle::default(); 9];
-    assert!(matches!(gpu.download_particles(&mut out), Err(WgpuError::LengthMismatch { expected: 10, got: 9 })));
+    assert!(matches!(
+        gpu.download_particles(&mut out),
+        Err(WgpuError::LengthMismatch {
+            expected: 10,
+            got: 9
+        })
+    ));
     // Caller's buffers it cannot use: no STORAGE usage, a misaligned offset, too small.
-    let make = |size, usage| device.create_buffer(&wgpu::BufferDescriptor { label: None, size, usage, mapped_at_creation: false });
+    let make = |size, usage| {
+        device.create_buffer(&wgpu::BufferDescriptor {
+            label: None,
+            size,
+            usage,
+            mapped_at_creation: false,
+        })
+    };
     let vertex_only = make(1024, wgpu::BufferUsages::VERTEX);
-    assert!(matches!(gpu.use_particle_buffer(&vertex_only, 0, 4), Err(WgpuError::BadBuffer(_))));
-    let storage = make(1024, wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC);
-    assert!(matches!(gpu.use_particle_buffer(&storage, 4, 4), Err(WgpuError::BadBuffer(_))));
-    assert!(matches!(gpu.use_particle_buffer(&storage, 0, 33), Err(WgpuError::BadBuffer(_))));
-    assert!(matches!(gpu.use_particle_buffer(&storage, 0, usize::MAX / 2), Err(WgpuError::BadBuffer(_))));
+    assert!(matches!(
+        gpu.use_particle_buffer(&vertex_only, 0, 4),
+        Err(WgpuError::BadBuffer(_))
+    ));
+    let storage = make(
+        1024,
+        wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+    );
+    assert!(matches!(
+        gpu.use_particle_buffer(&storage, 4, 4),
+        Err(WgpuError::BadBuffer(_))
+    ));
+    assert!(matches!(
+        gpu.use_particle_buffer(&storage, 0, 33),
+        Err(WgpuError::BadBuffer(_))
+    ));
+    assert!(matches!(
+        gpu.use_particle_buffer(&storage, 0, usize::MAX / 2),
+        Err(WgpuError::BadBuffer(_))
+    ));
     // Uploading into a buffer without COPY_DST, reading back one without COPY_SRC.
     gpu.use_particle_buffer(&storage, 0, 32).unwrap();
-    assert!(matches!(gpu.upload_particles(&particles(32)), Err(WgpuError::BadBuffer(_))));
-    let no_copy_src = make(1024, wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST);
+    assert!(matches!(
+        gpu.upload_particles(&particles(32)),
+        Err(WgpuError::BadBuffer(_))
+    ));
+    let no_copy_src = make(
+        1024,
+        wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+    );
     gpu.use_particle_buffer(&no_copy_src, 0, 32).unwrap();
     let mut out = vec![Particle::default(); 32];
-    assert!(matches!(gpu.download_particles(&mut out), Err(WgpuError::BadBuffer(_))));
+    assert!(matches!(
+        gpu.download_particles(&mut out),
+        Err(WgpuError::BadBuffer(_))
+    ));
     // After all that, it still works.
-    let good = make(1024, wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC);
+    let good = make(
+        1024,
+        wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC,
+    );
     gpu.use_particle_buffer(&good, 0, 32).unwrap();
     gpu.upload_particles(&particles(32)).unwrap();
     gpu.step(&params, 3).unwrap();
@@ -142,7 +226,9 @@ fn misuse_is_an_error_not_a_panic() {
 
 #[test]
 fn a_new_chunk_size_takes_effect_at_the_next_upload() {
-    let Some((device, queue)) = callers_device() else { return };
+    let Some((device, queue)) = callers_device() else {
+        return;
+    };
     let mut gpu = WgpuBackend::from_device(&device, &queue).unwrap();
     gpu.upload_proxy(&proxy()).unwrap();
     let ps = particles(1000);
@@ -160,5 +246,8 @@ fn a_new_chunk_size_takes_effect_at_the_next_upload() {
     cpu.upload_proxy(&proxy()).unwrap();
     cpu.upload_particles(&ps).unwrap();
     cpu.step(&StepParams::default(), 5).unwrap();
-    assert_eq!(bytemuck::cast_slice::<Particle, u8>(&out), bytemuck::cast_slice::<Particle, u8>(cpu.particles()));
+    assert_eq!(
+        bytemuck::cast_slice::<Particle, u8>(&out),
+        bytemuck::cast_slice::<Particle, u8>(cpu.particles())
+    );
 }

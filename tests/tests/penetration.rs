@@ -6,7 +6,9 @@
 use octoproxy_core::{initial_side, Particle, ProxyView, StepParams};
 use octoproxy_cpu::{bake, BuildError, BuildParams, MeshRef};
 use octoproxy_tests::ground_truth::GroundTruth;
-use octoproxy_tests::harness::{grid_aligned_particles, random_particles, run_check, tolerance, CheckReport};
+use octoproxy_tests::harness::{
+    grid_aligned_particles, random_particles, run_check, tolerance, CheckReport,
+};
 use octoproxy_tests::meshes;
 use octoproxy_tests::scenes::{self, Mesh};
 
@@ -16,8 +18,23 @@ const DT: f32 = 1.0 / 60.0;
 type MakeParticles = fn(&ProxyView<'_>, &GroundTruth, usize, &[f32], u64) -> Vec<Particle>;
 
 /// Bakes, makes particles at speeds from 0.2 leaf to the whole scene per step, and checks.
-fn check(name: &str, mesh: &Mesh, closed: bool, particles: usize, steps: u32, params: &BuildParams) -> CheckReport {
-    check_with(name, mesh, closed, particles, steps, params, random_particles)
+fn check(
+    name: &str,
+    mesh: &Mesh,
+    closed: bool,
+    particles: usize,
+    steps: u32,
+    params: &BuildParams,
+) -> CheckReport {
+    check_with(
+        name,
+        mesh,
+        closed,
+        particles,
+        steps,
+        params,
+        random_particles,
+    )
 }
 
 /// [`check`], with particles from `make`.
@@ -35,12 +52,37 @@ fn check_with(
     let gt = GroundTruth::new(&mesh.positions, &mesh.triangles);
     let leaf = view.finest_leaf_size();
     let scene = view.header().root_size;
-    let speeds: Vec<f32> = [0.2 * leaf, leaf, 3.0 * leaf, 12.0 * leaf, 0.5 * scene, scene].iter().map(|d| d / DT).collect();
+    let speeds: Vec<f32> = [
+        0.2 * leaf,
+        leaf,
+        3.0 * leaf,
+        12.0 * leaf,
+        0.5 * scene,
+        scene,
+    ]
+    .iter()
+    .map(|d| d / DT)
+    .collect();
     let mut total = CheckReport::default();
     for (i, step) in [
-        StepParams { gravity: [0.0; 3], dt: DT, restitution: 1.0, friction: 0.0, _pad: [0; 2] },
-        StepParams { gravity: [0.0, -9.81, 0.0], dt: DT, restitution: 0.0, friction: 1.0, _pad: [0; 2] },
-        StepParams { dt: DT, ..StepParams::default() },
+        StepParams {
+            gravity: [0.0; 3],
+            dt: DT,
+            restitution: 1.0,
+            friction: 0.0,
+            _pad: [0; 2],
+        },
+        StepParams {
+            gravity: [0.0, -9.81, 0.0],
+            dt: DT,
+            restitution: 0.0,
+            friction: 1.0,
+            _pad: [0; 2],
+        },
+        StepParams {
+            dt: DT,
+            ..StepParams::default()
+        },
     ]
     .iter()
     .enumerate()
@@ -62,16 +104,27 @@ fn check_with(
         total.particle_steps, total.penetrations, total.escapes, total.collisions, total.blocked_steps, total.bound_hits
     );
     assert_eq!(total.non_finite, 0, "{name}: non-finite particles");
-    assert!(total.collisions > 0, "{name}: nothing collided, the test tests nothing");
+    assert!(
+        total.collisions > 0,
+        "{name}: nothing collided, the test tests nothing"
+    );
     total
 }
 
 fn assert_clean(name: &str, r: &CheckReport) {
-    assert_eq!(r.penetrations, 0, "{name}: penetrations, e.g. (index, start, end) {:?}", r.examples);
+    assert_eq!(
+        r.penetrations, 0,
+        "{name}: penetrations, e.g. (index, start, end) {:?}",
+        r.examples
+    );
 }
 
 fn defaults() -> BuildParams {
-    BuildParams { dmin: 3, dmax: 6, ..BuildParams::default() }
+    BuildParams {
+        dmin: 3,
+        dmax: 6,
+        ..BuildParams::default()
+    }
 }
 
 #[test]
@@ -96,7 +149,12 @@ fn a_large_epsilon_coarsens_only_flat_surface() {
     // With `epsilon` far above any normal variance and no `dmin`, only the flatness rule keeps
     // curved patches out of coarse leaves; without it the star's points and the torus let
     // particles through (hundreds per million steps at dmax 8).
-    let coarse = BuildParams { dmin: 0, dmax: 7, epsilon: 1000.0, ..BuildParams::default() };
+    let coarse = BuildParams {
+        dmin: 0,
+        dmax: 7,
+        epsilon: 1000.0,
+        ..BuildParams::default()
+    };
     for (name, mesh) in [
         ("star prism", scenes::star_prism(6, 1.0, 0.35, 0.6)),
         ("torus", scenes::torus([0.0; 3], 1.0, 0.35, 48, 24)),
@@ -107,11 +165,24 @@ fn a_large_epsilon_coarsens_only_flat_surface() {
     // Flat faces still make coarse leaves: a low-poly sphere (flat facets) keeps fewer nodes
     // than with `epsilon` 0, which refines every surface leaf to `dmax`.
     let facets = scenes::uv_sphere([0.0; 3], 1.0, 6, 3);
-    let nodes = |params: &BuildParams| bake(&[MeshRef::from(&facets)], params, &()).expect("bakes").1.nodes;
-    let fine = BuildParams { epsilon: 0.0, ..coarse };
+    let nodes = |params: &BuildParams| {
+        bake(&[MeshRef::from(&facets)], params, &())
+            .expect("bakes")
+            .1
+            .nodes
+    };
+    let fine = BuildParams {
+        epsilon: 0.0,
+        ..coarse
+    };
     let (coarse_nodes, fine_nodes) = (nodes(&coarse), nodes(&fine));
-    eprintln!("low-poly sphere: {coarse_nodes} nodes with epsilon 1000, {fine_nodes} with epsilon 0");
-    assert!(coarse_nodes < fine_nodes, "flat faces did not make coarser leaves");
+    eprintln!(
+        "low-poly sphere: {coarse_nodes} nodes with epsilon 1000, {fine_nodes} with epsilon 0"
+    );
+    assert!(
+        coarse_nodes < fine_nodes,
+        "flat faces did not make coarser leaves"
+    );
 }
 
 /// A penetration campaign found scenes far from the origin whose bake wrote a surface leaf
@@ -121,14 +192,28 @@ fn a_large_epsilon_coarsens_only_flat_surface() {
 fn scenes_far_from_the_origin_bake_to_a_valid_proxy_or_an_error() {
     let mut checked = 0;
     for center in [[2e5, 0.0, 0.0], [1e4, -3e4, 5e3]] {
-        for mesh in [scenes::uv_sphere(center, 1.0, 48, 24), scenes::torus(center, 1.0, 0.35, 48, 24)] {
+        for mesh in [
+            scenes::uv_sphere(center, 1.0, 48, 24),
+            scenes::torus(center, 1.0, 0.35, 48, 24),
+        ] {
             for dmax in 4..=8 {
-                match bake(&[MeshRef::from(&mesh)], &BuildParams { dmax, ..BuildParams::default() }, &()) {
+                match bake(
+                    &[MeshRef::from(&mesh)],
+                    &BuildParams {
+                        dmax,
+                        ..BuildParams::default()
+                    },
+                    &(),
+                ) {
                     Ok((words, _)) => {
-                        ProxyView::new(&words).unwrap_or_else(|e| panic!("at {center:?}, dmax {dmax}: {e:?}"));
+                        ProxyView::new(&words)
+                            .unwrap_or_else(|e| panic!("at {center:?}, dmax {dmax}: {e:?}"));
                         checked += 1;
                     }
-                    Err(e) => assert!(matches!(e, BuildError::Resolution { .. }), "at {center:?}, dmax {dmax}: {e}"),
+                    Err(e) => assert!(
+                        matches!(e, BuildError::Resolution { .. }),
+                        "at {center:?}, dmax {dmax}: {e}"
+                    ),
                 }
             }
         }
@@ -144,11 +229,33 @@ fn closed_scenes_far_from_the_origin_hold() {
     // f32 steps wide: particles too slow to move along an axis sit on cell planes beside the
     // shell, and changed sides there when their velocity turned (`start_beside_shell`).
     for (name, mesh, dmax) in [
-        ("torus at 2e5", scenes::torus([2e5, 0.0, 0.0], 1.0, 0.35, 48, 24), 5),
-        ("sphere at 2e5", scenes::uv_sphere([2e5, 0.0, 0.0], 1.0, 48, 24), 5),
-        ("torus at (1e4, -3e4, 5e3)", scenes::torus([1e4, -3e4, 5e3], 1.0, 0.35, 48, 24), 7),
+        (
+            "torus at 2e5",
+            scenes::torus([2e5, 0.0, 0.0], 1.0, 0.35, 48, 24),
+            5,
+        ),
+        (
+            "sphere at 2e5",
+            scenes::uv_sphere([2e5, 0.0, 0.0], 1.0, 48, 24),
+            5,
+        ),
+        (
+            "torus at (1e4, -3e4, 5e3)",
+            scenes::torus([1e4, -3e4, 5e3], 1.0, 0.35, 48, 24),
+            7,
+        ),
     ] {
-        let r = check(name, &mesh, true, 1500, 60, &BuildParams { dmax, ..BuildParams::default() });
+        let r = check(
+            name,
+            &mesh,
+            true,
+            1500,
+            60,
+            &BuildParams {
+                dmax,
+                ..BuildParams::default()
+            },
+        );
         assert_clean(name, &r);
     }
 }
@@ -160,8 +267,16 @@ fn open_scenes_far_from_the_origin_hold() {
     // counted once per passage there (ground truth's unit tests check that counting; a
     // campaign once saw it count once per triangle on Suzanne at (1e4, -3e4, 5e3), dmax 4).
     let mut scenes = vec![
-        ("dome at 2e5", scenes::hemisphere([2e5, 0.0, 0.0], 1.0, 48, 12), 5),
-        ("dome at (1e4, -3e4, 5e3)", scenes::hemisphere([1e4, -3e4, 5e3], 1.0, 48, 12), 7),
+        (
+            "dome at 2e5",
+            scenes::hemisphere([2e5, 0.0, 0.0], 1.0, 48, 12),
+            5,
+        ),
+        (
+            "dome at (1e4, -3e4, 5e3)",
+            scenes::hemisphere([1e4, -3e4, 5e3], 1.0, 48, 12),
+            7,
+        ),
     ];
     if let Some(mut suzanne) = meshes::load("suzanne.obj.gz") {
         for p in &mut suzanne.positions {
@@ -170,7 +285,17 @@ fn open_scenes_far_from_the_origin_hold() {
         scenes.push(("suzanne at (1e4, -3e4, 5e3)", suzanne, 4));
     }
     for (name, mesh, dmax) in scenes {
-        let r = check(name, &mesh, false, 3000, 60, &BuildParams { dmax, ..BuildParams::default() });
+        let r = check(
+            name,
+            &mesh,
+            false,
+            3000,
+            60,
+            &BuildParams {
+                dmax,
+                ..BuildParams::default()
+            },
+        );
         assert_clean(name, &r);
     }
 }
@@ -182,7 +307,14 @@ fn the_check_sees_a_path_through_a_closed_mesh() {
     // it, on the side they started on, and only the check of the path's points sees them.
     let sphere = scenes::uv_sphere([0.0; 3], 0.5, 32, 16);
     let corners = Mesh {
-        positions: vec![[-0.6, -0.6, -0.6], [-0.59, -0.6, -0.6], [-0.6, -0.59, -0.6], [0.6, 0.6, 0.6], [0.59, 0.6, 0.6], [0.6, 0.59, 0.6]],
+        positions: vec![
+            [-0.6, -0.6, -0.6],
+            [-0.59, -0.6, -0.6],
+            [-0.6, -0.59, -0.6],
+            [0.6, 0.6, 0.6],
+            [0.59, 0.6, 0.6],
+            [0.6, 0.59, 0.6],
+        ],
         triangles: vec![[0, 1, 2], [3, 4, 5]],
     };
     let (words, _) = bake(&[MeshRef::from(&corners)], &BuildParams::default(), &()).expect("bakes");
@@ -194,9 +326,17 @@ fn the_check_sees_a_path_through_a_closed_mesh() {
             Particle::new([-0.58, y, z], [1.16 / DT, 0.0, 0.0])
         })
         .collect();
-    let params = StepParams { gravity: [0.0; 3], dt: DT, ..StepParams::default() };
+    let params = StepParams {
+        gravity: [0.0; 3],
+        dt: DT,
+        ..StepParams::default()
+    };
     let r = run_check(&view, &gt, &mut ps, 1, &params, true);
-    assert!(ps.iter().all(|p| p.position[0] > 0.55 && !gt.is_inside(p.position)), "they all end outside, beyond the sphere");
+    assert!(
+        ps.iter()
+            .all(|p| p.position[0] > 0.55 && !gt.is_inside(p.position)),
+        "they all end outside, beyond the sphere"
+    );
     assert_eq!((r.penetrations, r.tunnels), (100, 100));
 }
 
@@ -215,15 +355,30 @@ fn scenes_that_break_the_methods_assumptions_hold() {
     }
     let cases: Vec<(&str, Mesh, bool)> = vec![
         ("needle", scenes::cone(2.0, 0.002, 16), true),
-        ("three sheets 0.005 apart", scenes::sheet_stack(3, 0.005), false),
-        ("triangle soup", scenes::triangle_soup(300, 5), false),
-        ("overlapping spheres", scenes::merge(&[unit([0.0; 3]), unit([0.7, 0.0, 0.0])]), false),
         (
-            "touching cubes",
-            scenes::merge(&[scenes::cube([-1.0; 3], [0.0, 1.0, 1.0]), scenes::cube([0.0, -1.0, -1.0], [1.0; 3])]),
+            "three sheets 0.005 apart",
+            scenes::sheet_stack(3, 0.005),
             false,
         ),
-        ("self-intersecting torus", scenes::torus([0.0; 3], 0.3, 0.5, 48, 24), false),
+        ("triangle soup", scenes::triangle_soup(300, 5), false),
+        (
+            "overlapping spheres",
+            scenes::merge(&[unit([0.0; 3]), unit([0.7, 0.0, 0.0])]),
+            false,
+        ),
+        (
+            "touching cubes",
+            scenes::merge(&[
+                scenes::cube([-1.0; 3], [0.0, 1.0, 1.0]),
+                scenes::cube([0.0, -1.0, -1.0], [1.0; 3]),
+            ]),
+            false,
+        ),
+        (
+            "self-intersecting torus",
+            scenes::torus([0.0; 3], 0.3, 0.5, 48, 24),
+            false,
+        ),
         ("room seen from inside", room, false),
     ];
     for (name, mesh, closed) in &cases {
@@ -242,7 +397,17 @@ fn scenes_that_break_the_methods_assumptions_hold() {
 #[test]
 fn particles_between_parallel_sheets_keep_to_their_side() {
     let stack = scenes::sheet_stack(5, 0.05);
-    let r = check("five sheets 0.05 apart, dmax 9", &stack, false, 400, 40, &BuildParams { dmax: 9, ..BuildParams::default() });
+    let r = check(
+        "five sheets 0.05 apart, dmax 9",
+        &stack,
+        false,
+        400,
+        40,
+        &BuildParams {
+            dmax: 9,
+            ..BuildParams::default()
+        },
+    );
     assert_clean("five sheets 0.05 apart, dmax 9", &r);
 }
 
@@ -251,16 +416,55 @@ fn particles_between_parallel_sheets_keep_to_their_side() {
 #[test]
 fn particles_on_cell_planes_moving_along_axes_hold() {
     let mut cases: Vec<(&str, Mesh, bool, BuildParams)> = vec![
-        ("cube", scenes::cube([-1.0; 3], [1.0, 0.5, 1.0]), true, defaults()),
-        ("sphere", scenes::uv_sphere([0.0; 3], 1.0, 48, 24), true, BuildParams { dmax: 7, ..defaults() }),
+        (
+            "cube",
+            scenes::cube([-1.0; 3], [1.0, 0.5, 1.0]),
+            true,
+            defaults(),
+        ),
+        (
+            "sphere",
+            scenes::uv_sphere([0.0; 3], 1.0, 48, 24),
+            true,
+            BuildParams {
+                dmax: 7,
+                ..defaults()
+            },
+        ),
         ("wedge", scenes::wedge(8.0, 1.5, 1.0), true, defaults()),
-        ("touching cubes", scenes::merge(&[scenes::cube([-1.0; 3], [0.0, 1.0, 1.0]), scenes::cube([0.0, -1.0, -1.0], [1.0; 3])]), false, defaults()),
+        (
+            "touching cubes",
+            scenes::merge(&[
+                scenes::cube([-1.0; 3], [0.0, 1.0, 1.0]),
+                scenes::cube([0.0, -1.0, -1.0], [1.0; 3]),
+            ]),
+            false,
+            defaults(),
+        ),
     ];
     if let Some(suzanne) = meshes::load("suzanne.obj.gz") {
-        cases.push(("suzanne, dmin 0, epsilon 1", suzanne, false, BuildParams { dmin: 0, dmax: 8, epsilon: 1.0, ..BuildParams::default() }));
+        cases.push((
+            "suzanne, dmin 0, epsilon 1",
+            suzanne,
+            false,
+            BuildParams {
+                dmin: 0,
+                dmax: 8,
+                epsilon: 1.0,
+                ..BuildParams::default()
+            },
+        ));
     }
     for (name, mesh, closed, params) in &cases {
-        let r = check_with(name, mesh, *closed, 2000, 60, params, grid_aligned_particles);
+        let r = check_with(
+            name,
+            mesh,
+            *closed,
+            2000,
+            60,
+            params,
+            grid_aligned_particles,
+        );
         assert_clean(name, &r);
     }
 }
@@ -270,9 +474,15 @@ fn particles_on_cell_planes_moving_along_axes_hold() {
 /// lie in.
 #[test]
 fn faces_on_cell_planes_hold() {
-    let params = BuildParams { dmax: 6, ..BuildParams::default() };
+    let params = BuildParams {
+        dmax: 6,
+        ..BuildParams::default()
+    };
     let scene = scenes::on_cell_planes(&params);
-    let make: [(&str, MakeParticles); 2] = [("random", random_particles), ("grid-aligned", grid_aligned_particles)];
+    let make: [(&str, MakeParticles); 2] = [
+        ("random", random_particles),
+        ("grid-aligned", grid_aligned_particles),
+    ];
     for (kind, make) in make {
         let name = format!("parts on cell planes, {kind} particles");
         let r = check_with(&name, &scene, false, 2000, 60, &params, make);
@@ -288,8 +498,14 @@ fn faces_on_cell_planes_hold() {
 fn particles_resting_in_creases_and_apexes_hold() {
     let cases = [
         ("v-groove of 5°", scenes::v_groove(5.0, 10.0)),
-        ("v-groove of 10°, turned", scenes::rotated(&scenes::v_groove(10.0, 10.0), 29.0, 17.0)),
-        ("funnel of 15°, turned", scenes::rotated(&scenes::funnel(15.0, 24), 29.0, 17.0)),
+        (
+            "v-groove of 10°, turned",
+            scenes::rotated(&scenes::v_groove(10.0, 10.0), 29.0, 17.0),
+        ),
+        (
+            "funnel of 15°, turned",
+            scenes::rotated(&scenes::funnel(15.0, 24), 29.0, 17.0),
+        ),
     ];
     for (name, mesh) in &cases {
         let params = defaults();
@@ -301,18 +517,39 @@ fn particles_resting_in_creases_and_apexes_hold() {
         let mut collisions = 0;
         for (i, (restitution, friction)) in [(0.0, 0.0), (0.2, 0.1)].into_iter().enumerate() {
             // Gravity of 200 leaves per second squared: a fall of 100 leaves in the first second.
-            let step = StepParams { gravity: [0.0, -200.0 * leaf, 0.0], dt: DT, restitution, friction, _pad: [0; 2] };
+            let step = StepParams {
+                gravity: [0.0, -200.0 * leaf, 0.0],
+                dt: DT,
+                restitution,
+                friction,
+                _pad: [0; 2],
+            };
             // Those above the surface, so that they fall onto it.
             let drop = [0.0, 2.0 * view.header().root_size, 0.0];
-            let above = |p: &Particle| gt.segment_crossings(p.position, [0, 1, 2].map(|a| p.position[a] - drop[a])) % 2 == 1;
-            let mut ps: Vec<Particle> = random_particles(&view, &gt, 20_000, &speeds, 31 + i as u64).into_iter().filter(above).take(300).collect();
-            assert!(ps.len() >= 100, "{name}: only {} particles above the surface", ps.len());
+            let above = |p: &Particle| {
+                gt.segment_crossings(p.position, [0, 1, 2].map(|a| p.position[a] - drop[a])) % 2
+                    == 1
+            };
+            let mut ps: Vec<Particle> =
+                random_particles(&view, &gt, 20_000, &speeds, 31 + i as u64)
+                    .into_iter()
+                    .filter(above)
+                    .take(300)
+                    .collect();
+            assert!(
+                ps.len() >= 100,
+                "{name}: only {} particles above the surface",
+                ps.len()
+            );
             let r = run_check(&view, &gt, &mut ps, 600, &step, false);
             assert_clean(name, &r);
             collisions += r.collisions;
         }
         eprintln!("{name}: {collisions} collisions");
-        assert!(collisions > 10_000, "{name}: only {collisions} collisions; the particles do not settle on the surface");
+        assert!(
+            collisions > 10_000,
+            "{name}: only {collisions} collisions; the particles do not settle on the surface"
+        );
     }
 }
 
@@ -325,9 +562,18 @@ fn particles_resting_in_creases_and_apexes_hold() {
 /// epsilon 0, no lookup table, with gravity up).
 #[test]
 fn a_hollow_ball_poking_out_of_a_box_holds() {
-    let scene = scenes::merge(&[scenes::nested_shells(1.0, 0.0125), scenes::cube([-1.5; 3], [0.985; 3])]);
+    let scene = scenes::merge(&[
+        scenes::nested_shells(1.0, 0.0125),
+        scenes::cube([-1.5; 3], [0.985; 3]),
+    ]);
     for dmax in [5, 6] {
-        let params = BuildParams { dmin: 0, dmax, epsilon: 0.0, lut_depth: 0, ..BuildParams::default() };
+        let params = BuildParams {
+            dmin: 0,
+            dmax,
+            epsilon: 0.0,
+            lut_depth: 0,
+            ..BuildParams::default()
+        };
         let name = format!("hollow ball poking out of a box, dmax {dmax}");
         let r = check(&name, &scene, true, 3000, 40, &params);
         assert_clean(&name, &r);
@@ -341,18 +587,43 @@ fn a_hollow_ball_poking_out_of_a_box_holds() {
 /// their cell. Found by a campaign of particles started on cell planes.
 #[test]
 fn a_particle_started_where_a_coarse_leafs_patch_ends_keeps_its_side() {
-    let Some(suzanne) = meshes::load("suzanne.obj.gz") else { return };
-    let params = BuildParams { dmin: 0, dmax: 8, epsilon: 1.0, ..BuildParams::default() };
+    let Some(suzanne) = meshes::load("suzanne.obj.gz") else {
+        return;
+    };
+    let params = BuildParams {
+        dmin: 0,
+        dmax: 8,
+        epsilon: 1.0,
+        ..BuildParams::default()
+    };
     let (words, _) = bake(&[MeshRef::from(&suzanne)], &params, &()).expect("bakes");
     let view = ProxyView::new(&words).expect("valid");
     let gt = GroundTruth::new(&suzanne.positions, &suzanne.triangles);
-    let mut p = Particle::new([-2.146_406_2, 0.556_373_54, 4.761_210_4], [0.752_697_8, -0.752_697_8, 0.752_697_8]);
+    let mut p = Particle::new(
+        [-2.146_406_2, 0.556_373_54, 4.761_210_4],
+        [0.752_697_8, -0.752_697_8, 0.752_697_8],
+    );
     // On two planes of the depth-3 grid, and outside the tolerance.
-    let on_planes = (0..2).filter(|&a| (0..=8).any(|i| view.plane(a, i << 13) == p.position[a])).count();
-    assert_eq!(on_planes, 2, "the start is no longer on the cell planes it was found on");
+    let on_planes = (0..2)
+        .filter(|&a| (0..=8).any(|i| view.plane(a, i << 13) == p.position[a]))
+        .count();
+    assert_eq!(
+        on_planes, 2,
+        "the start is no longer on the cell planes it was found on"
+    );
     assert!(gt.distance(p.position) > 2.0 * tolerance(&view) as f64);
     p.side = initial_side(&view, p.position);
-    let r = run_check(&view, &gt, &mut [p], 60, &StepParams { dt: DT, ..StepParams::default() }, false);
+    let r = run_check(
+        &view,
+        &gt,
+        &mut [p],
+        60,
+        &StepParams {
+            dt: DT,
+            ..StepParams::default()
+        },
+        false,
+    );
     assert_clean("suzanne, particle on a coarse leaf's face", &r);
 }
 
@@ -365,30 +636,60 @@ fn a_step_from_a_solid_leafs_face_cannot_come_out_on_the_other_side() {
     use octoproxy_core::LeafKind;
     // A small cube above moves the root's centre plane off the slab, so that both of the
     // slab's faces lie in one leaf.
-    let mesh = scenes::merge(&[scenes::slab([0.0; 3], [2.0, 0.01, 2.0]), scenes::cube([0.0, 0.5, 0.0], [0.05, 0.55, 0.05])]);
+    let mesh = scenes::merge(&[
+        scenes::slab([0.0; 3], [2.0, 0.01, 2.0]),
+        scenes::cube([0.0, 0.5, 0.0], [0.05, 0.55, 0.05]),
+    ]);
     let (words, _) = bake(&[MeshRef::from(&mesh)], &defaults(), &()).expect("bakes");
     let view = ProxyView::new(&words).expect("valid");
-    let solid = view.locate_leaf([0.3, 0.0, 0.3].into()).expect("in the root");
-    assert!(solid.kind == LeafKind::Surface && solid.two_sided, "{solid:?}");
+    let solid = view
+        .locate_leaf([0.3, 0.0, 0.3].into())
+        .expect("in the root");
+    assert!(
+        solid.kind == LeafKind::Surface && solid.two_sided,
+        "{solid:?}"
+    );
     // On its bottom face, and on the corner of it, where a velocity along no other axis puts
     // the particle on the face of the solid leaf beside it, as after a pinch.
     let center = (solid.aabb.min + solid.aabb.max) * 0.5;
-    for start in [[center.x, solid.aabb.min.y, center.z], solid.aabb.min.to_array()] {
+    for start in [
+        [center.x, solid.aabb.min.y, center.z],
+        solid.aabb.min.to_array(),
+    ] {
         stopped_on_a_solid_leaf(&view, start);
     }
 }
 
 fn stopped_on_a_solid_leaf(view: &ProxyView<'_>, start: [f32; 3]) {
     use octoproxy_core::{step_particle, Label, LeafKind, StepOutcome, SIDE_BACK};
-    let below = view.locate_leaf_toward(start.into(), [0.0, -1.0, 0.0].into()).expect("in the root");
-    assert!(below.kind == LeafKind::Empty && below.label == Label::Front, "{below:?}");
-    let params = StepParams { gravity: [0.0; 3], dt: DT, restitution: 0.5, friction: 0.0, _pad: [0; 2] };
+    let below = view
+        .locate_leaf_toward(start.into(), [0.0, -1.0, 0.0].into())
+        .expect("in the root");
+    assert!(
+        below.kind == LeafKind::Empty && below.label == Label::Front,
+        "{below:?}"
+    );
+    let params = StepParams {
+        gravity: [0.0; 3],
+        dt: DT,
+        restitution: 0.5,
+        friction: 0.0,
+        _pad: [0; 2],
+    };
     let mut p = Particle::new(start, [0.0, -1.0, 0.0]);
     p.side = SIDE_BACK;
-    assert_eq!(step_particle(view, &mut p, &params), StepOutcome::Blocked, "from {start:?}");
+    assert_eq!(
+        step_particle(view, &mut p, &params),
+        StepOutcome::Blocked,
+        "from {start:?}"
+    );
     assert_eq!(p.position, start);
     assert_eq!(p.side, SIDE_BACK);
-    assert!(p.velocity[1] > 0.0, "turned back into the shell: {:?}", p.velocity);
+    assert!(
+        p.velocity[1] > 0.0,
+        "turned back into the shell: {:?}",
+        p.velocity
+    );
 }
 
 #[test]
@@ -415,8 +716,20 @@ fn closed_shared_meshes_hold() {
         if !closed {
             continue;
         }
-        let Some(mesh) = meshes::load(name) else { return };
-        let r = check(name, &mesh, true, 500, 30, &BuildParams { dmax: 7, ..BuildParams::default() });
+        let Some(mesh) = meshes::load(name) else {
+            return;
+        };
+        let r = check(
+            name,
+            &mesh,
+            true,
+            500,
+            30,
+            &BuildParams {
+                dmax: 7,
+                ..BuildParams::default()
+            },
+        );
         assert_clean(name, &r);
     }
 }
@@ -426,8 +739,20 @@ fn open_shared_meshes_are_crossed_only_through_holes() {
     // The bunny has holes in its base; the teapot has no bottom, and its spout and handle
     // pass through its body (the labels conflict there; those leaves are solid).
     for name in ["stanford-bunny.obj.gz", "teapot.obj.gz", "suzanne.obj.gz"] {
-        let Some(mesh) = meshes::load(name) else { return };
-        let r = check(name, &mesh, false, 500, 30, &BuildParams { dmax: 7, ..BuildParams::default() });
+        let Some(mesh) = meshes::load(name) else {
+            return;
+        };
+        let r = check(
+            name,
+            &mesh,
+            false,
+            500,
+            30,
+            &BuildParams {
+                dmax: 7,
+                ..BuildParams::default()
+            },
+        );
         assert_clean(name, &r);
     }
 }

@@ -25,7 +25,8 @@ fn tilted_sheet(angle: f32) -> Mesh {
 fn particles_reflect_off_a_tilted_open_sheet_about_its_normal() {
     let angle = 0.3f32;
     let mesh = tilted_sheet(angle);
-    let (words, report) = bake(&[MeshRef::from(&mesh)], &BuildParams::default(), &()).expect("bakes");
+    let (words, report) =
+        bake(&[MeshRef::from(&mesh)], &BuildParams::default(), &()).expect("bakes");
     let view = ProxyView::new(&words).expect("valid");
     // Its rim is still solid: only the leaves along it.
     assert!(report.two_sided_leaves > 0, "the rim's leaves are solid");
@@ -36,7 +37,13 @@ fn particles_reflect_off_a_tilted_open_sheet_about_its_normal() {
         report.surface_leaves
     );
     let n = Vec3::new(-angle.sin(), angle.cos(), 0.0);
-    let params = StepParams { gravity: [0.0; 3], dt: 1.0 / 60.0, restitution: 1.0, friction: 0.0, _pad: [0; 2] };
+    let params = StepParams {
+        gravity: [0.0; 3],
+        dt: 1.0 / 60.0,
+        restitution: 1.0,
+        friction: 0.0,
+        _pad: [0; 2],
+    };
     let mut rng = Rng::new(11);
     let v = Vec3::new(0.0, -3.0, 0.0);
     let mut worst = 0.0f32;
@@ -44,14 +51,27 @@ fn particles_reflect_off_a_tilted_open_sheet_about_its_normal() {
         // Above the middle 80 % of the sheet, 1 to 2 steps above it.
         let (u, z) = (rng.range(-0.8, 0.8), rng.range(-0.8, 0.8));
         let on = Vec3::new(u * angle.cos(), u * angle.sin(), z);
-        let mut p = Particle::new((on + Vec3::Y * rng.range(0.05, 0.1)).to_array(), v.to_array());
+        let mut p = Particle::new(
+            (on + Vec3::Y * rng.range(0.05, 0.1)).to_array(),
+            v.to_array(),
+        );
         for _ in 0..3 {
             step_particle(&view, &mut p, &params);
         }
-        assert_eq!(p.collisions(), 1, "particle above {on} collided {} times", p.collisions());
+        assert_eq!(
+            p.collisions(),
+            1,
+            "particle above {on} collided {} times",
+            p.collisions()
+        );
         let want = v - 2.0 * v.dot(n) * n;
         let got = Vec3::from_array(p.velocity);
-        let off = got.normalize().dot(want.normalize()).clamp(-1.0, 1.0).acos().to_degrees();
+        let off = got
+            .normalize()
+            .dot(want.normalize())
+            .clamp(-1.0, 1.0)
+            .acos()
+            .to_degrees();
         worst = worst.max(off);
     }
     // The normal is stored in 15-bit octahedral components: a few thousandths of a degree.

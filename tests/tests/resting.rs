@@ -15,7 +15,16 @@ const STEPS: u32 = 3000;
 /// Drops `n` particles at rest from just above the mesh's top (found by casting down against
 /// the ground truth) and steps them `STEPS` times under gravity.
 fn rest(name: &str, mesh: &Mesh, closed: bool, n: usize, params: &StepParams) -> Vec<Particle> {
-    let (words, _) = bake(&[MeshRef::from(mesh)], &BuildParams { dmin: 3, dmax: 7, ..BuildParams::default() }, &()).unwrap();
+    let (words, _) = bake(
+        &[MeshRef::from(mesh)],
+        &BuildParams {
+            dmin: 3,
+            dmax: 7,
+            ..BuildParams::default()
+        },
+        &(),
+    )
+    .unwrap();
     let view = ProxyView::new(&words).unwrap();
     let gt = GroundTruth::new(&mesh.positions, &mesh.triangles);
     let root = view.root_aabb();
@@ -57,16 +66,31 @@ fn rest(name: &str, mesh: &Mesh, closed: bool, n: usize, params: &StepParams) ->
         "{name}: {} particles x {STEPS} steps, {} penetrations, {} NaN, {} collisions",
         report.particles, report.penetrations, report.non_finite, report.collisions
     );
-    assert_eq!(report.penetrations, 0, "{name}: sank through, e.g. {:?}", report.examples);
+    assert_eq!(
+        report.penetrations, 0,
+        "{name}: sank through, e.g. {:?}",
+        report.examples
+    );
     assert_eq!(report.non_finite, 0, "{name}: NaN");
-    assert!(report.collisions as usize > particles.len(), "{name}: nothing came to rest");
+    assert!(
+        report.collisions as usize > particles.len(),
+        "{name}: nothing came to rest"
+    );
     particles
 }
 
 fn settings() -> [StepParams; 2] {
     [
-        StepParams { restitution: 0.0, friction: 1.0, ..StepParams::default() },
-        StepParams { restitution: 1.0, friction: 0.0, ..StepParams::default() },
+        StepParams {
+            restitution: 0.0,
+            friction: 1.0,
+            ..StepParams::default()
+        },
+        StepParams {
+            restitution: 1.0,
+            friction: 0.0,
+            ..StepParams::default()
+        },
     ]
 }
 
@@ -77,8 +101,15 @@ fn particles_rest_on_a_flat_top() {
         let ps = rest("flat top", &mesh, true, 200, &params);
         if params.restitution == 0.0 {
             // With no bounce, everything that landed on the top is still on it.
-            let on_top = ps.iter().filter(|p| p.position[1] >= -1e-4 && p.position[1] < 0.05).count();
-            assert!(on_top * 10 >= ps.len() * 9, "only {on_top} of {} rest on the top", ps.len());
+            let on_top = ps
+                .iter()
+                .filter(|p| p.position[1] >= -1e-4 && p.position[1] < 0.05)
+                .count();
+            assert!(
+                on_top * 10 >= ps.len() * 9,
+                "only {on_top} of {} rest on the top",
+                ps.len()
+            );
         }
     }
 }
@@ -86,7 +117,11 @@ fn particles_rest_on_a_flat_top() {
 #[test]
 fn particles_rest_on_a_sphere_and_between_thin_fins() {
     let sphere = scenes::uv_sphere([0.0; 3], 1.0, 48, 24);
-    let comb = scenes::merge(&(0..7).map(|i| scenes::slab([i as f32 * 0.25 - 0.75, 0.0, 0.0], [0.004, 1.2, 1.5])).collect::<Vec<_>>());
+    let comb = scenes::merge(
+        &(0..7)
+            .map(|i| scenes::slab([i as f32 * 0.25 - 0.75, 0.0, 0.0], [0.004, 1.2, 1.5]))
+            .collect::<Vec<_>>(),
+    );
     let floor = scenes::cube([-1.2, -1.0, -1.2], [1.2, -0.6, 1.2]);
     let comb = scenes::merge(&[comb, floor]);
     for params in settings() {
@@ -97,6 +132,18 @@ fn particles_rest_on_a_sphere_and_between_thin_fins() {
 
 #[test]
 fn particles_rest_on_the_bunny() {
-    let Some(bunny) = meshes::load("stanford-bunny.obj.gz") else { return };
-    rest("bunny", &bunny, false, 150, &StepParams { restitution: 0.2, friction: 0.5, ..StepParams::default() });
+    let Some(bunny) = meshes::load("stanford-bunny.obj.gz") else {
+        return;
+    };
+    rest(
+        "bunny",
+        &bunny,
+        false,
+        150,
+        &StepParams {
+            restitution: 0.2,
+            friction: 0.5,
+            ..StepParams::default()
+        },
+    );
 }

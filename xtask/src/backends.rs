@@ -49,7 +49,10 @@ pub fn select_backend(choice: BackendChoice) -> Result<Stepper> {
         },
         BackendChoice::Auto => match WgpuBackend::new_hardware() {
             Ok(gpu) => {
-                eprintln!("backend: wgpu on {} (auto: a GPU is present)", gpu.description());
+                eprintln!(
+                    "backend: wgpu on {} (auto: a GPU is present)",
+                    gpu.description()
+                );
                 Ok(Stepper::Wgpu(Box::new(gpu)))
             }
             Err(e) => {

@@ -38,9 +38,14 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     if meshes.is_empty() {
         bail!("bake needs at least one --mesh");
     }
-    let Some(out) = out else { bail!("bake needs --out FILE (or -o FILE)") };
+    let Some(out) = out else {
+        bail!("bake needs --out FILE (or -o FILE)")
+    };
     if meshes.iter().any(|m| same_file(m, &out)) {
-        bail!("--out {} is one of the input meshes; refusing to overwrite it", out.display());
+        bail!(
+            "--out {} is one of the input meshes; refusing to overwrite it",
+            out.display()
+        );
     }
     let params = build.params()?;
     let loaded = scene::load_meshes(&meshes)?;

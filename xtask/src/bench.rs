@@ -12,7 +12,9 @@ use octoproxy_core::{initial_side, Backend, Particle, ProxyView, StepParams};
 use octoproxy_cpu::emit::Rng;
 use octoproxy_cpu::mesh::{load_mesh, Mesh};
 use octoproxy_cpu::{bake, BuildParams, CpuBackend, MeshRef};
-use octoproxy_tests::baselines::{parry::ParryTriMesh, sdf_grid::SdfGrid, triangle_octree::TriangleOctree, Method};
+use octoproxy_tests::baselines::{
+    parry::ParryTriMesh, sdf_grid::SdfGrid, triangle_octree::TriangleOctree, Method,
+};
 use octoproxy_tests::ground_truth::GroundTruth;
 use octoproxy_tests::scenes::subdivide;
 use octoproxy_wgpu::WgpuBackend;
@@ -37,7 +39,14 @@ usage: cargo xtask bench [--quick] [--backends cpu,wgpu] [--scenes S,S...] [--pa
 Scenes come from ../shared/meshes. Methods: octoproxy-cpu, octoproxy-cpu-nolut,
 triangle-octree, parry3d, sdf-grid and floor on the CPU; octoproxy-wgpu and floor on the GPU.";
 
-const ALL_SCENES: [&str; 6] = ["bunny", "nefertiti", "ogre", "beast", "nefertiti-1.6m", "nefertiti-6.4m"];
+const ALL_SCENES: [&str; 6] = [
+    "bunny",
+    "nefertiti",
+    "ogre",
+    "beast",
+    "nefertiti-1.6m",
+    "nefertiti-6.4m",
+];
 const DT: f32 = 1.0 / 60.0;
 /// Speed bands, in depth-8 leaves per step.
 const BANDS: [(&str, f32, f32); 3] = [("slow", 0.1, 0.5), ("medium", 0.5, 2.0), ("fast", 2.0, 5.0)];
@@ -64,7 +73,9 @@ fn parse_count(s: &str) -> Result<usize> {
     } else {
         (s.as_str(), 1.0)
     };
-    let v: f64 = num.parse().with_context(|| format!("--particles: {s:?} is not a count"))?;
+    let v: f64 = num
+        .parse()
+        .with_context(|| format!("--particles: {s:?} is not a count"))?;
     let n = v * mul;
     if !(1.0..=1e9).contains(&n) {
         bail!("--particles: {s:?} is out of range (1 to 1e9)");
@@ -104,7 +115,10 @@ fn parse(args: Vec<std::ffi::OsString>) -> Result<Option<Opts>> {
                 for s in flags::string(&mut p, "--scenes")?.split(',') {
                     let s = s.trim();
                     if !ALL_SCENES.contains(&s) {
-                        bail!("--scenes: unknown scene {s:?} (scenes: {})", ALL_SCENES.join(", "));
+                        bail!(
+                            "--scenes: unknown scene {s:?} (scenes: {})",
+                            ALL_SCENES.join(", ")
+                        );
                     }
                     o.scenes.push(s.to_string());
                 }
@@ -131,10 +145,18 @@ fn parse(args: Vec<std::ffi::OsString>) -> Result<Option<Opts>> {
         }
     }
     if o.scenes.is_empty() {
-        o.scenes = if o.quick { vec!["bunny".into()] } else { ALL_SCENES.iter().map(|s| s.to_string()).collect() };
+        o.scenes = if o.quick {
+            vec!["bunny".into()]
+        } else {
+            ALL_SCENES.iter().map(|s| s.to_string()).collect()
+        };
     }
     if o.particles.is_empty() {
-        o.particles = if o.quick { vec![100_000] } else { vec![10_000, 100_000, 1_000_000, 4_000_000] };
+        o.particles = if o.quick {
+            vec![100_000]
+        } else {
+            vec![10_000, 100_000, 1_000_000, 4_000_000]
+        };
         if !o.quick {
             // A hardware GPU also runs the sizes it is made for (not the CPU methods).
             o.gpu_only = vec![3_000_000, 10_000_000];
@@ -178,7 +200,11 @@ fn load_scene(name: &str) -> Result<SceneData> {
     for _ in 0..subdivisions {
         mesh = subdivide(&mesh);
     }
-    Ok(SceneData { name: name.to_string(), mesh, closed })
+    Ok(SceneData {
+        name: name.to_string(),
+        mesh,
+        closed,
+    })
 }
 
 /// One line of results.
@@ -199,7 +225,12 @@ pub struct Row {
 
 /// Particles spread through the root box, random directions, speeds in `bands` (depth-8
 /// leaves per step), sides from the proxy.
-fn make_particles(view: &ProxyView<'_>, n: usize, bands: &[(f32, f32)], seed: u64) -> Vec<Particle> {
+fn make_particles(
+    view: &ProxyView<'_>,
+    n: usize,
+    bands: &[(f32, f32)],
+    seed: u64,
+) -> Vec<Particle> {
     let root = view.root_aabb();
     let leaf8 = view.header().root_size / 256.0;
     (0..n)
@@ -267,7 +298,11 @@ fn penetration_rate(
 
 /// Times `steps` steps of `run` over a copy of `particles`, after one untimed step (as every
 /// method gets): nanoseconds per particle-step.
-fn time_steps(particles: &[Particle], steps: u32, run: &mut dyn FnMut(&mut Vec<Particle>) -> Result<()>) -> Result<f64> {
+fn time_steps(
+    particles: &[Particle],
+    steps: u32,
+    run: &mut dyn FnMut(&mut Vec<Particle>) -> Result<()>,
+) -> Result<f64> {
     let mut ps = particles.to_vec();
     run(&mut ps)?;
     let t = Instant::now();
@@ -280,14 +315,25 @@ fn time_steps(particles: &[Particle], steps: u32, run: &mut dyn FnMut(&mut Vec<P
 fn machine() -> String {
     let cpu = std::fs::read_to_string("/proc/cpuinfo")
         .ok()
-        .and_then(|s| s.lines().find(|l| l.starts_with("model name")).map(|l| l.split(':').nth(1).unwrap_or("").trim().to_string()))
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("model name"))
+                .map(|l| l.split(':').nth(1).unwrap_or("").trim().to_string())
+        })
         .unwrap_or_else(|| std::env::consts::ARCH.to_string());
-    format!("{cpu}, {} threads, {}", rayon::current_num_threads(), std::env::consts::OS)
+    format!(
+        "{cpu}, {} threads, {}",
+        rayon::current_num_threads(),
+        std::env::consts::OS
+    )
 }
 
 /// Today's date (UTC) as YYYY-MM-DD, from the system clock.
 fn today() -> String {
-    let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
+    let secs = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs())
+        .unwrap_or(0);
     // Days to civil date (Howard Hinnant's algorithm).
     let z = (secs / 86_400) as i64 + 719_468;
     let era = z.div_euclid(146_097);
@@ -319,7 +365,11 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
     } else {
         None
     };
-    let gpu_extra = if gpu.as_ref().is_some_and(|g| !g.is_software()) { o.gpu_only.len() } else { 0 };
+    let gpu_extra = if gpu.as_ref().is_some_and(|g| !g.is_software()) {
+        o.gpu_only.len()
+    } else {
+        0
+    };
     if gpu.as_ref().is_some_and(|g| g.is_software()) && !o.gpu_only.is_empty() {
         eprintln!("wgpu: a software adapter; skipping the GPU-only sizes (3M, 10M particles)");
     }
@@ -333,7 +383,8 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
         let tris = triangles.len();
         bar.set_message(format!("{name}: building"));
         let t = Instant::now();
-        let (words, _) = bake(&[MeshRef::from(&scene.mesh)], &BuildParams::default(), &()).context("baking")?;
+        let (words, _) =
+            bake(&[MeshRef::from(&scene.mesh)], &BuildParams::default(), &()).context("baking")?;
         let bake_ms = t.elapsed().as_secs_f64() * 1e3;
         let view = ProxyView::new(&words)?;
         let proxy_bytes = words.len() * 4;
@@ -372,7 +423,14 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
         });
         let mut pen_methods = Vec::new();
         for (m, _) in &methods {
-            pen_methods.push(penetration_rate(&gt, scene.closed, tol, &sample, check_steps, &|p| m.step(p, &params)));
+            pen_methods.push(penetration_rate(
+                &gt,
+                scene.closed,
+                tol,
+                &sample,
+                check_steps,
+                &|p| m.step(p, &params),
+            ));
         }
         bar.inc(1);
 
@@ -383,20 +441,36 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
         }
         let largest = *o.particles.iter().max().unwrap_or(&0);
         let hardware = gpu.as_ref().is_some_and(|g| !g.is_software());
-        let gpu_only: Vec<usize> = if hardware { o.gpu_only.clone() } else { Vec::new() };
-        let counts: Vec<(usize, bool)> =
-            o.particles.iter().map(|&n| (n, o.cpu)).chain(gpu_only.iter().map(|&n| (n, false))).collect();
+        let gpu_only: Vec<usize> = if hardware {
+            o.gpu_only.clone()
+        } else {
+            Vec::new()
+        };
+        let counts: Vec<(usize, bool)> = o
+            .particles
+            .iter()
+            .map(|&n| (n, o.cpu))
+            .chain(gpu_only.iter().map(|&n| (n, false)))
+            .collect();
         for (n, run_cpu) in counts {
             bar.set_message(format!("{name}: {n} particles"));
-            let steps = o.steps.unwrap_or(((4_000_000 / n.max(1)) as u32).clamp(2, 50));
+            let steps = o
+                .steps
+                .unwrap_or(((4_000_000 / n.max(1)) as u32).clamp(2, 50));
             // The mixed case, then (at the largest count) each speed band alone.
-            let mut cases: Vec<(&'static str, Vec<(f32, f32)>)> = vec![("mixed", all_bands.clone())];
+            let mut cases: Vec<(&'static str, Vec<(f32, f32)>)> =
+                vec![("mixed", all_bands.clone())];
             if n == largest && run_cpu {
                 cases.extend(BANDS.iter().map(|b| (b.0, vec![(b.1, b.2)])));
             }
             for (band, bands) in cases {
                 let particles = make_particles(&view, n, &bands, 7);
-                let row = |method: &str, backend: &'static str, build_ms: f64, memory: usize, ns: f64, pen: f64| Row {
+                let row = |method: &str,
+                           backend: &'static str,
+                           build_ms: f64,
+                           memory: usize,
+                           ns: f64,
+                           pen: f64| Row {
                     scene: scene.name.clone(),
                     triangles: tris,
                     particles: n,
@@ -424,7 +498,14 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
                     cpu.step(&params, steps)?;
                     let octo_ns = t.elapsed().as_secs_f64() * 1e9 / (n as f64 * steps as f64);
                     case_rows.push(row("floor", "cpu", 0.0, 0, floor_ns, f64::NAN));
-                    case_rows.push(row("octoproxy-cpu", "cpu", bake_ms, proxy_bytes, octo_ns, pen_octo));
+                    case_rows.push(row(
+                        "octoproxy-cpu",
+                        "cpu",
+                        bake_ms,
+                        proxy_bytes,
+                        octo_ns,
+                        pen_octo,
+                    ));
                     if band == "mixed" {
                         cpu.set_use_lut(false);
                         cpu.upload_particles(&particles)?;
@@ -433,16 +514,33 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
                         cpu.step(&params, steps)?;
                         let ns = t.elapsed().as_secs_f64() * 1e9 / (n as f64 * steps as f64);
                         cpu.set_use_lut(true);
-                        let pen = penetration_rate(&gt, scene.closed, tol, &sample, check_steps, &|p| {
-                            octoproxy_core::step_particle(&nolut_view, p, &params);
-                        });
-                        case_rows.push(row("octoproxy-cpu-nolut", "cpu", bake_ms, proxy_bytes - view.lut_bytes(), ns, pen));
+                        let pen =
+                            penetration_rate(&gt, scene.closed, tol, &sample, check_steps, &|p| {
+                                octoproxy_core::step_particle(&nolut_view, p, &params);
+                            });
+                        case_rows.push(row(
+                            "octoproxy-cpu-nolut",
+                            "cpu",
+                            bake_ms,
+                            proxy_bytes - view.lut_bytes(),
+                            ns,
+                            pen,
+                        ));
                         for ((m, build_ms), pen) in methods.iter().zip(&pen_methods) {
                             let ns = time_steps(&particles, steps, &mut |ps| {
-                                ps.par_iter_mut().with_min_len(256).for_each(|p| m.step(p, &params));
+                                ps.par_iter_mut()
+                                    .with_min_len(256)
+                                    .for_each(|p| m.step(p, &params));
                                 Ok(())
                             })?;
-                            case_rows.push(row(m.name(), "cpu", *build_ms, m.memory_bytes(), ns, *pen));
+                            case_rows.push(row(
+                                m.name(),
+                                "cpu",
+                                *build_ms,
+                                m.memory_bytes(),
+                                ns,
+                                *pen,
+                            ));
                         }
                     }
                 }
@@ -462,10 +560,20 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
                     g.wait()?;
                     let octo_ns = t.elapsed().as_secs_f64() * 1e9 / (n as f64 * steps as f64);
                     case_rows.push(row("floor", "wgpu", 0.0, 0, floor_ns, f64::NAN));
-                    case_rows.push(row("octoproxy-wgpu", "wgpu", bake_ms, proxy_bytes, octo_ns, pen_octo));
+                    case_rows.push(row(
+                        "octoproxy-wgpu",
+                        "wgpu",
+                        bake_ms,
+                        proxy_bytes,
+                        octo_ns,
+                        pen_octo,
+                    ));
                 }
                 for backend in ["cpu", "wgpu"] {
-                    let floor = case_rows.iter().find(|r| r.backend == backend && r.method == "floor").map(|r| r.ns_per_particle_step);
+                    let floor = case_rows
+                        .iter()
+                        .find(|r| r.backend == backend && r.method == "floor")
+                        .map(|r| r.ns_per_particle_step);
                     if let Some(f) = floor {
                         for r in case_rows.iter_mut().filter(|r| r.backend == backend) {
                             r.ratio_to_floor = r.ns_per_particle_step / f;
@@ -478,7 +586,12 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
         }
     }
     bar.finish_and_clear();
-    let report = Report { machine: machine(), date: today(), gpu: gpu.as_ref().map(|g| g.description().to_string()), rows };
+    let report = Report {
+        machine: machine(),
+        date: today(),
+        gpu: gpu.as_ref().map(|g| g.description().to_string()),
+        rows,
+    };
     report.write(&o.out)?;
     report.print_summary();
     Ok(())
@@ -535,8 +648,20 @@ fn fmt_opt(x: f64, digits: usize) -> String {
 impl Report {
     fn json(&self) -> String {
         let mut s = String::new();
-        let _ = writeln!(s, "{{\n  \"machine\": {},\n  \"date\": {},", json_str(&self.machine), json_str(&self.date));
-        let _ = writeln!(s, "  \"gpu\": {},", self.gpu.as_deref().map(json_str).unwrap_or_else(|| "null".into()));
+        let _ = writeln!(
+            s,
+            "{{\n  \"machine\": {},\n  \"date\": {},",
+            json_str(&self.machine),
+            json_str(&self.date)
+        );
+        let _ = writeln!(
+            s,
+            "  \"gpu\": {},",
+            self.gpu
+                .as_deref()
+                .map(json_str)
+                .unwrap_or_else(|| "null".into())
+        );
         s.push_str("  \"rows\": [\n");
         for (i, r) in self.rows.iter().enumerate() {
             let _ = write!(
@@ -562,11 +687,24 @@ impl Report {
 
     fn markdown(&self) -> String {
         let mut s = String::new();
-        let _ = writeln!(s, "Measured {} on {}{}.\n", self.date, self.machine, self.gpu.as_ref().map(|g| format!("; GPU: {g}")).unwrap_or_default());
+        let _ = writeln!(
+            s,
+            "Measured {} on {}{}.\n",
+            self.date,
+            self.machine,
+            self.gpu
+                .as_ref()
+                .map(|g| format!("; GPU: {g}"))
+                .unwrap_or_default()
+        );
         s.push_str("| scene | triangles | particles | method | build (ms) | memory | ns / particle-step | ms / step | × floor | penetrations / M steps |\n");
         s.push_str("|---|---:|---:|---|---:|---:|---:|---:|---:|---:|\n");
         for r in self.rows.iter().filter(|r| r.band == "mixed") {
-            let method = if r.method == "floor" { format!("floor ({})", r.backend) } else { r.method.clone() };
+            let method = if r.method == "floor" {
+                format!("floor ({})", r.backend)
+            } else {
+                r.method.clone()
+            };
             let _ = writeln!(
                 s,
                 "| {} | {} | {} | {} | {} | {} | {:.1} | {:.2} | {} | {} |",
@@ -574,7 +712,11 @@ impl Report {
                 r.triangles,
                 r.particles,
                 method,
-                if r.build_ms > 0.0 { format!("{:.0}", r.build_ms) } else { "–".into() },
+                if r.build_ms > 0.0 {
+                    format!("{:.0}", r.build_ms)
+                } else {
+                    "–".into()
+                },
                 human_bytes(r.memory_bytes),
                 r.ns_per_particle_step,
                 r.ns_per_particle_step * r.particles as f64 * 1e-6,
@@ -582,7 +724,11 @@ impl Report {
                 fmt_opt(r.penetrations_per_million, 1)
             );
         }
-        let bands: Vec<&Row> = self.rows.iter().filter(|r| r.band != "mixed" && r.method != "floor").collect();
+        let bands: Vec<&Row> = self
+            .rows
+            .iter()
+            .filter(|r| r.band != "mixed" && r.method != "floor")
+            .collect();
         if !bands.is_empty() {
             s.push_str("\nBy speed band (slow 0.1–0.5, medium 0.5–2, fast 2–5 depth-8 leaves per step):\n\n");
             s.push_str("| scene | particles | band | method | ns / particle-step | × floor |\n|---|---:|---|---|---:|---:|\n");
@@ -604,22 +750,40 @@ impl Report {
 
     fn write(&self, dir: &Path) -> Result<()> {
         let json = dir.join("results.json");
-        std::fs::write(&json, self.json()).with_context(|| format!("writing {}", json.display()))?;
+        std::fs::write(&json, self.json())
+            .with_context(|| format!("writing {}", json.display()))?;
         let md = dir.join("results.md");
-        std::fs::write(&md, self.markdown()).with_context(|| format!("writing {}", md.display()))?;
+        std::fs::write(&md, self.markdown())
+            .with_context(|| format!("writing {}", md.display()))?;
         self.plots(dir)?;
-        eprintln!("wrote {}, {} and plots in {}", json.display(), md.display(), dir.display());
+        eprintln!(
+            "wrote {}, {} and plots in {}",
+            json.display(),
+            md.display(),
+            dir.display()
+        );
         Ok(())
     }
 
-    fn series_by_method(&self, filter: impl Fn(&Row) -> bool, x: impl Fn(&Row) -> f64) -> Vec<plot::Series> {
+    fn series_by_method(
+        &self,
+        filter: impl Fn(&Row) -> bool,
+        x: impl Fn(&Row) -> f64,
+    ) -> Vec<plot::Series> {
         let mut series: Vec<plot::Series> = Vec::new();
         for r in self.rows.iter().filter(|r| r.band == "mixed" && filter(r)) {
-            let label = if r.method == "floor" { format!("floor ({})", r.backend) } else { r.method.clone() };
+            let label = if r.method == "floor" {
+                format!("floor ({})", r.backend)
+            } else {
+                r.method.clone()
+            };
             let point = (x(r), r.ns_per_particle_step);
             match series.iter_mut().find(|s| s.label == label) {
                 Some(s) => s.points.push(point),
-                None => series.push(plot::Series { label, points: vec![point] }),
+                None => series.push(plot::Series {
+                    label,
+                    points: vec![point],
+                }),
             }
         }
         for s in &mut series {
@@ -648,7 +812,11 @@ impl Report {
                 .into_iter()
                 .filter(|s| self.rows.iter().any(|r| r.scene == *s))
                 .collect();
-            let (scenes, what) = if family.len() >= 2 { (family, "Nefertiti subdivided") } else { (Vec::new(), "all scenes") };
+            let (scenes, what) = if family.len() >= 2 {
+                (family, "Nefertiti subdivided")
+            } else {
+                (Vec::new(), "all scenes")
+            };
             let series = self.series_by_method(
                 |r| r.particles == n && (scenes.is_empty() || scenes.contains(&r.scene.as_str())),
                 |r| r.triangles as f64,
@@ -667,8 +835,14 @@ impl Report {
     fn print_summary(&self) {
         println!("{}", self.markdown());
         // The targets: 1M particles (or the largest count the CPU ran) on the largest scene.
-        let cpu_rows = || self.rows.iter().filter(|r| r.method == "octoproxy-cpu" && r.band == "mixed");
-        let Some(triangles) = cpu_rows().map(|r| r.triangles).max() else { return };
+        let cpu_rows = || {
+            self.rows
+                .iter()
+                .filter(|r| r.method == "octoproxy-cpu" && r.band == "mixed")
+        };
+        let Some(triangles) = cpu_rows().map(|r| r.triangles).max() else {
+            return;
+        };
         let Some(big) = cpu_rows()
             .filter(|r| r.triangles == triangles)
             .max_by_key(|r| (r.particles == 1_000_000, r.particles))
@@ -678,17 +852,39 @@ impl Report {
         let case = |m: &str| {
             self.rows
                 .iter()
-                .find(|r| r.scene == big.scene && r.particles == big.particles && r.band == "mixed" && r.method == m)
+                .find(|r| {
+                    r.scene == big.scene
+                        && r.particles == big.particles
+                        && r.band == "mixed"
+                        && r.method == m
+                })
                 .map(|r| r.ns_per_particle_step)
         };
         if let Some(octo) = case("octoproxy-cpu") {
             println!("{} triangles, {} particles:", big.triangles, big.particles);
-            if let Some(f) = self.rows.iter().find(|r| r.scene == big.scene && r.particles == big.particles && r.band == "mixed" && r.method == "floor" && r.backend == "cpu") {
-                println!("  octoproxy-cpu is {:.2}× the floor (target: within 2×)", octo / f.ns_per_particle_step);
+            if let Some(f) = self.rows.iter().find(|r| {
+                r.scene == big.scene
+                    && r.particles == big.particles
+                    && r.band == "mixed"
+                    && r.method == "floor"
+                    && r.backend == "cpu"
+            }) {
+                println!(
+                    "  octoproxy-cpu is {:.2}× the floor (target: within 2×)",
+                    octo / f.ns_per_particle_step
+                );
             }
-            for (m, target) in [("parry3d", 30.0), ("triangle-octree", 3.0), ("sdf-grid", 0.0)] {
+            for (m, target) in [
+                ("parry3d", 30.0),
+                ("triangle-octree", 3.0),
+                ("sdf-grid", 0.0),
+            ] {
                 if let Some(x) = case(m) {
-                    let target = if target > 0.0 { format!(" (target: {target}×)") } else { String::new() };
+                    let target = if target > 0.0 {
+                        format!(" (target: {target}×)")
+                    } else {
+                        String::new()
+                    };
                     println!("  {m} takes {:.1}× octoproxy-cpu's time{target}", x / octo);
                 }
             }

@@ -118,7 +118,11 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
         "ground truth: {} triangles, {} mesh ({}), BVH in {:.0} ms",
         gt.triangle_count(),
         if closed { "closed" } else { "open" },
-        if closed { "winding numbers, at step ends and along paths that cross it" } else { "crossing parity" },
+        if closed {
+            "winding numbers, at step ends and along paths that cross it"
+        } else {
+            "crossing parity"
+        },
         t.elapsed().as_secs_f64() * 1e3
     );
     let mut particles = match &particles_file {
@@ -135,8 +139,10 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
         None => {
             let leaf = view.finest_leaf_size();
             let size = view.header().root_size;
-            let speeds: Vec<f32> =
-                [0.1 * leaf, leaf, 5.0 * leaf, 0.25 * size, size].iter().map(|d| d / params.dt).collect();
+            let speeds: Vec<f32> = [0.1 * leaf, leaf, 5.0 * leaf, 0.25 * size, size]
+                .iter()
+                .map(|d| d / params.dt)
+                .collect();
             random_particles(&view, &gt, emit.unwrap_or(20_000), &speeds, seed)
         }
     };
@@ -154,7 +160,10 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
         report.penetrations,
         report.per_million(),
         if closed {
-            format!(", of which {} escaped from inside and {} went through the mesh within a step", report.escapes, report.tunnels)
+            format!(
+                ", of which {} escaped from inside and {} went through the mesh within a step",
+                report.escapes, report.tunnels
+            )
         } else {
             String::new()
         }
@@ -168,7 +177,11 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
         println!("  e.g. particle {i}: {a:?} -> {b:?}");
     }
     if report.penetrations > 0 || report.non_finite > 0 {
-        bail!("{} penetrations and {} NaN particles", report.penetrations, report.non_finite);
+        bail!(
+            "{} penetrations and {} NaN particles",
+            report.penetrations,
+            report.non_finite
+        );
     }
     Ok(())
 }

@@ -11,10 +11,10 @@ use octoproxy_core::{initial_side, Particle, StepParams, SIDE_BACK};
 use octoproxy_cpu::emit::Rng;
 use octoproxy_cpu::BuildParams;
 
+use crate::backends::{select_backend, BackendChoice};
 use crate::flags;
 use crate::render::{Camera, Canvas, BACK, FRONT};
 use crate::scene;
-use crate::backends::{select_backend, BackendChoice};
 
 const HELP: &str = "\
 usage: cargo xtask demo [--particles N] [--steps N] [-o PICTURE.png] [--backend auto|cpu|wgpu]
@@ -33,7 +33,9 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
             "--particles" => n = flags::number(&mut parser, "--particles")?,
             "--steps" => steps = flags::number(&mut parser, "--steps")?,
             "-o" | "--out" => out = flags::path(&mut parser, "--out")?,
-            "--backend" => backend = BackendChoice::parse(&flags::string(&mut parser, "--backend")?)?,
+            "--backend" => {
+                backend = BackendChoice::parse(&flags::string(&mut parser, "--backend")?)?
+            }
             "-h" | "--help" => {
                 println!("{HELP}");
                 return Ok(());
@@ -46,7 +48,13 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     }
 
     let mesh = octoproxy_tests::scenes::hemisphere([0.0; 3], 1.0, 96, 24);
-    let scene = scene::bake_meshes(vec![mesh], &BuildParams { dmax: 7, ..BuildParams::default() })?;
+    let scene = scene::bake_meshes(
+        vec![mesh],
+        &BuildParams {
+            dmax: 7,
+            ..BuildParams::default()
+        },
+    )?;
     let view = scene.view()?;
 
     // Rain above the dome, and a fountain beneath it.
@@ -54,12 +62,23 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     let mut particles: Vec<Particle> = (0..n)
         .map(|i| {
             if i % 2 == 0 {
-                let p = Vec3::new(rng.range(-1.1, 1.1), rng.range(1.3, 2.4), rng.range(-1.1, 1.1));
+                let p = Vec3::new(
+                    rng.range(-1.1, 1.1),
+                    rng.range(1.3, 2.4),
+                    rng.range(-1.1, 1.1),
+                );
                 Particle::new(p.to_array(), [0.0; 3])
             } else {
-                let (r, th) = (0.55 * rng.f32().sqrt(), rng.range(0.0, std::f32::consts::TAU));
+                let (r, th) = (
+                    0.55 * rng.f32().sqrt(),
+                    rng.range(0.0, std::f32::consts::TAU),
+                );
                 let p = Vec3::new(r * th.cos(), rng.range(-0.7, -0.35), r * th.sin());
-                let v = Vec3::new(rng.range(-0.6, 0.6), rng.range(5.0, 6.0), rng.range(-0.6, 0.6));
+                let v = Vec3::new(
+                    rng.range(-0.6, 0.6),
+                    rng.range(5.0, 6.0),
+                    rng.range(-0.6, 0.6),
+                );
                 Particle::new(p.to_array(), v.to_array())
             }
         })
@@ -119,10 +138,22 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
         scene::bytes(view.node_bytes()),
         scene::bytes(view.lut_bytes())
     );
-    println!("  bake time:     {:.1} ms", scene.bake_time.unwrap_or_default().as_secs_f64() * 1e3);
-    println!("  particles:     {n} ({} in front, {back} behind at the end)", n - back);
-    println!("  steps:         {steps} × {:.4} s, {collisions} collisions", params.dt);
-    println!("  ms per step:   {:.3}", stepping.as_secs_f64() * 1e3 / steps.max(1) as f64);
+    println!(
+        "  bake time:     {:.1} ms",
+        scene.bake_time.unwrap_or_default().as_secs_f64() * 1e3
+    );
+    println!(
+        "  particles:     {n} ({} in front, {back} behind at the end)",
+        n - back
+    );
+    println!(
+        "  steps:         {steps} × {:.4} s, {collisions} collisions",
+        params.dt
+    );
+    println!(
+        "  ms per step:   {:.3}",
+        stepping.as_secs_f64() * 1e3 / steps.max(1) as f64
+    );
     println!("  backend:       {}", backend.name());
     println!("  picture:       {}", out.display());
     Ok(())

@@ -9,7 +9,9 @@ use octoproxy_cpu::BuildParams;
 /// The next option as `--long` or `-s`, and the error to give if it is not one we take.
 /// Positional arguments are an error right away.
 pub fn next_option(parser: &mut lexopt::Parser) -> Result<Option<(String, lexopt::Error)>> {
-    let Some(arg) = parser.next()? else { return Ok(None) };
+    let Some(arg) = parser.next()? else {
+        return Ok(None);
+    };
     let name = match &arg {
         lexopt::Arg::Long(s) => format!("--{s}"),
         lexopt::Arg::Short(c) => format!("-{c}"),
@@ -20,19 +22,28 @@ pub fn next_option(parser: &mut lexopt::Parser) -> Result<Option<(String, lexopt
 
 /// Takes the value of an option as a string.
 pub fn string(parser: &mut lexopt::Parser, name: &str) -> Result<String> {
-    let v: OsString = parser.value().with_context(|| format!("{name} needs a value"))?;
-    v.into_string().map_err(|v| anyhow::anyhow!("{name}: {v:?} is not valid UTF-8"))
+    let v: OsString = parser
+        .value()
+        .with_context(|| format!("{name} needs a value"))?;
+    v.into_string()
+        .map_err(|v| anyhow::anyhow!("{name}: {v:?} is not valid UTF-8"))
 }
 
 /// Takes the value of an option as a path.
 pub fn path(parser: &mut lexopt::Parser, name: &str) -> Result<PathBuf> {
-    Ok(PathBuf::from(parser.value().with_context(|| format!("{name} needs a value"))?))
+    Ok(PathBuf::from(
+        parser
+            .value()
+            .with_context(|| format!("{name} needs a value"))?,
+    ))
 }
 
 /// Parses a number, naming the option in the error.
 pub fn number<T: std::str::FromStr>(parser: &mut lexopt::Parser, name: &str) -> Result<T> {
     let s = string(parser, name)?;
-    s.trim().parse().map_err(|_| anyhow::anyhow!("{name}: {s:?} is not a valid number"))
+    s.trim()
+        .parse()
+        .map_err(|_| anyhow::anyhow!("{name}: {s:?} is not a valid number"))
 }
 
 /// Parses `N` comma-separated finite floats (negative numbers fine: `--gravity 0,-9.81,0`).
@@ -44,7 +55,10 @@ pub fn floats<const N: usize>(parser: &mut lexopt::Parser, name: &str) -> Result
     }
     let mut out = [0.0f32; N];
     for (o, p) in out.iter_mut().zip(parts) {
-        *o = p.trim().parse().map_err(|_| anyhow::anyhow!("{name}: {p:?} is not a number"))?;
+        *o = p
+            .trim()
+            .parse()
+            .map_err(|_| anyhow::anyhow!("{name}: {p:?} is not a number"))?;
         if !o.is_finite() {
             bail!("{name}: {p:?} is not a finite number");
         }
@@ -76,7 +90,10 @@ impl BuildFlags {
 
     /// Whether any was given.
     pub fn any(&self) -> bool {
-        self.dmin.is_some() || self.dmax.is_some() || self.epsilon.is_some() || self.lut_depth.is_some()
+        self.dmin.is_some()
+            || self.dmax.is_some()
+            || self.epsilon.is_some()
+            || self.lut_depth.is_some()
     }
 
     /// The parameters, defaults filled in, checked.
@@ -96,7 +113,8 @@ impl BuildFlags {
 
 /// The build-flag help lines.
 // Not a `"\` continuation: it would eat the first line's indent.
-pub const BUILD_HELP: &str = "  --dmin N          depth below which nodes always subdivide (default 4)
+pub const BUILD_HELP: &str =
+    "  --dmin N          depth below which nodes always subdivide (default 4)
   --dmax N          maximum depth, 2..=16 (default 8)
   --epsilon X       normal-variance tolerance, >= 0 (default 0.01)
   --lut-depth N     lookup-table depth, 0..=8, clamped to the tree depth (default 5)";

@@ -17,16 +17,33 @@ pub struct Camera {
 
 impl Camera {
     /// Frames a sphere of `radius` around `center` in a `width × height` image.
-    pub fn new(center: Vec3, radius: f32, yaw: f32, pitch: f32, width: usize, height: usize) -> Self {
+    pub fn new(
+        center: Vec3,
+        radius: f32,
+        yaw: f32,
+        pitch: f32,
+        width: usize,
+        height: usize,
+    ) -> Self {
         let rot = Mat3::from_rotation_x(pitch) * Mat3::from_rotation_y(yaw);
         let scale = 0.5 * width.min(height) as f32 / radius.max(1e-12);
-        Camera { rot, center, scale, width, height }
+        Camera {
+            rot,
+            center,
+            scale,
+            width,
+            height,
+        }
     }
 
     /// Pixel x, pixel y, depth (larger is nearer the camera).
     pub fn project(&self, p: Vec3) -> Vec3 {
         let q = self.rot * (p - self.center);
-        Vec3::new(self.width as f32 * 0.5 + q.x * self.scale, self.height as f32 * 0.5 - q.y * self.scale, q.z)
+        Vec3::new(
+            self.width as f32 * 0.5 + q.x * self.scale,
+            self.height as f32 * 0.5 - q.y * self.scale,
+            q.z,
+        )
     }
 }
 
@@ -47,7 +64,12 @@ impl Canvas {
             let c = 0.97 - 0.12 * t;
             rgb.extend(std::iter::repeat_n([c, c, c + 0.02], width));
         }
-        Canvas { width, height, rgb, depth: vec![f32::NEG_INFINITY; width * height] }
+        Canvas {
+            width,
+            height,
+            rgb,
+            depth: vec![f32::NEG_INFINITY; width * height],
+        }
     }
 
     /// Draws a triangle with flat two-sided Lambert shading.
@@ -57,10 +79,30 @@ impl Canvas {
         let shade = 0.35 + 0.65 * n.dot(light).abs();
         let color = base.map(|c| c * shade);
         let p = v.map(|x| cam.project(x));
-        let min_x = p.iter().map(|q| q.x).fold(f32::INFINITY, f32::min).floor().max(0.0) as usize;
-        let max_x = p.iter().map(|q| q.x).fold(f32::NEG_INFINITY, f32::max).ceil().min(self.width as f32 - 1.0);
-        let min_y = p.iter().map(|q| q.y).fold(f32::INFINITY, f32::min).floor().max(0.0) as usize;
-        let max_y = p.iter().map(|q| q.y).fold(f32::NEG_INFINITY, f32::max).ceil().min(self.height as f32 - 1.0);
+        let min_x = p
+            .iter()
+            .map(|q| q.x)
+            .fold(f32::INFINITY, f32::min)
+            .floor()
+            .max(0.0) as usize;
+        let max_x = p
+            .iter()
+            .map(|q| q.x)
+            .fold(f32::NEG_INFINITY, f32::max)
+            .ceil()
+            .min(self.width as f32 - 1.0);
+        let min_y = p
+            .iter()
+            .map(|q| q.y)
+            .fold(f32::INFINITY, f32::min)
+            .floor()
+            .max(0.0) as usize;
+        let max_y = p
+            .iter()
+            .map(|q| q.y)
+            .fold(f32::NEG_INFINITY, f32::max)
+            .ceil()
+            .min(self.height as f32 - 1.0);
         if !(max_x >= 0.0 && max_y >= 0.0) {
             return;
         }
@@ -94,8 +136,14 @@ impl Canvas {
             return;
         }
         let r = radius.max(0.5);
-        let (x0, x1) = ((q.x - r).floor().max(0.0), (q.x + r).ceil().min(self.width as f32 - 1.0));
-        let (y0, y1) = ((q.y - r).floor().max(0.0), (q.y + r).ceil().min(self.height as f32 - 1.0));
+        let (x0, x1) = (
+            (q.x - r).floor().max(0.0),
+            (q.x + r).ceil().min(self.width as f32 - 1.0),
+        );
+        let (y0, y1) = (
+            (q.y - r).floor().max(0.0),
+            (q.y + r).ceil().min(self.height as f32 - 1.0),
+        );
         if x1 < x0 || y1 < y0 {
             return;
         }
@@ -122,15 +170,29 @@ impl Canvas {
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         }
-        let file = std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
-        let mut enc = png::Encoder::new(std::io::BufWriter::new(file), self.width as u32, self.height as u32);
+        let file =
+            std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
+        let mut enc = png::Encoder::new(
+            std::io::BufWriter::new(file),
+            self.width as u32,
+            self.height as u32,
+        );
         enc.set_color(png::ColorType::Rgb);
         enc.set_depth(png::BitDepth::Eight);
-        let mut writer = enc.write_header().with_context(|| format!("writing {}", path.display()))?;
-        let data: Vec<u8> =
-            self.rgb.iter().flat_map(|c| c.map(|v| (v.clamp(0.0, 1.0) * 255.0 + 0.5) as u8)).collect();
-        writer.write_image_data(&data).with_context(|| format!("writing {}", path.display()))?;
-        writer.finish().with_context(|| format!("writing {}", path.display()))?;
+        let mut writer = enc
+            .write_header()
+            .with_context(|| format!("writing {}", path.display()))?;
+        let data: Vec<u8> = self
+            .rgb
+            .iter()
+            .flat_map(|c| c.map(|v| (v.clamp(0.0, 1.0) * 255.0 + 0.5) as u8))
+            .collect();
+        writer
+            .write_image_data(&data)
+            .with_context(|| format!("writing {}", path.display()))?;
+        writer
+            .finish()
+            .with_context(|| format!("writing {}", path.display()))?;
         Ok(())
     }
 }

@@ -56,18 +56,37 @@ pub fn bake_meshes(meshes: Vec<Mesh>, params: &BuildParams) -> Result<Scene> {
     let (words, report) = result.context("baking the proxy")?;
     let bake_time = t.elapsed();
     let triangles = report.triangles_in;
-    Ok(Scene { words, meshes, triangles, bake_time: Some(bake_time), report: Some(report) })
+    Ok(Scene {
+        words,
+        meshes,
+        triangles,
+        bake_time: Some(bake_time),
+        report: Some(report),
+    })
 }
 
 /// Reads and validates a proxy file.
 pub fn read_proxy(path: &Path) -> Result<Scene> {
     let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
     if bytes.len() % 4 != 0 {
-        bail!("{}: not a proxy file (length {} is not a multiple of 4)", path.display(), bytes.len());
+        bail!(
+            "{}: not a proxy file (length {} is not a multiple of 4)",
+            path.display(),
+            bytes.len()
+        );
     }
-    let words: Vec<u32> = bytes.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+    let words: Vec<u32> = bytes
+        .chunks_exact(4)
+        .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect();
     ProxyView::new(&words).with_context(|| format!("{} is not a valid proxy", path.display()))?;
-    Ok(Scene { words, meshes: Vec::new(), triangles: 0, bake_time: None, report: None })
+    Ok(Scene {
+        words,
+        meshes: Vec::new(),
+        triangles: 0,
+        bake_time: None,
+        report: None,
+    })
 }
 
 /// Writes a proxy file (little-endian words), through a temporary file.

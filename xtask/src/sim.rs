@@ -6,7 +6,9 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
 use glam::Vec3;
-use octoproxy_core::{initial_side, StepParams, FLAG_BLOCKED, FLAG_BOUND_HIT, FLAG_INVALID, SIDE_BACK};
+use octoproxy_core::{
+    initial_side, StepParams, FLAG_BLOCKED, FLAG_BOUND_HIT, FLAG_INVALID, SIDE_BACK,
+};
 use octoproxy_cpu::emit::{emit_box, emit_surface};
 use octoproxy_cpu::particles::{read_particles, write_particles, ParticleCloud, PlyEncoding};
 use octoproxy_cpu::MeshRef;
@@ -127,7 +129,12 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     match (&o.particles, o.emit) {
         (None, None) => bail!("sim needs particles: --particles FILE or --emit N"),
         (Some(_), Some(_)) => bail!("give either --particles or --emit, not both"),
-        (Some(_), None) if o.emit_box.is_some() || o.emit_surface || o.emit_speed.is_some() || o.seed.is_some() => {
+        (Some(_), None)
+            if o.emit_box.is_some()
+                || o.emit_surface
+                || o.emit_speed.is_some()
+                || o.seed.is_some() =>
+        {
             bail!("--emit-box, --emit-surface, --emit-speed and --seed go with --emit")
         }
         _ => {}
@@ -148,10 +155,15 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
             bail!("--emit-speed must be a finite number >= 0, got {s}");
         }
     }
-    let Some(out) = o.out.clone() else { bail!("sim needs --out FILE (or -o FILE)") };
+    let Some(out) = o.out.clone() else {
+        bail!("sim needs --out FILE (or -o FILE)")
+    };
     if let Some(input) = &o.particles {
         if same_file(input, &out) {
-            bail!("--out {} is the input particle file; refusing to overwrite it", out.display());
+            bail!(
+                "--out {} is the input particle file; refusing to overwrite it",
+                out.display()
+            );
         }
     }
     if o.every.is_some() && o.frames.is_none() {
@@ -188,7 +200,11 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     let mut cloud = match (&o.particles, o.emit) {
         (Some(path), _) => {
             let cloud = read_particles(path)?;
-            eprintln!("read {} particles from {}", cloud.particles.len(), path.display());
+            eprintln!(
+                "read {} particles from {}",
+                cloud.particles.len(),
+                path.display()
+            );
             cloud
         }
         (None, Some(n)) => {
@@ -217,13 +233,18 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     let mut backend = select_backend(o.backend.unwrap_or(BackendChoice::Auto))?;
     backend.upload_proxy(&scene.words)?;
     backend.upload_particles(&cloud.particles)?;
-    let encoding = if o.ascii { PlyEncoding::Ascii } else { PlyEncoding::BinaryLittleEndian };
+    let encoding = if o.ascii {
+        PlyEncoding::Ascii
+    } else {
+        PlyEncoding::BinaryLittleEndian
+    };
 
     let mut frame = 0u32;
     let mut write_frame = |cloud: &ParticleCloud| -> Result<()> {
         if let Some(dir) = &o.frames {
             let path = dir.join(format!("frame_{frame:05}.ply"));
-            write_particles(&path, cloud, encoding).with_context(|| format!("writing {}", path.display()))?;
+            write_particles(&path, cloud, encoding)
+                .with_context(|| format!("writing {}", path.display()))?;
             frame += 1;
         }
         Ok(())
@@ -233,7 +254,11 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     let mut stepping = Duration::ZERO;
     let mut done = 0u32;
     while done < steps {
-        let chunk = if o.frames.is_some() { every.min(steps - done) } else { steps - done };
+        let chunk = if o.frames.is_some() {
+            every.min(steps - done)
+        } else {
+            steps - done
+        };
         let t = Instant::now();
         backend.step(&params, chunk)?;
         backend.finish()?;
@@ -247,11 +272,16 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     }
     bar.finish_and_clear();
     backend.download_particles(&mut cloud.particles)?;
-    write_particles(&out, &cloud, encoding).with_context(|| format!("writing {}", out.display()))?;
+    write_particles(&out, &cloud, encoding)
+        .with_context(|| format!("writing {}", out.display()))?;
 
     let n = cloud.particles.len();
     let count = |f: u32| cloud.particles.iter().filter(|p| p.flags & f != 0).count();
-    let back = cloud.particles.iter().filter(|p| p.side == SIDE_BACK).count();
+    let back = cloud
+        .particles
+        .iter()
+        .filter(|p| p.side == SIDE_BACK)
+        .count();
     let collisions: u64 = cloud.particles.iter().map(|p| p.collisions() as u64).sum();
     eprintln!("particles: {n} ({} in front, {back} behind)", n - back);
     eprintln!(
@@ -307,7 +337,10 @@ fn prepare_frames_dir(dir: &Path, force: bool) -> Result<()> {
             name.starts_with("frame_") && name.ends_with(".ply")
         });
     if has_frames && !force {
-        bail!("{} already holds frame files; pass --force to overwrite them", dir.display());
+        bail!(
+            "{} already holds frame files; pass --force to overwrite them",
+            dir.display()
+        );
     }
     Ok(())
 }

@@ -5,7 +5,11 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 fn xtask(args: &[&str], dir: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_xtask")).args(args).current_dir(dir).output().expect("xtask runs")
+    Command::new(env!("CARGO_BIN_EXE_xtask"))
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("xtask runs")
 }
 
 /// A fresh directory under the system's temporary one, removed when the test passes (and
@@ -35,7 +39,8 @@ fn scratch(name: &str) -> Scratch {
 }
 
 /// A closed box as ascii OBJ (outward faces, quads).
-const BOX_OBJ: &str = "v -1 -1 -1\nv 1 -1 -1\nv -1 1 -1\nv 1 1 -1\nv -1 -1 1\nv 1 -1 1\nv -1 1 1\nv 1 1 1\n\
+const BOX_OBJ: &str =
+    "v -1 -1 -1\nv 1 -1 -1\nv -1 1 -1\nv 1 1 -1\nv -1 -1 1\nv 1 -1 1\nv -1 1 1\nv 1 1 1\n\
 f 1 3 4 2\nf 5 6 8 7\nf 1 2 6 5\nf 3 7 8 4\nf 1 5 7 3\nf 2 4 8 6\n";
 
 fn assert_one_line_error(out: &Output, needle: &str) {
@@ -51,10 +56,33 @@ fn assert_one_line_error(out: &Output, needle: &str) {
 #[test]
 fn demo_writes_a_picture() {
     let dir = scratch("demo");
-    let out = xtask(&["demo", "--particles", "2000", "--steps", "20", "-o", "demo.png"], &dir);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = xtask(
+        &[
+            "demo",
+            "--particles",
+            "2000",
+            "--steps",
+            "20",
+            "-o",
+            "demo.png",
+        ],
+        &dir,
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let stdout = String::from_utf8_lossy(&out.stdout);
-    for key in ["triangles:", "proxy:", "bake time:", "particles:", "ms per step:", "backend:", "picture:"] {
+    for key in [
+        "triangles:",
+        "proxy:",
+        "bake time:",
+        "particles:",
+        "ms per step:",
+        "backend:",
+        "picture:",
+    ] {
         assert!(stdout.contains(key), "summary lacks {key}: {stdout}");
     }
     let png = std::fs::read(dir.join("demo.png")).unwrap();
@@ -67,10 +95,17 @@ fn every_help_lists_its_options_indented() {
     for command in ["demo", "bake", "sim", "check", "bench"] {
         let out = xtask(&[command, "--help"], &dir);
         assert!(out.status.success(), "{command} --help failed");
-        let text = String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
-        assert!(text.starts_with("usage: cargo xtask"), "{command} --help: {text}");
+        let text = String::from_utf8_lossy(&out.stdout).into_owned()
+            + &String::from_utf8_lossy(&out.stderr);
+        assert!(
+            text.starts_with("usage: cargo xtask"),
+            "{command} --help: {text}"
+        );
         for line in text.lines().skip(1) {
-            assert!(!line.starts_with('-'), "{command} --help: an option out of line: {line:?}");
+            assert!(
+                !line.starts_with('-'),
+                "{command} --help: an option out of line: {line:?}"
+            );
         }
     }
 }
@@ -79,22 +114,66 @@ fn every_help_lists_its_options_indented() {
 fn bake_then_sim_keeps_every_particle_in_order() {
     let dir = scratch("sim");
     std::fs::write(dir.join("box.obj"), BOX_OBJ).unwrap();
-    let out = xtask(&["bake", "--mesh", "box.obj", "-o", "box.octoproxy", "--dmax", "6"], &dir);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = xtask(
+        &[
+            "bake",
+            "--mesh",
+            "box.obj",
+            "-o",
+            "box.octoproxy",
+            "--dmax",
+            "6",
+        ],
+        &dir,
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     // An input with an extra property, no velocities, no side.
     let ply = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nproperty int id\nend_header\n\
 0 3 0 7\n0.5 0 0 8\n5 5 5 9\n";
     std::fs::write(dir.join("in.ply"), ply).unwrap();
     let out = xtask(
-        &["sim", "--proxy", "box.octoproxy", "--particles", "in.ply", "-o", "out.ply", "--ascii", "--steps", "30",
-          "--frames", "frames", "--every", "7", "--gravity", "0,-9.81,0"],
+        &[
+            "sim",
+            "--proxy",
+            "box.octoproxy",
+            "--particles",
+            "in.ply",
+            "-o",
+            "out.ply",
+            "--ascii",
+            "--steps",
+            "30",
+            "--frames",
+            "frames",
+            "--every",
+            "7",
+            "--gravity",
+            "0,-9.81,0",
+        ],
         &dir,
     );
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let text = std::fs::read_to_string(dir.join("out.ply")).unwrap();
-    let body: Vec<&str> = text.split("end_header").nth(1).unwrap().lines().filter(|l| !l.is_empty()).collect();
+    let body: Vec<&str> = text
+        .split("end_header")
+        .nth(1)
+        .unwrap()
+        .lines()
+        .filter(|l| !l.is_empty())
+        .collect();
     assert_eq!(body.len(), 3);
-    let ids: Vec<&str> = body.iter().map(|l| l.split_whitespace().last().unwrap()).collect();
+    let ids: Vec<&str> = body
+        .iter()
+        .map(|l| l.split_whitespace().last().unwrap())
+        .collect();
     assert_eq!(ids, ["7", "8", "9"], "order and extra property kept");
     // The particle above the box lands on it, the one inside stays inside.
     let y0: f32 = body[0].split_whitespace().nth(1).unwrap().parse().unwrap();
@@ -102,15 +181,58 @@ fn bake_then_sim_keeps_every_particle_in_order() {
     let y1: f32 = body[1].split_whitespace().nth(1).unwrap().parse().unwrap();
     assert!((-1.0..=1.0).contains(&y1), "stayed inside, y = {y1}");
     // Frames: 0, 7, 14, 21, 28 and the final 30.
-    let mut frames: Vec<String> = std::fs::read_dir(dir.join("frames")).unwrap().map(|e| e.unwrap().file_name().into_string().unwrap()).collect();
+    let mut frames: Vec<String> = std::fs::read_dir(dir.join("frames"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .collect();
     frames.sort();
-    assert_eq!(frames, ["frame_00000.ply", "frame_00001.ply", "frame_00002.ply", "frame_00003.ply", "frame_00004.ply", "frame_00005.ply"]);
+    assert_eq!(
+        frames,
+        [
+            "frame_00000.ply",
+            "frame_00001.ply",
+            "frame_00002.ply",
+            "frame_00003.ply",
+            "frame_00004.ply",
+            "frame_00005.ply"
+        ]
+    );
     // Output continues in the next run, and existing frames are refused without --force.
-    let out = xtask(&["sim", "--proxy", "box.octoproxy", "--particles", "out.ply", "-o", "out2.ply", "--frames", "frames"], &dir);
+    let out = xtask(
+        &[
+            "sim",
+            "--proxy",
+            "box.octoproxy",
+            "--particles",
+            "out.ply",
+            "-o",
+            "out2.ply",
+            "--frames",
+            "frames",
+        ],
+        &dir,
+    );
     assert_one_line_error(&out, "--force");
     // A negative first gravity component parses (it is a value, not an option).
-    let out = xtask(&["sim", "--proxy", "box.octoproxy", "--particles", "out.ply", "-o", "out2.ply", "--gravity", "-9.81,0,0"], &dir);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = xtask(
+        &[
+            "sim",
+            "--proxy",
+            "box.octoproxy",
+            "--particles",
+            "out.ply",
+            "-o",
+            "out2.ply",
+            "--gravity",
+            "-9.81,0,0",
+        ],
+        &dir,
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
 }
 
 #[test]
@@ -118,25 +240,112 @@ fn bad_input_gets_one_readable_line() {
     let dir = scratch("errors");
     std::fs::write(dir.join("box.obj"), BOX_OBJ).unwrap();
     std::fs::write(dir.join("bad.obj"), "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n").unwrap();
-    std::fs::write(dir.join("nan.obj"), "v 0 0 0\nv nan 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+    std::fs::write(
+        dir.join("nan.obj"),
+        "v 0 0 0\nv nan 0 0\nv 0 1 0\nf 1 2 3\n",
+    )
+    .unwrap();
     std::fs::write(dir.join("junk.octoproxy"), b"not a proxy at all!").unwrap();
     std::fs::write(dir.join("noz.ply"), "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nend_header\n0 0\n").unwrap();
     let cases: &[(&[&str], &str)] = &[
         (&["bake", "--mesh", "missing.obj", "-o", "x"], "missing.obj"),
         (&["bake", "--mesh", "bad.obj", "-o", "x"], "bad.obj"),
         (&["bake", "--mesh", "nan.obj", "-o", "x"], "nan.obj"),
-        (&["bake", "--mesh", "box.obj", "-o", "x", "--dmax", "40"], "dmax"),
-        (&["bake", "--mesh", "box.obj", "-o", "x", "--dmax", "0"], "dmax"),
-        (&["bake", "--mesh", "box.obj", "-o", "x", "--epsilon", "-1"], "epsilon"),
+        (
+            &["bake", "--mesh", "box.obj", "-o", "x", "--dmax", "40"],
+            "dmax",
+        ),
+        (
+            &["bake", "--mesh", "box.obj", "-o", "x", "--dmax", "0"],
+            "dmax",
+        ),
+        (
+            &["bake", "--mesh", "box.obj", "-o", "x", "--epsilon", "-1"],
+            "epsilon",
+        ),
         (&["bake", "--mesh", "box.obj"], "--out"),
-        (&["sim", "--proxy", "junk.octoproxy", "--emit", "5", "-o", "o.ply"], "junk.octoproxy"),
-        (&["sim", "--mesh", "box.obj", "--emit", "5", "-o", "o.ply", "--dt", "NaN"], "dt"),
-        (&["sim", "--mesh", "box.obj", "--emit", "5", "-o", "o.ply", "--dt", "-1"], "dt"),
-        (&["sim", "--mesh", "box.obj", "--emit", "5", "-o", "o.ply", "--restitution", "2"], "restitution"),
-        (&["sim", "--mesh", "box.obj", "--emit", "5", "-o", "o.ply", "--gravity", "1,2"], "--gravity"),
-        (&["sim", "--mesh", "box.obj", "--proxy", "p", "--emit", "5", "-o", "o.ply"], "not both"),
-        (&["sim", "--mesh", "box.obj", "--particles", "noz.ply", "-o", "o.ply"], "z"),
-        (&["sim", "--mesh", "box.obj", "--particles", "noz.ply", "-o", "noz.ply"], "overwrite"),
+        (
+            &[
+                "sim",
+                "--proxy",
+                "junk.octoproxy",
+                "--emit",
+                "5",
+                "-o",
+                "o.ply",
+            ],
+            "junk.octoproxy",
+        ),
+        (
+            &[
+                "sim", "--mesh", "box.obj", "--emit", "5", "-o", "o.ply", "--dt", "NaN",
+            ],
+            "dt",
+        ),
+        (
+            &[
+                "sim", "--mesh", "box.obj", "--emit", "5", "-o", "o.ply", "--dt", "-1",
+            ],
+            "dt",
+        ),
+        (
+            &[
+                "sim",
+                "--mesh",
+                "box.obj",
+                "--emit",
+                "5",
+                "-o",
+                "o.ply",
+                "--restitution",
+                "2",
+            ],
+            "restitution",
+        ),
+        (
+            &[
+                "sim",
+                "--mesh",
+                "box.obj",
+                "--emit",
+                "5",
+                "-o",
+                "o.ply",
+                "--gravity",
+                "1,2",
+            ],
+            "--gravity",
+        ),
+        (
+            &[
+                "sim", "--mesh", "box.obj", "--proxy", "p", "--emit", "5", "-o", "o.ply",
+            ],
+            "not both",
+        ),
+        (
+            &[
+                "sim",
+                "--mesh",
+                "box.obj",
+                "--particles",
+                "noz.ply",
+                "-o",
+                "o.ply",
+            ],
+            "z",
+        ),
+        (
+            &[
+                "sim",
+                "--mesh",
+                "box.obj",
+                "--particles",
+                "noz.ply",
+                "-o",
+                "noz.ply",
+            ],
+            "overwrite",
+        ),
         (&["frobnicate"], "unknown command"),
     ];
     for (args, needle) in cases {
@@ -147,7 +356,20 @@ fn bad_input_gets_one_readable_line() {
 
 /// Whether wgpu finds an adapter here; under `CI=true` it must (lavapipe).
 fn gpu_present(dir: &Path) -> bool {
-    let probe = xtask(&["demo", "--particles", "64", "--steps", "1", "--backend", "wgpu", "-o", "probe.png"], dir);
+    let probe = xtask(
+        &[
+            "demo",
+            "--particles",
+            "64",
+            "--steps",
+            "1",
+            "--backend",
+            "wgpu",
+            "-o",
+            "probe.png",
+        ],
+        dir,
+    );
     if probe.status.success() {
         return true;
     }
@@ -172,16 +394,41 @@ fn sim_on_wgpu_writes_the_same_file_as_on_cpu() {
     for backend in ["cpu", "wgpu"] {
         let out_file = format!("out-{backend}.ply");
         let out = xtask(
-            &["sim", "--mesh", "box.obj", "--dmax", "6", "--emit", "5000", "--emit-speed", "3", "--steps", "60",
-              "--backend", backend, "-o", &out_file, "--frames", &format!("frames-{backend}"), "--every", "20"],
+            &[
+                "sim",
+                "--mesh",
+                "box.obj",
+                "--dmax",
+                "6",
+                "--emit",
+                "5000",
+                "--emit-speed",
+                "3",
+                "--steps",
+                "60",
+                "--backend",
+                backend,
+                "-o",
+                &out_file,
+                "--frames",
+                &format!("frames-{backend}"),
+                "--every",
+                "20",
+            ],
             &dir,
         );
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(out.status.success(), "{err}");
-        assert!(err.contains(&format!("backend: {backend}")), "says which backend: {err}");
+        assert!(
+            err.contains(&format!("backend: {backend}")),
+            "says which backend: {err}"
+        );
         outputs.push(std::fs::read(dir.join(out_file)).unwrap());
     }
-    assert!(outputs[0] == outputs[1], "the GPU's output file differs from the CPU's");
+    assert!(
+        outputs[0] == outputs[1],
+        "the GPU's output file differs from the CPU's"
+    );
     // The frames (read back between steps) agree too.
     for k in 0..4 {
         let name = format!("frame_{k:05}.ply");
@@ -193,31 +440,81 @@ fn sim_on_wgpu_writes_the_same_file_as_on_cpu() {
 
 #[test]
 fn bench_writes_json_table_and_plots_with_every_method() {
-    let meshes = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/meshes/stanford-bunny.obj.gz");
+    let meshes =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/meshes/stanford-bunny.obj.gz");
     if !meshes.exists() {
-        assert_ne!(std::env::var("CI").as_deref(), Ok("true"), "CI=true requires ../shared/meshes");
+        assert_ne!(
+            std::env::var("CI").as_deref(),
+            Ok("true"),
+            "CI=true requires ../shared/meshes"
+        );
         eprintln!("skipped: {} not found", meshes.display());
         return;
     }
     let dir = scratch("bench");
     let out = xtask(
-        &["bench", "--scenes", "bunny", "--particles", "3000", "--steps", "2", "--samples", "100", "--backends", "cpu", "--out", "b"],
+        &[
+            "bench",
+            "--scenes",
+            "bunny",
+            "--particles",
+            "3000",
+            "--steps",
+            "2",
+            "--samples",
+            "100",
+            "--backends",
+            "cpu",
+            "--out",
+            "b",
+        ],
         &dir,
     );
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let json = std::fs::read_to_string(dir.join("b/results.json")).unwrap();
-    for key in ["\"machine\"", "\"date\"", "\"rows\"", "\"build_ms\"", "\"memory_bytes\"", "\"ns_per_particle_step\"", "\"penetrations_per_million_particle_steps\""] {
+    for key in [
+        "\"machine\"",
+        "\"date\"",
+        "\"rows\"",
+        "\"build_ms\"",
+        "\"memory_bytes\"",
+        "\"ns_per_particle_step\"",
+        "\"penetrations_per_million_particle_steps\"",
+    ] {
         assert!(json.contains(key), "results.json lacks {key}");
     }
-    for method in ["octoproxy-cpu", "octoproxy-cpu-nolut", "triangle-octree", "parry3d", "sdf-grid", "floor"] {
-        assert!(json.contains(&format!("\"method\": \"{method}\"")), "results.json lacks {method}");
+    for method in [
+        "octoproxy-cpu",
+        "octoproxy-cpu-nolut",
+        "triangle-octree",
+        "parry3d",
+        "sdf-grid",
+        "floor",
+    ] {
+        assert!(
+            json.contains(&format!("\"method\": \"{method}\"")),
+            "results.json lacks {method}"
+        );
     }
     let table = std::fs::read_to_string(dir.join("b/results.md")).unwrap();
-    assert!(table.contains("| bunny | 69451 | 3000 | octoproxy-cpu |"), "{table}");
+    assert!(
+        table.contains("| bunny | 69451 | 3000 | octoproxy-cpu |"),
+        "{table}"
+    );
     for png in ["b/particles.png", "b/triangles.png"] {
-        assert_eq!(&std::fs::read(dir.join(png)).unwrap()[..8], b"\x89PNG\r\n\x1a\n");
+        assert_eq!(
+            &std::fs::read(dir.join(png)).unwrap()[..8],
+            b"\x89PNG\r\n\x1a\n"
+        );
     }
     // Bad options are one readable line.
-    assert_one_line_error(&xtask(&["bench", "--scenes", "moon"], &dir), "unknown scene");
+    assert_one_line_error(
+        &xtask(&["bench", "--scenes", "moon"], &dir),
+        "unknown scene",
+    );
     assert_one_line_error(&xtask(&["bench", "--particles", "0"], &dir), "out of range");
 }

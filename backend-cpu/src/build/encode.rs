@@ -1,7 +1,9 @@
 //! The flat tree (normals, triangle lists, neighbour queries) and its encoding into words.
 
 use glam::{DVec3, UVec3, Vec3};
-use octoproxy_core::format::{encode_normal, header, NodeRecord, FORMAT_VERSION, HEADER_WORDS, MAGIC, NODE_WORDS};
+use octoproxy_core::format::{
+    encode_normal, header, NodeRecord, FORMAT_VERSION, HEADER_WORDS, MAGIC, NODE_WORDS,
+};
 use octoproxy_core::{lut_target, MAX_DEPTH};
 use rayon::prelude::*;
 
@@ -52,7 +54,10 @@ pub(crate) struct Flat {
 impl Flat {
     /// Flattens the pointer tree and computes each surface leaf's normal and anchors.
     pub fn new(root: Node, tris: &[Tri], grid: &Grid) -> Flat {
-        let mut flat = Flat { nodes: Vec::new(), surface: Vec::new() };
+        let mut flat = Flat {
+            nodes: Vec::new(),
+            surface: Vec::new(),
+        };
         flat.push(root, UVec3::ZERO, 0);
         flat.nodes.par_iter_mut().for_each(|n| {
             if let Kind::Surface(s) = &mut n.kind {
@@ -72,13 +77,22 @@ impl Flat {
                 self.nodes.push(FlatNode {
                     depth,
                     cell,
-                    kind: Kind::Surface(Box::new(Surface { tris, ..empty_surface() })),
+                    kind: Kind::Surface(Box::new(Surface {
+                        tris,
+                        ..empty_surface()
+                    })),
                 });
                 self.surface.push(id);
                 id
             }
             Node::Internal { children } => {
-                self.nodes.push(FlatNode { depth, cell, kind: Kind::Internal { children: [EMPTY; 8] } });
+                self.nodes.push(FlatNode {
+                    depth,
+                    cell,
+                    kind: Kind::Internal {
+                        children: [EMPTY; 8],
+                    },
+                });
                 let mut ids = [EMPTY; 8];
                 for (o, child) in children.into_iter().enumerate() {
                     let o = o as u32;
@@ -103,7 +117,12 @@ impl Flat {
 
     /// Calls `f(empty_id, lo, hi)` for every empty leaf whose closed box touches the closed
     /// box `[qlo, qhi]` (finest-grid plane indices). `empty_id` is `parent * 8 + octant`.
-    pub fn for_each_touching_empty(&self, qlo: UVec3, qhi: UVec3, mut f: impl FnMut(u32, UVec3, UVec3)) {
+    pub fn for_each_touching_empty(
+        &self,
+        qlo: UVec3,
+        qhi: UVec3,
+        mut f: impl FnMut(u32, UVec3, UVec3),
+    ) {
         self.for_each_touching_leaf(qlo, qhi, |slot, child, lo, hi| {
             if child == EMPTY {
                 f(slot, lo, hi);
@@ -114,7 +133,12 @@ impl Flat {
     /// Calls `f(parent * 8 + octant, child, lo, hi)` for every leaf, empty (`child` is
     /// [`EMPTY`]) or surface, whose closed box `lo..hi` meets the closed box `[qlo, qhi]`
     /// (finest-grid plane indices).
-    fn for_each_touching_leaf(&self, qlo: UVec3, qhi: UVec3, mut f: impl FnMut(u32, u32, UVec3, UVec3)) {
+    fn for_each_touching_leaf(
+        &self,
+        qlo: UVec3,
+        qhi: UVec3,
+        mut f: impl FnMut(u32, u32, UVec3, UVec3),
+    ) {
         let mut stack = [0u32; 8 * (MAX_DEPTH as usize + 1)];
         let mut top = 1;
         stack[0] = 0;
@@ -122,7 +146,9 @@ impl Flat {
             top -= 1;
             let id = stack[top];
             let node = &self.nodes[id as usize];
-            let Kind::Internal { children } = &node.kind else { continue };
+            let Kind::Internal { children } = &node.kind else {
+                continue;
+            };
             let s = MAX_DEPTH - node.depth - 1;
             for (o, &child) in children.iter().enumerate() {
                 let o = o as u32;
@@ -131,7 +157,9 @@ impl Flat {
                 if !(lo.cmple(qhi).all() && qlo.cmple(hi).all()) {
                     continue;
                 }
-                if child != EMPTY && matches!(self.nodes[child as usize].kind, Kind::Internal { .. }) {
+                if child != EMPTY
+                    && matches!(self.nodes[child as usize].kind, Kind::Internal { .. })
+                {
                     if top < stack.len() {
                         stack[top] = child;
                         top += 1;
@@ -145,7 +173,13 @@ impl Flat {
 }
 
 fn empty_surface() -> Surface {
-    Surface { tris: Vec::new(), normal: DVec3::Z, two_sided: false, plane_offset: 0.0, anchors: Vec::new() }
+    Surface {
+        tris: Vec::new(),
+        normal: DVec3::Z,
+        two_sided: false,
+        plane_offset: 0.0,
+        anchors: Vec::new(),
+    }
 }
 
 /// Fills in a surface leaf with the box `lo..hi`; `bound` is the validator's bound on its
@@ -172,7 +206,11 @@ fn finish_surface(s: &mut Surface, tris: &[Tri], lo: DVec3, hi: DVec3, bound: f6
         full_sum += tri.n * tri.area;
         full_area += tri.area;
     }
-    let (sum, area) = if clipped_area > 0.0 { (clipped_sum, clipped_area) } else { (full_sum, full_area) };
+    let (sum, area) = if clipped_area > 0.0 {
+        (clipped_sum, clipped_area)
+    } else {
+        (full_sum, full_area)
+    };
     let len = sum.length();
     // A leaf holding a rim cannot tell its sides apart by labels (they meet around the rim),
     // so it is solid from every side, as is a leaf whose normals cancel.
@@ -180,7 +218,11 @@ fn finish_surface(s: &mut Surface, tris: &[Tri], lo: DVec3, hi: DVec3, bound: f6
     s.normal = if len > 0.0 { sum / len } else { DVec3::Z };
     let center = (lo + hi) * 0.5;
     let half_diagonal = (hi - lo).length() * 0.5;
-    let d = if clipped_area > 0.0 { s.normal.dot(moment / clipped_area - center) } else { 0.0 };
+    let d = if clipped_area > 0.0 {
+        s.normal.dot(moment / clipped_area - center)
+    } else {
+        0.0
+    };
     // Rounded to f32 inside the bound the validator checks. Far from the origin a box of
     // rounded grid planes can be wider than the nominal cube that bound is made from, so
     // both limit it.
@@ -196,7 +238,13 @@ fn finish_surface(s: &mut Surface, tris: &[Tri], lo: DVec3, hi: DVec3, bound: f6
 }
 
 /// Encodes the tree breadth first, then the lookup table; fills the report's sizes.
-pub(crate) fn encode(tree: &Flat, labels: &Labels, grid: &Grid, params: &BuildParams, report: &mut BuildReport) -> Vec<u32> {
+pub(crate) fn encode(
+    tree: &Flat,
+    labels: &Labels,
+    grid: &Grid,
+    params: &BuildParams,
+    report: &mut BuildReport,
+) -> Vec<u32> {
     // Breadth-first order of the nodes that get a record.
     let mut order: Vec<u32> = vec![0];
     let mut first_child: Vec<u32> = Vec::new();
@@ -231,7 +279,12 @@ pub(crate) fn encode(tree: &Flat, labels: &Labels, grid: &Grid, params: &BuildPa
                         }
                     }
                 }
-                records.push(NodeRecord::internal(first_child[k], child_mask, internal_mask, label_bits));
+                records.push(NodeRecord::internal(
+                    first_child[k],
+                    child_mask,
+                    internal_mask,
+                    label_bits,
+                ));
             }
             Kind::Surface(s) => {
                 tree_depth = tree_depth.max(node.depth);
@@ -239,7 +292,11 @@ pub(crate) fn encode(tree: &Flat, labels: &Labels, grid: &Grid, params: &BuildPa
                 report.surface_leaves += 1;
                 report.two_sided_leaves += two_sided as usize;
                 let n = Vec3::new(s.normal.x as f32, s.normal.y as f32, s.normal.z as f32);
-                records.push(NodeRecord::surface(encode_normal(n), two_sided, s.plane_offset as f32));
+                records.push(NodeRecord::surface(
+                    encode_normal(n),
+                    two_sided,
+                    s.plane_offset as f32,
+                ));
             }
         }
     }

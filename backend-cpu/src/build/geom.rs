@@ -7,7 +7,8 @@ use glam::DVec3;
 /// and perhaps when it passes within a few rounding errors of it (the box is grown by a
 /// millionth of its size, far more than the slab test's rounding, so no touch is missed).
 pub fn segment_may_touch_box(a: DVec3, b: DVec3, min: DVec3, max: DVec3) -> bool {
-    let pad = (max - min).max_element() * 1e-6 + (min.abs().max(max.abs()).max_element() * f64::EPSILON);
+    let pad =
+        (max - min).max_element() * 1e-6 + (min.abs().max(max.abs()).max_element() * f64::EPSILON);
     let (min, max) = (min - DVec3::splat(pad), max + DVec3::splat(pad));
     let d = b - a;
     let (mut t0, mut t1) = (0.0f64, 1.0f64);
@@ -111,7 +112,10 @@ impl Poly {
 
 /// Clips a triangle to the closed box `[min, max]`.
 pub fn clip_triangle(v: &[DVec3; 3], min: DVec3, max: DVec3) -> Poly {
-    let mut poly = Poly { pts: [DVec3::ZERO; 12], len: 3 };
+    let mut poly = Poly {
+        pts: [DVec3::ZERO; 12],
+        len: 3,
+    };
     poly.pts[..3].copy_from_slice(v);
     // Most triangles of a fine mesh lie wholly inside the box: nothing to clip.
     if v.iter().all(|p| p.cmpge(min).all() && p.cmple(max).all()) {
@@ -135,20 +139,33 @@ pub fn plane_section(n: DVec3, d: f64, min: DVec3, max: DVec3) -> (f64, f64) {
     let (u, w) = n.any_orthonormal_pair();
     // A square in the plane, larger than the box's section wherever it is.
     let h = (max - min).length() + (center - mid).length();
-    let mut poly = Poly { pts: [DVec3::ZERO; 12], len: 4 };
-    poly.pts[..4].copy_from_slice(&[center - (u + w) * h, center + (u - w) * h, center + (u + w) * h, center - (u - w) * h]);
+    let mut poly = Poly {
+        pts: [DVec3::ZERO; 12],
+        len: 4,
+    };
+    poly.pts[..4].copy_from_slice(&[
+        center - (u + w) * h,
+        center + (u - w) * h,
+        center + (u + w) * h,
+        center - (u - w) * h,
+    ]);
     for a in 0..3 {
         poly = clip_plane(&poly, a, min[a], 1.0);
         poly = clip_plane(&poly, a, max[a], -1.0);
     }
     let p = poly.points();
-    let perimeter = (0..p.len()).map(|i| (p[(i + 1) % p.len()] - p[i]).length()).sum();
+    let perimeter = (0..p.len())
+        .map(|i| (p[(i + 1) % p.len()] - p[i]).length())
+        .sum();
     (poly.area_centroid().0, perimeter)
 }
 
 /// Keeps the part of `poly` where `sign * (p[axis] - value) >= 0`.
 fn clip_plane(poly: &Poly, axis: usize, value: f64, sign: f64) -> Poly {
-    let mut out = Poly { pts: [DVec3::ZERO; 12], len: 0 };
+    let mut out = Poly {
+        pts: [DVec3::ZERO; 12],
+        len: 0,
+    };
     let p = poly.points();
     let n = p.len();
     for i in 0..n {
@@ -211,20 +228,52 @@ mod tests {
     fn overlap_cases() {
         let (min, max) = (DVec3::ZERO, DVec3::ONE);
         // Inside.
-        assert!(triangle_overlaps_box(&tri([0.2, 0.2, 0.5], [0.8, 0.2, 0.5], [0.5, 0.8, 0.5]), min, max));
+        assert!(triangle_overlaps_box(
+            &tri([0.2, 0.2, 0.5], [0.8, 0.2, 0.5], [0.5, 0.8, 0.5]),
+            min,
+            max
+        ));
         // Far away.
-        assert!(!triangle_overlaps_box(&tri([2.0, 2.0, 2.0], [3.0, 2.0, 2.0], [2.0, 3.0, 2.0]), min, max));
+        assert!(!triangle_overlaps_box(
+            &tri([2.0, 2.0, 2.0], [3.0, 2.0, 2.0], [2.0, 3.0, 2.0]),
+            min,
+            max
+        ));
         // Big triangle through the box with all vertices outside.
-        assert!(triangle_overlaps_box(&tri([-5.0, -5.0, 0.5], [5.0, -5.0, 0.5], [0.0, 10.0, 0.5]), min, max));
+        assert!(triangle_overlaps_box(
+            &tri([-5.0, -5.0, 0.5], [5.0, -5.0, 0.5], [0.0, 10.0, 0.5]),
+            min,
+            max
+        ));
         // Touching a face exactly counts (closed box).
-        assert!(triangle_overlaps_box(&tri([1.0, 0.2, 0.2], [1.0, 0.8, 0.2], [1.0, 0.5, 0.8]), min, max));
+        assert!(triangle_overlaps_box(
+            &tri([1.0, 0.2, 0.2], [1.0, 0.8, 0.2], [1.0, 0.5, 0.8]),
+            min,
+            max
+        ));
         // Near a corner but separated only by an edge-cross-product axis.
-        assert!(!triangle_overlaps_box(&tri([1.2, 0.0, -0.5], [1.2, 0.0, 1.5], [0.0, -1.2, 0.5]), min, max));
+        assert!(!triangle_overlaps_box(
+            &tri([1.2, 0.0, -0.5], [1.2, 0.0, 1.5], [0.0, -1.2, 0.5]),
+            min,
+            max
+        ));
         // Its plane misses the box although its projections on the box axes overlap it.
-        assert!(!triangle_overlaps_box(&tri([-5.0, -5.0, 2.0], [5.0, -5.0, 2.0], [0.0, 10.0, 2.0]), min, max));
+        assert!(!triangle_overlaps_box(
+            &tri([-5.0, -5.0, 2.0], [5.0, -5.0, 2.0], [0.0, 10.0, 2.0]),
+            min,
+            max
+        ));
         // The plane x + y + z = 0.5 cuts the box corner; x + y + z = 4 passes beyond it.
-        assert!(triangle_overlaps_box(&tri([2.5, -1.0, -1.0], [-1.0, 2.5, -1.0], [-1.0, -1.0, 2.5]), min, max));
-        assert!(!triangle_overlaps_box(&tri([6.0, -1.0, -1.0], [-1.0, 6.0, -1.0], [-1.0, -1.0, 6.0]), min, max));
+        assert!(triangle_overlaps_box(
+            &tri([2.5, -1.0, -1.0], [-1.0, 2.5, -1.0], [-1.0, -1.0, 2.5]),
+            min,
+            max
+        ));
+        assert!(!triangle_overlaps_box(
+            &tri([6.0, -1.0, -1.0], [-1.0, 6.0, -1.0], [-1.0, -1.0, 6.0]),
+            min,
+            max
+        ));
     }
 
     #[test]
@@ -277,7 +326,9 @@ mod tests {
     #[test]
     fn sections_of_a_box_by_planes() {
         let (min, max) = (DVec3::ZERO, DVec3::ONE);
-        let close = |got: (f64, f64), want: (f64, f64)| (got.0 - want.0).abs() < 1e-12 && (got.1 - want.1).abs() < 1e-12;
+        let close = |got: (f64, f64), want: (f64, f64)| {
+            (got.0 - want.0).abs() < 1e-12 && (got.1 - want.1).abs() < 1e-12
+        };
         // Across an axis: the unit square.
         let s = plane_section(DVec3::Y, 0.25, min, max);
         assert!(close(s, (1.0, 4.0)), "{s:?}");
@@ -294,14 +345,31 @@ mod tests {
     #[test]
     fn segments_against_a_box() {
         let (min, max) = (DVec3::ZERO, DVec3::ONE);
-        let seg = |a: [f64; 3], b: [f64; 3]| segment_may_touch_box(DVec3::from(a), DVec3::from(b), min, max);
+        let seg = |a: [f64; 3], b: [f64; 3]| {
+            segment_may_touch_box(DVec3::from(a), DVec3::from(b), min, max)
+        };
         assert!(seg([0.2, 0.3, 0.4], [0.6, 0.7, 0.8]), "inside");
-        assert!(seg([-1.0, 0.5, 0.5], [2.0, 0.5, 0.5]), "through, both ends outside");
+        assert!(
+            seg([-1.0, 0.5, 0.5], [2.0, 0.5, 0.5]),
+            "through, both ends outside"
+        );
         assert!(seg([1.0, 0.5, 0.5], [3.0, 0.5, 0.5]), "starting on a face");
-        assert!(seg([-1.0, 0.0, 0.5], [1.0, 2.0, 0.5]), "touching an edge at (0, 1)");
-        assert!(!seg([-1.0, 0.1, 0.5], [1.0, 2.1, 0.5]), "passing the edge a tenth away");
-        assert!(!seg([1.5, -1.0, 0.5], [1.5, 2.0, 0.5]), "beside, parallel to a face");
-        assert!(!seg([2.0, 0.0, 0.0], [4.0, 1.0, 1.0]), "short of the box along its line");
+        assert!(
+            seg([-1.0, 0.0, 0.5], [1.0, 2.0, 0.5]),
+            "touching an edge at (0, 1)"
+        );
+        assert!(
+            !seg([-1.0, 0.1, 0.5], [1.0, 2.1, 0.5]),
+            "passing the edge a tenth away"
+        );
+        assert!(
+            !seg([1.5, -1.0, 0.5], [1.5, 2.0, 0.5]),
+            "beside, parallel to a face"
+        );
+        assert!(
+            !seg([2.0, 0.0, 0.0], [4.0, 1.0, 1.0]),
+            "short of the box along its line"
+        );
         // Against sampling: a segment with a sampled point in the box is never missed, and
         // one that the test passes gets within a millionth of the box.
         let mut rng = crate::emit::Rng::new(0x0ddb_a11c);
@@ -310,11 +378,18 @@ mod tests {
         for _ in 0..4000 {
             let (a, b) = (DVec3::new(r(), r(), r()), DVec3::new(r(), r(), r()));
             let points = (0..=400).map(|i| a + (b - a) * (i as f64 / 400.0));
-            let sampled = points.clone().any(|p| p.cmpge(min).all() && p.cmple(max).all());
-            let near = points.map(|p| (p - p.clamp(min, max)).length()).fold(f64::INFINITY, f64::min);
+            let sampled = points
+                .clone()
+                .any(|p| p.cmpge(min).all() && p.cmple(max).all());
+            let near = points
+                .map(|p| (p - p.clamp(min, max)).length())
+                .fold(f64::INFINITY, f64::min);
             let touches = segment_may_touch_box(a, b, min, max);
             assert!(!sampled || touches, "{a} {b}");
-            assert!(!touches || near < 0.01, "{a} {b} passes {near} from the box");
+            assert!(
+                !touches || near < 0.01,
+                "{a} {b} passes {near} from the box"
+            );
             touching += touches as u32;
             missing += !touches as u32;
         }
@@ -324,9 +399,14 @@ mod tests {
     #[test]
     fn segment_hits() {
         let t = tri([0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]);
-        let hit = segment_triangle(DVec3::new(0.2, 0.2, 1.0), DVec3::new(0.2, 0.2, -1.0), &t).unwrap();
+        let hit =
+            segment_triangle(DVec3::new(0.2, 0.2, 1.0), DVec3::new(0.2, 0.2, -1.0), &t).unwrap();
         assert!((hit - 0.5).abs() < 1e-12);
-        assert!(segment_triangle(DVec3::new(2.0, 2.0, 1.0), DVec3::new(2.0, 2.0, -1.0), &t).is_none());
-        assert!(segment_triangle(DVec3::new(0.2, 0.2, 1.0), DVec3::new(0.2, 0.2, 0.5), &t).is_none());
+        assert!(
+            segment_triangle(DVec3::new(2.0, 2.0, 1.0), DVec3::new(2.0, 2.0, -1.0), &t).is_none()
+        );
+        assert!(
+            segment_triangle(DVec3::new(0.2, 0.2, 1.0), DVec3::new(0.2, 0.2, 0.5), &t).is_none()
+        );
     }
 }

@@ -69,7 +69,12 @@ struct Vote {
     against: bool,
 }
 
-pub(crate) fn label(tree: &Flat, tris: &[Tri], grid: &Grid, progress: &dyn BuildProgress) -> Labels {
+pub(crate) fn label(
+    tree: &Flat,
+    tris: &[Tri],
+    grid: &Grid,
+    progress: &dyn BuildProgress,
+) -> Labels {
     progress.begin("label", tree.surface.len() as u64);
     let votes: Vec<Vote> = tree
         .surface
@@ -98,7 +103,11 @@ pub(crate) fn label(tree: &Flat, tris: &[Tri], grid: &Grid, progress: &dyn Build
     let bits = counts
         .iter()
         .map(|c| {
-            let (front, back) = if c[0] + c[1] > 0 { (c[0], c[1]) } else { (c[2], c[3]) };
+            let (front, back) = if c[0] + c[1] > 0 {
+                (c[0], c[1])
+            } else {
+                (c[2], c[3])
+            };
             if front + back == 0 {
                 return 0u8;
             }
@@ -113,12 +122,19 @@ pub(crate) fn label(tree: &Flat, tris: &[Tri], grid: &Grid, progress: &dyn Build
             }
         })
         .collect();
-    Labels { bits, conflicted, labelled, conflicts }
+    Labels {
+        bits,
+        conflicted,
+        labelled,
+        conflicts,
+    }
 }
 
 fn leaf_votes(tree: &Flat, leaf: u32, tris: &[Tri], grid: &Grid) -> Vec<Vote> {
     let node = &tree.nodes[leaf as usize];
-    let Kind::Surface(surface) = &node.kind else { return Vec::new() };
+    let Kind::Surface(surface) = &node.kind else {
+        return Vec::new();
+    };
     let (lo, hi) = node.range();
     let mut out = Vec::new();
     tree.for_each_touching_empty(lo, hi, |empty, elo, ehi| {
@@ -143,7 +159,13 @@ fn leaf_votes(tree: &Flat, leaf: u32, tris: &[Tri], grid: &Grid) -> Vec<Vote> {
             let (pb, own) = surface.anchors[i];
             if let Some((front, closed, n)) = view_visible(pe, pb, own, &surface.tris, tris) {
                 let against = !surface.two_sided && n.dot(surface.normal) < 0.0;
-                out.push(Vote { empty, surface: leaf, front, closed, against });
+                out.push(Vote {
+                    empty,
+                    surface: leaf,
+                    front,
+                    closed,
+                    against,
+                });
             }
         }
     });
@@ -154,7 +176,13 @@ fn leaf_votes(tree: &Flat, leaf: u32, tris: &[Tri], grid: &Grid) -> Vec<Vote> {
 /// nearest `pe` faces `pe` (front) or not (back), whether it is closed, and its normal.
 /// Hits within a hair of the nearest are summed, so a segment through an edge sees both
 /// triangles. `None` when undecided.
-fn view_visible(pe: DVec3, pb: DVec3, own: u32, list: &[u32], tris: &[Tri]) -> Option<(bool, bool, DVec3)> {
+fn view_visible(
+    pe: DVec3,
+    pb: DVec3,
+    own: u32,
+    list: &[u32],
+    tris: &[Tri],
+) -> Option<(bool, bool, DVec3)> {
     let dir = pb - pe;
     if dir.length_squared() == 0.0 {
         return None;
@@ -177,7 +205,9 @@ fn view_visible(pe: DVec3, pb: DVec3, own: u32, list: &[u32], tris: &[Tri]) -> O
         if misses && t != own {
             continue;
         }
-        let Some(s) = geom::segment_triangle(pe, pb, &tri.v).or((t == own).then_some(1.0)) else { continue };
+        let Some(s) = geom::segment_triangle(pe, pb, &tri.v).or((t == own).then_some(1.0)) else {
+            continue;
+        };
         if s < best - TIE {
             best = s;
             n = tri.n;

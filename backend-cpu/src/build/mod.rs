@@ -41,7 +41,6 @@ use octoproxy_core::format::{quantize_root_size, ROOT_SIZE_MANTISSA_BITS};
 use octoproxy_core::{ulp, MAX_DEPTH, MAX_LUT_DEPTH};
 use rayon::prelude::*;
 
-
 /// Below this ratio of |Σ a n| to Σ a, a surface leaf's triangles face opposite ways and the
 /// leaf is two-sided (a knife edge sharper than about 35°, or both faces of a thin wall).
 pub const TWO_SIDED_COHERENCE: f64 = 0.3;
@@ -82,7 +81,13 @@ pub struct BuildParams {
 
 impl Default for BuildParams {
     fn default() -> Self {
-        Self { dmin: 4, dmax: 8, epsilon: 0.01, lut_depth: 5, max_nodes: DEFAULT_MAX_NODES }
+        Self {
+            dmin: 4,
+            dmax: 8,
+            epsilon: 0.01,
+            lut_depth: 5,
+            max_nodes: DEFAULT_MAX_NODES,
+        }
     }
 }
 
@@ -90,7 +95,10 @@ impl BuildParams {
     /// Checks every field.
     pub fn validate(&self) -> Result<(), BuildError> {
         if self.dmax < 2 || self.dmax > MAX_DEPTH {
-            return Err(BuildError::BadParam(format!("dmax must be in 2..={MAX_DEPTH}, got {}", self.dmax)));
+            return Err(BuildError::BadParam(format!(
+                "dmax must be in 2..={MAX_DEPTH}, got {}",
+                self.dmax
+            )));
         }
         if self.dmin > self.dmax {
             return Err(BuildError::BadParam(format!(
@@ -99,7 +107,10 @@ impl BuildParams {
             )));
         }
         if !(self.epsilon >= 0.0) || !self.epsilon.is_finite() {
-            return Err(BuildError::BadParam(format!("epsilon must be a finite number >= 0, got {}", self.epsilon)));
+            return Err(BuildError::BadParam(format!(
+                "epsilon must be a finite number >= 0, got {}",
+                self.epsilon
+            )));
         }
         if self.lut_depth > MAX_LUT_DEPTH {
             return Err(BuildError::BadParam(format!(
@@ -238,7 +249,6 @@ pub struct MeshRef<'a> {
     pub triangles: &'a [[u32; 3]],
 }
 
-
 /// A triangle of the scene, in f64.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Tri {
@@ -260,7 +270,10 @@ impl Tri {
     /// on the side of yes).
     pub fn rim_touches(&self, lo: DVec3, hi: DVec3) -> bool {
         self.rim != 0
-            && (0..3).any(|k| self.rim & 1 << k != 0 && geom::segment_may_touch_box(self.v[k], self.v[(k + 1) % 3], lo, hi))
+            && (0..3).any(|k| {
+                self.rim & 1 << k != 0
+                    && geom::segment_may_touch_box(self.v[k], self.v[(k + 1) % 3], lo, hi)
+            })
     }
 }
 
@@ -281,7 +294,11 @@ impl Grid {
     /// The box of `cell` at `depth`.
     pub fn cell_box(&self, cell: UVec3, depth: u32) -> (DVec3, DVec3) {
         let s = MAX_DEPTH - depth;
-        let lo = DVec3::new(self.plane(0, cell.x << s), self.plane(1, cell.y << s), self.plane(2, cell.z << s));
+        let lo = DVec3::new(
+            self.plane(0, cell.x << s),
+            self.plane(1, cell.y << s),
+            self.plane(2, cell.z << s),
+        );
         let hi = DVec3::new(
             self.plane(0, (cell.x + 1) << s),
             self.plane(1, (cell.y + 1) << s),
@@ -299,7 +316,11 @@ pub(crate) enum Node {
 }
 
 /// Bakes the meshes of one scene into proxy words.
-pub fn bake(meshes: &[MeshRef<'_>], params: &BuildParams, progress: &dyn BuildProgress) -> Result<(Vec<u32>, BuildReport), BuildError> {
+pub fn bake(
+    meshes: &[MeshRef<'_>],
+    params: &BuildParams,
+    progress: &dyn BuildProgress,
+) -> Result<(Vec<u32>, BuildReport), BuildError> {
     params.validate()?;
     let mut report = BuildReport::default();
     let t = Instant::now();
@@ -334,7 +355,9 @@ pub fn bake(meshes: &[MeshRef<'_>], params: &BuildParams, progress: &dyn BuildPr
         };
         let root = ctx.build(all, UVec3::ZERO, 0);
         if ctx.over.load(Ordering::Relaxed) {
-            return Err(BuildError::TooManyNodes { max_nodes: params.max_nodes });
+            return Err(BuildError::TooManyNodes {
+                max_nodes: params.max_nodes,
+            });
         }
         if !matches!(root, Node::Internal { .. }) {
             return Err(BuildError::Unsplittable);
@@ -354,8 +377,10 @@ pub fn bake(meshes: &[MeshRef<'_>], params: &BuildParams, progress: &dyn BuildPr
             .par_iter()
             .filter_map(|&i| {
                 let n = &tree.nodes[i as usize];
-                let solid = labels.conflicted(i) || matches!(&n.kind, encode::Kind::Surface(s) if s.two_sided);
-                (n.depth < params.dmax && (solid || touches_other_parts(&tree, i, &tris))).then_some((n.depth, n.cell))
+                let solid = labels.conflicted(i)
+                    || matches!(&n.kind, encode::Kind::Surface(s) if s.two_sided);
+                (n.depth < params.dmax && (solid || touches_other_parts(&tree, i, &tris)))
+                    .then_some((n.depth, n.cell))
             })
             .collect();
         if big.is_empty() || pass >= MAX_PASSES {
@@ -381,14 +406,21 @@ pub fn bake(meshes: &[MeshRef<'_>], params: &BuildParams, progress: &dyn BuildPr
 /// solid, a particle behind the one is in front of the other, and would pass through it.
 fn touches_other_parts(tree: &encode::Flat, leaf: u32, tris: &[Tri]) -> bool {
     let node = &tree.nodes[leaf as usize];
-    let encode::Kind::Surface(surface) = &node.kind else { return false };
-    let Some(&first) = surface.tris.first() else { return false };
+    let encode::Kind::Surface(surface) = &node.kind else {
+        return false;
+    };
+    let Some(&first) = surface.tris.first() else {
+        return false;
+    };
     let component = tris[first as usize].component;
     let (lo, hi) = node.range();
     let mut other = false;
     tree.for_each_touching_surface(lo, hi, |n| {
         if let encode::Kind::Surface(s) = &tree.nodes[n as usize].kind {
-            other |= s.tris.iter().any(|&t| tris[t as usize].component != component);
+            other |= s
+                .tris
+                .iter()
+                .any(|&t| tris[t as usize].component != component);
         }
     });
     other
@@ -397,7 +429,11 @@ fn touches_other_parts(tree: &encode::Flat, leaf: u32, tris: &[Tri]) -> bool {
 fn gather(meshes: &[MeshRef<'_>], report: &mut BuildReport) -> Result<Vec<Tri>, BuildError> {
     let mut tris = Vec::new();
     for (mi, m) in meshes.iter().enumerate() {
-        if let Some(vertex) = m.positions.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
+        if let Some(vertex) = m
+            .positions
+            .iter()
+            .position(|p| !p.iter().all(|c| c.is_finite()))
+        {
             return Err(BuildError::NonFinite { mesh: mi, vertex });
         }
         let (closed, rim, component) = edge_classes(m);
@@ -437,7 +473,9 @@ fn gather(meshes: &[MeshRef<'_>], report: &mut BuildReport) -> Result<Vec<Tri>, 
         }
     }
     if tris.is_empty() {
-        return Err(BuildError::Empty { degenerate: report.degenerate_skipped });
+        return Err(BuildError::Empty {
+            degenerate: report.degenerate_skipped,
+        });
     }
     Ok(tris)
 }
@@ -455,7 +493,11 @@ fn edge_classes(m: &MeshRef<'_>) -> (Vec<bool>, Vec<u8>, Vec<u32>) {
     let mut canon = vec![0u32; m.positions.len()];
     for w in 0..order.len() {
         let i = order[w];
-        canon[i as usize] = if w > 0 && key(order[w - 1]) == key(i) { canon[order[w - 1] as usize] } else { i };
+        canon[i as usize] = if w > 0 && key(order[w - 1]) == key(i) {
+            canon[order[w - 1] as usize]
+        } else {
+            i
+        };
     }
     let valid = |t: &[u32; 3]| t.iter().all(|&i| (i as usize) < m.positions.len());
     // Directed edges (a, b, triangle, edge of the triangle), sorted by undirected key.
@@ -532,16 +574,23 @@ fn root_grid(tris: &[Tri], dmax: u32) -> Result<Grid, BuildError> {
     let leaves = (1u64 << dmax) as f64;
     // 2.5 leaves of slack in all: 1.25 on each side, before rounding.
     let mut size = quantize_root_size((extent / (1.0 - 2.5 / leaves)) as f32 * (1.0 + 1e-6));
-    let too_large = |size: f32| !size.is_finite() || (0..3).any(|a| center[a].abs() + size as f64 >= f32::MAX as f64);
+    let too_large = |size: f32| {
+        !size.is_finite() || (0..3).any(|a| center[a].abs() + size as f64 >= f32::MAX as f64)
+    };
     for _ in 0..64 {
         if too_large(size) {
             return Err(BuildError::TooLarge { extent });
         }
         let root_min = [0, 1, 2].map(|a| (center[a] - size as f64 * 0.5) as f32);
-        let grid = Grid { root_min, root_size: size, unit: size * (1.0 / (1u32 << MAX_DEPTH) as f32) };
+        let grid = Grid {
+            root_min,
+            root_size: size,
+            unit: size * (1.0 / (1u32 << MAX_DEPTH) as f32),
+        };
         let n = 1u32 << MAX_DEPTH;
         let leaf = size as f64 / leaves;
-        let fits = (0..3).all(|a| lo[a] - grid.plane(a, 0) > leaf && grid.plane(a, n) - hi[a] > leaf);
+        let fits =
+            (0..3).all(|a| lo[a] - grid.plane(a, 0) > leaf && grid.plane(a, n) - hi[a] > leaf);
         if fits {
             let magnitude = (0..3)
                 .map(|a| grid.plane(a, 0).abs().max(grid.plane(a, n).abs()))
@@ -551,14 +600,24 @@ fn root_grid(tris: &[Tri], dmax: u32) -> Result<Grid, BuildError> {
                 return Err(BuildError::TooSmall { extent, dmax });
             }
             if !(cell >= 4.0 * ulp(magnitude)) {
-                return Err(BuildError::Resolution { dmax, cell, magnitude });
+                return Err(BuildError::Resolution {
+                    dmax,
+                    cell,
+                    magnitude,
+                });
             }
             return Ok(grid);
         }
         // Rounding ate the slack: the next representable size up.
-        size = quantize_root_size(f32::from_bits(size.to_bits() + (1 << (23 - (ROOT_SIZE_MANTISSA_BITS - 1)))));
+        size = quantize_root_size(f32::from_bits(
+            size.to_bits() + (1 << (23 - (ROOT_SIZE_MANTISSA_BITS - 1))),
+        ));
     }
-    Err(BuildError::Resolution { dmax, cell: size / leaves as f32, magnitude: extent as f32 })
+    Err(BuildError::Resolution {
+        dmax,
+        cell: size / leaves as f32,
+        magnitude: extent as f32,
+    })
 }
 
 /// Cells of the octree whose region must be subdivided to `dmax`. Two cells are nested or
@@ -577,7 +636,11 @@ pub(crate) struct Forced {
 
 impl Default for Forced {
     fn default() -> Self {
-        Forced { cells: HashSet::new(), holders: HashSet::new(), shallowest: u32::MAX }
+        Forced {
+            cells: HashSet::new(),
+            holders: HashSet::new(),
+            shallowest: u32::MAX,
+        }
     }
 }
 
@@ -593,7 +656,8 @@ impl Forced {
     /// Whether the cell `cell` at `depth` overlaps a forced cell.
     pub(crate) fn overlaps(&self, depth: u32, cell: UVec3) -> bool {
         self.holders.contains(&(depth, cell.to_array()))
-            || (self.shallowest..=depth).any(|d| self.cells.contains(&(d, (cell >> (depth - d)).to_array())))
+            || (self.shallowest..=depth)
+                .any(|d| self.cells.contains(&(d, (cell >> (depth - d)).to_array())))
     }
 }
 
@@ -613,7 +677,9 @@ impl Subdiv<'_> {
     fn build(&self, list: Vec<u32>, cell: UVec3, depth: u32) -> Node {
         let node = self.build_inner(list, cell, depth);
         // Progress in units of depth-3 cells: 512 in all.
-        if depth == PROGRESS_DEPTH || (depth < PROGRESS_DEPTH && !matches!(node, Node::Internal { .. })) {
+        if depth == PROGRESS_DEPTH
+            || (depth < PROGRESS_DEPTH && !matches!(node, Node::Internal { .. }))
+        {
             self.progress.advance(1 << (3 * (PROGRESS_DEPTH - depth)));
         }
         node
@@ -634,7 +700,10 @@ impl Subdiv<'_> {
         let rim_or_parts = || {
             let first = self.tris[list[0] as usize].component;
             let (lo, hi) = self.grid.cell_box(cell, depth);
-            list.iter().any(|&t| self.tris[t as usize].component != first || self.tris[t as usize].rim_touches(lo, hi))
+            list.iter().any(|&t| {
+                self.tris[t as usize].component != first
+                    || self.tris[t as usize].rim_touches(lo, hi)
+            })
         };
         let stop = depth >= self.params.dmax
             || (depth > self.params.dmin
@@ -667,12 +736,17 @@ impl Subdiv<'_> {
         let large = depth < PARALLEL_DEPTH || subs.iter().map(Vec::len).sum::<usize>() > 1024;
         let subs = (0u32..).zip(subs);
         let children: Vec<Node> = if large {
-            subs.collect::<Vec<_>>().into_par_iter().map(child).collect()
+            subs.collect::<Vec<_>>()
+                .into_par_iter()
+                .map(child)
+                .collect()
         } else {
             subs.map(child).collect()
         };
         let mut it = children.into_iter();
-        Node::Internal { children: Box::new(std::array::from_fn(|_| it.next().unwrap_or(Node::Empty))) }
+        Node::Internal {
+            children: Box::new(std::array::from_fn(|_| it.next().unwrap_or(Node::Empty))),
+        }
     }
 
     /// The triangles of `list` that overlap each child of `cell`, in `list` order. A
@@ -684,7 +758,10 @@ impl Subdiv<'_> {
         let (mid, _) = self.grid.cell_box(cell * 2 + UVec3::ONE, depth + 1);
         let boxes: [(DVec3, DVec3); 8] = std::array::from_fn(|o| {
             let o = o as u32;
-            self.grid.cell_box(cell * 2 + UVec3::new(o & 1, (o >> 1) & 1, (o >> 2) & 1), depth + 1)
+            self.grid.cell_box(
+                cell * 2 + UVec3::new(o & 1, (o >> 1) & 1, (o >> 2) & 1),
+                depth + 1,
+            )
         });
         let mut subs: [Vec<u32>; 8] = Default::default();
         for &t in list {
@@ -692,11 +769,15 @@ impl Subdiv<'_> {
             let lo = v[0].min(v[1]).min(v[2]);
             let hi = v[0].max(v[1]).max(v[2]);
             // Per axis: bit 0 = may touch the lower half, bit 1 = the upper half.
-            let sides = [0, 1, 2].map(|a| (lo[a] <= mid[a]) as u32 | ((hi[a] >= mid[a]) as u32) << 1);
+            let sides =
+                [0, 1, 2].map(|a| (lo[a] <= mid[a]) as u32 | ((hi[a] >= mid[a]) as u32) << 1);
             let straddles = sides.contains(&3);
             for o in 0..8u32 {
                 let fits = (0..3).all(|a| sides[a] & (1 << ((o >> a) & 1)) != 0);
-                if fits && (!straddles || geom::triangle_overlaps_box(v, boxes[o as usize].0, boxes[o as usize].1)) {
+                if fits
+                    && (!straddles
+                        || geom::triangle_overlaps_box(v, boxes[o as usize].0, boxes[o as usize].1))
+                {
                     subs[o as usize].push(t);
                 }
             }
@@ -740,11 +821,17 @@ impl Subdiv<'_> {
         let (low, high) = polys
             .iter()
             .flat_map(|(p, _)| p.points())
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), q| (lo.min(n.dot(*q)), hi.max(n.dot(*q))));
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), q| {
+                (lo.min(n.dot(*q)), hi.max(n.dot(*q)))
+            });
         if !(low <= high) {
             return f64::INFINITY;
         }
-        let covered: f64 = list.iter().zip(&polys).map(|(&t, (_, area))| area * self.tris[t as usize].n.dot(n).abs()).sum();
+        let covered: f64 = list
+            .iter()
+            .zip(&polys)
+            .map(|(&t, (_, area))| area * self.tris[t as usize].n.dot(n).abs())
+            .sum();
         let (section, perimeter) = geom::plane_section(n, 0.5 * (low + high), lo, hi);
         if covered < section - perimeter * self.flat_tolerance() {
             return f64::INFINITY;

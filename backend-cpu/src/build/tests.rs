@@ -15,7 +15,14 @@ fn cube(min: [f32; 3], max: [f32; 3]) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
             if i & 4 == 0 { min[2] } else { max[2] },
         ]);
     }
-    let quads = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]];
+    let quads = [
+        [0, 2, 3, 1],
+        [4, 5, 7, 6],
+        [0, 1, 5, 4],
+        [2, 6, 7, 3],
+        [0, 4, 6, 2],
+        [1, 3, 7, 5],
+    ];
     let mut t = Vec::new();
     for q in quads {
         t.push([q[0], q[1], q[2]]);
@@ -25,22 +32,43 @@ fn cube(min: [f32; 3], max: [f32; 3]) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
 }
 
 fn bake_one(p: &[[f32; 3]], t: &[[u32; 3]], params: &BuildParams) -> (Vec<u32>, BuildReport) {
-    bake(&[MeshRef { positions: p, triangles: t }], params, &()).expect("bakes")
+    bake(
+        &[MeshRef {
+            positions: p,
+            triangles: t,
+        }],
+        params,
+        &(),
+    )
+    .expect("bakes")
 }
 
 #[test]
 fn cube_is_closed_and_outward() {
     let (p, t) = cube([0.0; 3], [1.0; 3]);
-    let (closed, rim, _) = edge_classes(&MeshRef { positions: &p, triangles: &t });
+    let (closed, rim, _) = edge_classes(&MeshRef {
+        positions: &p,
+        triangles: &t,
+    });
     assert!(closed.iter().all(|&c| c));
     assert!(rim.iter().all(|&r| r == 0));
-    let tris = gather(&[MeshRef { positions: &p, triangles: &t }], &mut BuildReport::default()).unwrap();
+    let tris = gather(
+        &[MeshRef {
+            positions: &p,
+            triangles: &t,
+        }],
+        &mut BuildReport::default(),
+    )
+    .unwrap();
     for tri in &tris {
         let c = (tri.v[0] + tri.v[1] + tri.v[2]) / 3.0 - DVec3::splat(0.5);
         assert!(tri.n.dot(c) > 0.0, "normals point out");
     }
     // Dropping one triangle opens it.
-    let (closed, rim, _) = edge_classes(&MeshRef { positions: &p, triangles: &t[1..] });
+    let (closed, rim, _) = edge_classes(&MeshRef {
+        positions: &p,
+        triangles: &t[1..],
+    });
     assert!(closed.iter().all(|&c| !c));
     // The three triangles that shared an edge with the removed one now have a rim edge, one
     // each: the one they shared with it.
@@ -50,14 +78,24 @@ fn cube_is_closed_and_outward() {
     for (tri, &r) in t[1..].iter().zip(&rim).filter(|(_, &r)| r != 0) {
         let k = r.trailing_zeros() as usize;
         let edge = [tri[k], tri[(k + 1) % 3]];
-        assert!(edge.iter().all(|i| removed.contains(i)), "rim edge {edge:?} is not the removed triangle's");
+        assert!(
+            edge.iter().all(|i| removed.contains(i)),
+            "rim edge {edge:?} is not the removed triangle's"
+        );
     }
 }
 
 #[test]
 fn variance_metric_is_area_normalised() {
     let (p, t) = cube([0.0; 3], [1.0; 3]);
-    let tris = gather(&[MeshRef { positions: &p, triangles: &t }], &mut BuildReport::default()).unwrap();
+    let tris = gather(
+        &[MeshRef {
+            positions: &p,
+            triangles: &t,
+        }],
+        &mut BuildReport::default(),
+    )
+    .unwrap();
     let grid = root_grid(&tris, 6).unwrap();
     let ctx = Subdiv {
         tris: &tris,
@@ -80,7 +118,11 @@ fn variance_metric_is_area_normalised() {
 #[test]
 fn cube_labels_inside_back_outside_front() {
     let (p, t) = cube([-1.0; 3], [1.0; 3]);
-    let params = BuildParams { dmin: 2, dmax: 5, ..BuildParams::default() };
+    let params = BuildParams {
+        dmin: 2,
+        dmax: 5,
+        ..BuildParams::default()
+    };
     let (words, report) = bake_one(&p, &t, &params);
     let view = ProxyView::new(&words).expect("valid");
     assert_eq!(report.conflicting_labels, 0);
@@ -104,7 +146,12 @@ fn cube_labels_inside_back_outside_front() {
     }
     // On the face: a surface leaf whose normal is the face's.
     let on = view.locate_leaf(Vec3::new(1.0, 0.3, 0.2)).unwrap();
-    let on = if on.kind == LeafKind::Surface { on } else { view.locate_leaf_toward(Vec3::new(1.0, 0.3, 0.2), -Vec3::X).unwrap() };
+    let on = if on.kind == LeafKind::Surface {
+        on
+    } else {
+        view.locate_leaf_toward(Vec3::new(1.0, 0.3, 0.2), -Vec3::X)
+            .unwrap()
+    };
     assert_eq!(on.kind, LeafKind::Surface);
     assert!((on.normal - Vec3::X).length() < 1e-3, "{}", on.normal);
 }
@@ -112,7 +159,16 @@ fn cube_labels_inside_back_outside_front() {
 #[test]
 fn lut_and_root_descent_agree() {
     let (p, t) = cube([-1.0, -0.5, -0.25], [1.0, 0.7, 0.3]);
-    let (words, _) = bake_one(&p, &t, &BuildParams { dmin: 1, dmax: 6, lut_depth: 3, ..BuildParams::default() });
+    let (words, _) = bake_one(
+        &p,
+        &t,
+        &BuildParams {
+            dmin: 1,
+            dmax: 6,
+            lut_depth: 3,
+            ..BuildParams::default()
+        },
+    );
     let view = ProxyView::new(&words).unwrap();
     let nolut = view.without_lut();
     let mut s = 99u64;
@@ -125,14 +181,26 @@ fn lut_and_root_descent_agree() {
     for _ in 0..5000 {
         let q = Vec3::new(r(), r(), r());
         let d = Vec3::new(r(), r(), r());
-        assert_eq!(view.locate_leaf_toward(q, d), nolut.locate_leaf_toward(q, d));
+        assert_eq!(
+            view.locate_leaf_toward(q, d),
+            nolut.locate_leaf_toward(q, d)
+        );
     }
 }
 
 #[test]
 fn validation_rejects_every_single_bit_flip_or_survives_it() {
     let (p, t) = cube([-1.0; 3], [1.0; 3]);
-    let (words, _) = bake_one(&p, &t, &BuildParams { dmin: 1, dmax: 4, lut_depth: 2, ..BuildParams::default() });
+    let (words, _) = bake_one(
+        &p,
+        &t,
+        &BuildParams {
+            dmin: 1,
+            dmax: 4,
+            lut_depth: 2,
+            ..BuildParams::default()
+        },
+    );
     assert!(ProxyView::new(&words).is_ok());
     // Truncation at any length is an error, never a panic.
     for len in 0..words.len() {
@@ -153,7 +221,10 @@ fn validation_rejects_every_single_bit_flip_or_survives_it() {
     // Version mismatch has its own error.
     let mut w = words.clone();
     w[1] = 99;
-    assert_eq!(ProxyView::new(&w).unwrap_err(), FormatError::UnsupportedVersion { found: 99 });
+    assert_eq!(
+        ProxyView::new(&w).unwrap_err(),
+        FormatError::UnsupportedVersion { found: 99 }
+    );
 }
 
 #[test]
@@ -161,69 +232,197 @@ fn bad_input_is_an_error() {
     let (p, t) = cube([0.0; 3], [1.0; 3]);
     let mut bad = p.clone();
     bad[3][1] = f32::NAN;
-    let r = bake(&[MeshRef { positions: &bad, triangles: &t }], &BuildParams::default(), &());
+    let r = bake(
+        &[MeshRef {
+            positions: &bad,
+            triangles: &t,
+        }],
+        &BuildParams::default(),
+        &(),
+    );
     assert!(matches!(r, Err(BuildError::NonFinite { vertex: 3, .. })));
     let mut badt = t.clone();
     badt[5][2] = 8;
-    let r = bake(&[MeshRef { positions: &p, triangles: &badt }], &BuildParams::default(), &());
-    assert!(matches!(r, Err(BuildError::IndexOutOfRange { triangle: 5, index: 8, .. })));
+    let r = bake(
+        &[MeshRef {
+            positions: &p,
+            triangles: &badt,
+        }],
+        &BuildParams::default(),
+        &(),
+    );
+    assert!(matches!(
+        r,
+        Err(BuildError::IndexOutOfRange {
+            triangle: 5,
+            index: 8,
+            ..
+        })
+    ));
     let degenerate = vec![[0, 0, 1], [1, 1, 1]];
-    let r = bake(&[MeshRef { positions: &p, triangles: &degenerate }], &BuildParams::default(), &());
+    let r = bake(
+        &[MeshRef {
+            positions: &p,
+            triangles: &degenerate,
+        }],
+        &BuildParams::default(),
+        &(),
+    );
     assert!(matches!(r, Err(BuildError::Empty { degenerate: 2 })));
     for params in [
-        BuildParams { dmax: 0, ..Default::default() },
-        BuildParams { dmax: 40, ..Default::default() },
-        BuildParams { dmin: 9, dmax: 8, ..Default::default() },
-        BuildParams { epsilon: -1.0, ..Default::default() },
-        BuildParams { epsilon: f32::NAN, ..Default::default() },
-        BuildParams { lut_depth: 9, ..Default::default() },
+        BuildParams {
+            dmax: 0,
+            ..Default::default()
+        },
+        BuildParams {
+            dmax: 40,
+            ..Default::default()
+        },
+        BuildParams {
+            dmin: 9,
+            dmax: 8,
+            ..Default::default()
+        },
+        BuildParams {
+            epsilon: -1.0,
+            ..Default::default()
+        },
+        BuildParams {
+            epsilon: f32::NAN,
+            ..Default::default()
+        },
+        BuildParams {
+            lut_depth: 9,
+            ..Default::default()
+        },
     ] {
-        assert!(matches!(bake(&[MeshRef { positions: &p, triangles: &t }], &params, &()), Err(BuildError::BadParam(_))));
+        assert!(matches!(
+            bake(
+                &[MeshRef {
+                    positions: &p,
+                    triangles: &t
+                }],
+                &params,
+                &()
+            ),
+            Err(BuildError::BadParam(_))
+        ));
     }
     // Scenes beyond what f32 can grid: too large, too small, and far for their size.
     let scaled = |s: f32, o: f32| p.iter().map(|v| v.map(|c| c * s + o)).collect::<Vec<_>>();
-    let bake_at = |q: &[[f32; 3]]| bake(&[MeshRef { positions: q, triangles: &t }], &BuildParams::default(), &());
+    let bake_at = |q: &[[f32; 3]]| {
+        bake(
+            &[MeshRef {
+                positions: q,
+                triangles: &t,
+            }],
+            &BuildParams::default(),
+            &(),
+        )
+    };
     let r = bake_at(&scaled(3e38, 0.0));
     assert!(matches!(r, Err(BuildError::TooLarge { .. })), "{r:?}");
     assert!(r.unwrap_err().to_string().contains("too large"));
     let r = bake_at(&scaled(1e-36, 0.0));
-    assert!(matches!(r, Err(BuildError::TooSmall { dmax: 8, .. })), "{r:?}");
+    assert!(
+        matches!(r, Err(BuildError::TooSmall { dmax: 8, .. })),
+        "{r:?}"
+    );
     let r = bake_at(&scaled(1.0, 1e6));
     assert!(matches!(r, Err(BuildError::Resolution { .. })), "{r:?}");
-    assert!(bake_at(&scaled(1e-30, 0.0)).is_ok(), "a tiny scene at the origin still bakes");
+    assert!(
+        bake_at(&scaled(1e-30, 0.0)).is_ok(),
+        "a tiny scene at the origin still bakes"
+    );
     // A runaway tree stops at the node cap.
-    let big = BuildParams { dmax: 16, dmin: 16, max_nodes: 10_000, ..Default::default() };
-    assert!(matches!(bake(&[MeshRef { positions: &p, triangles: &t }], &big, &()), Err(BuildError::TooManyNodes { .. })));
+    let big = BuildParams {
+        dmax: 16,
+        dmin: 16,
+        max_nodes: 10_000,
+        ..Default::default()
+    };
+    assert!(matches!(
+        bake(
+            &[MeshRef {
+                positions: &p,
+                triangles: &t
+            }],
+            &big,
+            &()
+        ),
+        Err(BuildError::TooManyNodes { .. })
+    ));
 }
 
 #[test]
 fn particles_bounce_off_a_closed_box_from_both_sides() {
     let (p, t) = cube([-1.0; 3], [1.0; 3]);
-    let (words, _) = bake_one(&p, &t, &BuildParams { dmin: 2, dmax: 6, ..BuildParams::default() });
+    let (words, _) = bake_one(
+        &p,
+        &t,
+        &BuildParams {
+            dmin: 2,
+            dmax: 6,
+            ..BuildParams::default()
+        },
+    );
     let view = ProxyView::new(&words).unwrap();
-    let params = StepParams { gravity: [0.0, -9.81, 0.0], dt: 0.01, restitution: 0.5, friction: 0.1, _pad: [0; 2] };
+    let params = StepParams {
+        gravity: [0.0, -9.81, 0.0],
+        dt: 0.01,
+        restitution: 0.5,
+        friction: 0.1,
+        _pad: [0; 2],
+    };
     // Outside, falling onto the top; inside, falling onto the floor from within.
     let mut outside = Particle::new([0.1, 2.0, 0.2], [0.0, -3.0, 0.0]);
     let mut inside = Particle::new([0.1, 0.5, 0.2], [0.0, -3.0, 0.0]);
     inside.side = initial_side(&view, inside.position);
-    assert_eq!(inside.side, SIDE_FRONT, "the centre is unlabelled: front until a label stamps it");
+    assert_eq!(
+        inside.side, SIDE_FRONT,
+        "the centre is unlabelled: front until a label stamps it"
+    );
     for _ in 0..2000 {
         step_particle(&view, &mut outside, &params);
         step_particle(&view, &mut inside, &params);
-        assert!(outside.position[1] >= 1.0 - 1e-6, "outside sank to {:?}", outside.position);
-        assert!(inside.position[1] >= -1.0 - 1e-6 && inside.position[1] <= 1.0, "inside left: {:?}", inside.position);
+        assert!(
+            outside.position[1] >= 1.0 - 1e-6,
+            "outside sank to {:?}",
+            outside.position
+        );
+        assert!(
+            inside.position[1] >= -1.0 - 1e-6 && inside.position[1] <= 1.0,
+            "inside left: {:?}",
+            inside.position
+        );
     }
     assert!(outside.collisions() > 0 && inside.collisions() > 0);
     assert_eq!(inside.side, SIDE_BACK);
     // Both came to rest on their surfaces.
-    assert!((outside.position[1] - 1.0).abs() < 0.05, "{:?}", outside.position);
-    assert!((inside.position[1] + 1.0).abs() < 0.05, "{:?}", inside.position);
+    assert!(
+        (outside.position[1] - 1.0).abs() < 0.05,
+        "{:?}",
+        outside.position
+    );
+    assert!(
+        (inside.position[1] + 1.0).abs() < 0.05,
+        "{:?}",
+        inside.position
+    );
 }
 
 #[test]
 fn nan_particles_are_flagged_and_unchanged() {
     let (p, t) = cube([-1.0; 3], [1.0; 3]);
-    let (words, _) = bake_one(&p, &t, &BuildParams { dmin: 2, dmax: 4, ..BuildParams::default() });
+    let (words, _) = bake_one(
+        &p,
+        &t,
+        &BuildParams {
+            dmin: 2,
+            dmax: 4,
+            ..BuildParams::default()
+        },
+    );
     let view = ProxyView::new(&words).unwrap();
     for bad in [
         Particle::new([f32::NAN, 0.0, 0.0], [0.0; 3]),
@@ -231,7 +430,10 @@ fn nan_particles_are_flagged_and_unchanged() {
         Particle::new([f32::NEG_INFINITY, 0.0, 0.0], [1.0; 3]),
     ] {
         let mut q = bad;
-        assert_eq!(step_particle(&view, &mut q, &StepParams::default()), StepOutcome::Invalid);
+        assert_eq!(
+            step_particle(&view, &mut q, &StepParams::default()),
+            StepOutcome::Invalid
+        );
         assert_eq!(q.position.map(f32::to_bits), bad.position.map(f32::to_bits));
         assert_eq!(q.velocity.map(f32::to_bits), bad.velocity.map(f32::to_bits));
         assert_ne!(q.flags & FLAG_INVALID, 0);
@@ -244,8 +446,22 @@ fn particles_starting_inside_big_surface_leaves_get_the_plane_side() {
     // A small second cube far away keeps the first one off the root boundary.
     let (p, t) = cube([-1.0; 3], [1.0; 3]);
     let (p2, t2) = cube([5.0; 3], [5.5; 3]);
-    let params = BuildParams { dmin: 1, dmax: 6, epsilon: 10.0, ..BuildParams::default() };
-    let meshes = [MeshRef { positions: &p, triangles: &t }, MeshRef { positions: &p2, triangles: &t2 }];
+    let params = BuildParams {
+        dmin: 1,
+        dmax: 6,
+        epsilon: 10.0,
+        ..BuildParams::default()
+    };
+    let meshes = [
+        MeshRef {
+            positions: &p,
+            triangles: &t,
+        },
+        MeshRef {
+            positions: &p2,
+            triangles: &t2,
+        },
+    ];
     let (words, _) = bake(&meshes, &params, &()).unwrap();
     let view = ProxyView::new(&words).unwrap();
     let mut checked = 0;
@@ -257,7 +473,12 @@ fn particles_starting_inside_big_surface_leaves_get_the_plane_side() {
                 let leaf = view.locate_leaf(q).unwrap();
                 if leaf.kind == LeafKind::Surface {
                     assert!(leaf.depth < 6, "the face leaf is big");
-                    assert_eq!(initial_side(&view, q.to_array()), expect, "{q} in {:?}", leaf.aabb);
+                    assert_eq!(
+                        initial_side(&view, q.to_array()),
+                        expect,
+                        "{q} in {:?}",
+                        leaf.aabb
+                    );
                     checked += 1;
                 }
             }
@@ -270,8 +491,18 @@ fn particles_starting_inside_big_surface_leaves_get_the_plane_side() {
 fn a_flat_patch_stops_early_only_where_it_spans_the_leaf() {
     // A big cube sets the grid; the test boxes are cut to one of its depth-3 cells.
     let (p, t) = cube([-8.0; 3], [8.0; 3]);
-    let params = BuildParams { dmax: 8, ..BuildParams::default() };
-    let big = gather(&[MeshRef { positions: &p, triangles: &t }], &mut BuildReport::default()).unwrap();
+    let params = BuildParams {
+        dmax: 8,
+        ..BuildParams::default()
+    };
+    let big = gather(
+        &[MeshRef {
+            positions: &p,
+            triangles: &t,
+        }],
+        &mut BuildReport::default(),
+    )
+    .unwrap();
     let grid = root_grid(&big, params.dmax).unwrap();
     let (cell, depth) = (UVec3::new(3, 4, 3), 3);
     let (lo, hi) = grid.cell_box(cell, depth);
@@ -283,9 +514,20 @@ fn a_flat_patch_stops_early_only_where_it_spans_the_leaf() {
     // cell through the floor it nearly lies in). Found by particles started on grid planes,
     // against Suzanne baked with dmin 0 and epsilon 1.
     let slab = |x_end: f64, top: f64| {
-        let min = [(lo.x - size) as f32, (lo.y - size) as f32, (lo.z - size) as f32];
+        let min = [
+            (lo.x - size) as f32,
+            (lo.y - size) as f32,
+            (lo.z - size) as f32,
+        ];
         let (p, t) = cube(min, [x_end as f32, top as f32, (hi.z + size) as f32]);
-        let tris = gather(&[MeshRef { positions: &p, triangles: &t }], &mut BuildReport::default()).unwrap();
+        let tris = gather(
+            &[MeshRef {
+                positions: &p,
+                triangles: &t,
+            }],
+            &mut BuildReport::default(),
+        )
+        .unwrap();
         let ctx = Subdiv {
             tris: &tris,
             grid,
@@ -302,17 +544,34 @@ fn a_flat_patch_stops_early_only_where_it_spans_the_leaf() {
         ctx.thickness(&list, cell, depth)
     };
     let across = slab(hi.x + size, lo.y + 0.3 * size);
-    assert!(across <= 1e-6 * size, "a face across the cell is flat and spans it: {across}");
+    assert!(
+        across <= 1e-6 * size,
+        "a face across the cell is flat and spans it: {across}"
+    );
     let low = slab(hi.x + size, lo.y + 0.2 * flat);
-    assert!(low <= 1e-6 * size, "a face just above the floor still spans the cell: {low}");
+    assert!(
+        low <= 1e-6 * size,
+        "a face just above the floor still spans the cell: {low}"
+    );
     let ends = slab(0.5 * (lo.x + hi.x), lo.y + 0.2 * flat);
-    assert!(ends.is_infinite(), "a face that ends in the middle of the cell does not span it: {ends}");
+    assert!(
+        ends.is_infinite(),
+        "a face that ends in the middle of the cell does not span it: {ends}"
+    );
 }
 
 #[test]
 fn owned_proxy_views_like_a_fresh_validation() {
     let (p, t) = cube([-1.0; 3], [1.0; 3]);
-    let (words, _) = bake_one(&p, &t, &BuildParams { dmin: 2, dmax: 5, ..BuildParams::default() });
+    let (words, _) = bake_one(
+        &p,
+        &t,
+        &BuildParams {
+            dmin: 2,
+            dmax: 5,
+            ..BuildParams::default()
+        },
+    );
     let owned = OwnedProxy::new(words.clone()).expect("valid");
     let fresh = ProxyView::new(&words).unwrap();
     let view = owned.view();
@@ -321,12 +580,19 @@ fn owned_proxy_views_like_a_fresh_validation() {
     assert_eq!(view.lut(), fresh.lut());
     let mut rng = crate::emit::Rng::new(4);
     for _ in 0..2000 {
-        let q = Vec3::new(rng.range(-1.3, 1.3), rng.range(-1.3, 1.3), rng.range(-1.3, 1.3));
+        let q = Vec3::new(
+            rng.range(-1.3, 1.3),
+            rng.range(-1.3, 1.3),
+            rng.range(-1.3, 1.3),
+        );
         assert_eq!(view.locate_leaf(q), fresh.locate_leaf(q));
     }
     let mut bad = words;
     bad[1] = 99;
-    assert_eq!(OwnedProxy::new(bad).unwrap_err(), FormatError::UnsupportedVersion { found: 99 });
+    assert_eq!(
+        OwnedProxy::new(bad).unwrap_err(),
+        FormatError::UnsupportedVersion { found: 99 }
+    );
 }
 
 /// Fuzzing found scenes near 1e30 whose triangles pass the parent's exact overlap test but no
@@ -344,9 +610,24 @@ fn extreme_coordinates_bake_to_a_valid_proxy_or_an_error() {
     ];
     let mut rng = crate::emit::Rng::new(11);
     for _ in 0..300 {
-        let t: Vec<[u32; 3]> = (0..1 + rng.next_u64() % 9).map(|_| [0, 1, 2].map(|_| (rng.next_u64() % 6) as u32)).collect();
-        let params = BuildParams { dmin: 3, dmax: 4, epsilon: 0.0, lut_depth: 0, ..BuildParams::default() };
-        if let Ok((words, _)) = bake(&[MeshRef { positions: &p, triangles: &t }], &params, &()) {
+        let t: Vec<[u32; 3]> = (0..1 + rng.next_u64() % 9)
+            .map(|_| [0, 1, 2].map(|_| (rng.next_u64() % 6) as u32))
+            .collect();
+        let params = BuildParams {
+            dmin: 3,
+            dmax: 4,
+            epsilon: 0.0,
+            lut_depth: 0,
+            ..BuildParams::default()
+        };
+        if let Ok((words, _)) = bake(
+            &[MeshRef {
+                positions: &p,
+                triangles: &t,
+            }],
+            &params,
+            &(),
+        ) {
             ProxyView::new(&words).expect("a bake always validates");
         }
     }
@@ -361,9 +642,21 @@ fn locating_from_the_last_leaf_agrees_with_locating_from_scratch() {
     // A tilted second box, so that leaves of many depths meet.
     let (q, u) = cube([-0.3, -0.9, -0.8], [0.9, -0.2, 0.6]);
     let off = p.len() as u32;
-    p.extend(q.iter().map(|v| [v[0] + 0.3 * v[1], v[1] - 0.2 * v[2], v[2] + 0.25 * v[0]]));
+    p.extend(
+        q.iter()
+            .map(|v| [v[0] + 0.3 * v[1], v[1] - 0.2 * v[2], v[2] + 0.25 * v[0]]),
+    );
     t.extend(u.iter().map(|tri| tri.map(|i| i + off)));
-    let (words, _) = bake_one(&p, &t, &BuildParams { dmin: 1, dmax: 7, lut_depth: 3, ..BuildParams::default() });
+    let (words, _) = bake_one(
+        &p,
+        &t,
+        &BuildParams {
+            dmin: 1,
+            dmax: 7,
+            lut_depth: 3,
+            ..BuildParams::default()
+        },
+    );
     let view = ProxyView::new(&words).unwrap();
     let mut s = 7u64;
     let mut r = || {
@@ -378,7 +671,9 @@ fn locating_from_the_last_leaf_agrees_with_locating_from_scratch() {
         for _ in 0..3000 {
             let f = |k: u64| k as f32 / (1u64 << 24) as f32;
             let x = root.min + (root.max - root.min) * Vec3::new(f(r()), f(r()), f(r()));
-            let Some(from) = v.locate_leaf(x) else { continue };
+            let Some(from) = v.locate_leaf(x) else {
+                continue;
+            };
             // Per axis: the lower plane, the upper one, or a point between them.
             let mut q = x;
             for a in 0..3 {
@@ -391,13 +686,20 @@ fn locating_from_the_last_leaf_agrees_with_locating_from_scratch() {
             let pick = |k: u64| [0.0, 1.0, -1.0, -0.0, f32::NAN][(k % 5) as usize];
             let dir = Vec3::new(pick(r()), pick(r()), pick(r()));
             let expected = v.locate_leaf_toward(q, dir);
-            assert_eq!(v.locate_leaf_from(&from, q, dir), expected, "from {from:?} at {q:?} toward {dir:?}");
+            assert_eq!(
+                v.locate_leaf_from(&from, q, dir),
+                expected,
+                "from {from:?} at {q:?} toward {dir:?}"
+            );
             on_faces += (q != x) as u32;
             moved += expected.is_some_and(|l| l.cell != from.cell || l.depth != from.depth) as u32;
         }
     }
     // Most points were put on a face, and many of those are in another leaf.
-    assert!(on_faces > 4000 && moved > 1500, "{on_faces} points on faces, {moved} in another leaf");
+    assert!(
+        on_faces > 4000 && moved > 1500,
+        "{on_faces} points on faces, {moved} in another leaf"
+    );
 }
 
 #[test]
@@ -407,13 +709,21 @@ fn forced_cells_overlap_exactly_the_cells_that_nest_with_them() {
         let s = MAX_DEPTH - depth;
         (cell << s, (cell + 1) << s)
     };
-    let overlap = |a: (UVec3, UVec3), b: (UVec3, UVec3)| a.0.cmplt(b.1).all() && b.0.cmplt(a.1).all();
+    let overlap =
+        |a: (UVec3, UVec3), b: (UVec3, UVec3)| a.0.cmplt(b.1).all() && b.0.cmplt(a.1).all();
     let mut rng = crate::emit::Rng::new(5);
     let mut cell_at = |depth: u32| {
         let n = 1u32 << depth;
-        UVec3::new(rng.next_u64() as u32 % n, rng.next_u64() as u32 % n, rng.next_u64() as u32 % n)
+        UVec3::new(
+            rng.next_u64() as u32 % n,
+            rng.next_u64() as u32 % n,
+            rng.next_u64() as u32 % n,
+        )
     };
-    let forced: Vec<(u32, UVec3)> = [2u32, 3, 5, 5, 7].iter().map(|&d| (d, cell_at(d))).collect();
+    let forced: Vec<(u32, UVec3)> = [2u32, 3, 5, 5, 7]
+        .iter()
+        .map(|&d| (d, cell_at(d)))
+        .collect();
     let mut set = Forced::default();
     assert!(!set.overlaps(0, UVec3::ZERO), "nothing forced yet");
     for &(d, c) in &forced {
@@ -426,14 +736,17 @@ fn forced_cells_overlap_exactly_the_cells_that_nest_with_them() {
             let c = if probe % 2 == 0 {
                 let (fd, fc) = forced[probe % forced.len()];
                 if depth >= fd {
-                    (fc << (depth - fd)) + (cell_at(depth - fd) & UVec3::splat((1 << (depth - fd)) - 1))
+                    (fc << (depth - fd))
+                        + (cell_at(depth - fd) & UVec3::splat((1 << (depth - fd)) - 1))
                 } else {
                     fc >> (fd - depth)
                 }
             } else {
                 cell_at(depth)
             };
-            let want = forced.iter().any(|&(d, f)| overlap(range(d, f), range(depth, c)));
+            let want = forced
+                .iter()
+                .any(|&(d, f)| overlap(range(d, f), range(depth, c)));
             assert_eq!(set.overlaps(depth, c), want, "cell {c} at depth {depth}");
             hits += want as u32;
         }

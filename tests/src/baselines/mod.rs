@@ -28,7 +28,8 @@ pub mod triangle_octree;
 
 use glam::{DVec3, Vec3};
 use octoproxy_core::{
-    respond, COLLISION_SHIFT, FLAG_BOUND_HIT, FLAG_INVALID, FLAG_STATUS_MASK, FLAG_STEP_STATUS, MAX_COLLISIONS,
+    respond, COLLISION_SHIFT, FLAG_BOUND_HIT, FLAG_INVALID, FLAG_STATUS_MASK, FLAG_STEP_STATUS,
+    MAX_COLLISIONS,
 };
 
 /// Bounces one step may have in the ray-casting methods; at the next hit the particle stops
@@ -42,11 +43,18 @@ pub(crate) type Hit = Option<(f64, DVec3)>;
 /// Vertices and triangles with the ones a method cannot use left out: indices past the
 /// vertex list, non-finite vertices, and triangles of zero area (in `f64`). Returns the kept
 /// triangles and how many were dropped.
-pub(crate) fn valid_triangles(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> (Vec<[u32; 3]>, usize) {
+pub(crate) fn valid_triangles(
+    positions: &[[f32; 3]],
+    triangles: &[[u32; 3]],
+) -> (Vec<[u32; 3]>, usize) {
     let kept: Vec<[u32; 3]> = triangles
         .iter()
         .filter(|t| {
-            t.iter().all(|&i| positions.get(i as usize).is_some_and(|p| p.iter().all(|c| c.is_finite()))) && {
+            t.iter().all(|&i| {
+                positions
+                    .get(i as usize)
+                    .is_some_and(|p| p.iter().all(|c| c.is_finite()))
+            }) && {
                 let v = t.map(|i| DVec3::from_array(positions[i as usize].map(f64::from)));
                 let n = (v[1] - v[0]).cross(v[2] - v[0]);
                 n.length_squared() > 0.0 && n.is_finite()
@@ -75,14 +83,22 @@ pub(crate) fn standoff(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> f64 {
     }
     let diag = (hi - lo).length();
     let mag = lo.abs().max(hi.abs()).max_element();
-    (diag * 1e-6).max(mag * 4.0 * f64::from(f32::EPSILON)).max(f64::from(f32::MIN_POSITIVE))
+    (diag * 1e-6)
+        .max(mag * 4.0 * f64::from(f32::EPSILON))
+        .max(f64::from(f32::MIN_POSITIVE))
 }
 
 /// Writes the end of a step into `p` the way core's `step_particle` does: position,
 /// velocity, the saturating collision count, and the step status bits (only
 /// [`FLAG_BOUND_HIT`] here). `x` and `v` must be finite, or the particle is marked invalid and
 /// left as it was.
-pub(crate) fn finish(p: &mut octoproxy_core::Particle, x: Vec3, v: Vec3, collisions: u32, bound_hit: bool) {
+pub(crate) fn finish(
+    p: &mut octoproxy_core::Particle,
+    x: Vec3,
+    v: Vec3,
+    collisions: u32,
+    bound_hit: bool,
+) {
     if !x.is_finite() || !v.is_finite() {
         p.flags |= FLAG_INVALID;
         return;

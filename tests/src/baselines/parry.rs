@@ -31,9 +31,17 @@ impl ParryTriMesh {
             return Err(format!("no usable triangle (of {dropped})"));
         }
         let standoff = super::standoff(positions, &triangles);
-        let vertices: Vec<Vector> = positions.iter().map(|p| Vector::new(p[0], p[1], p[2])).collect();
-        let mesh = TriMesh::new(vertices, triangles).map_err(|e| format!("parry3d TriMesh: {e}"))?;
-        Ok(ParryTriMesh { mesh, standoff, dropped })
+        let vertices: Vec<Vector> = positions
+            .iter()
+            .map(|p| Vector::new(p[0], p[1], p[2]))
+            .collect();
+        let mesh =
+            TriMesh::new(vertices, triangles).map_err(|e| format!("parry3d TriMesh: {e}"))?;
+        Ok(ParryTriMesh {
+            mesh,
+            standoff,
+            dropped,
+        })
     }
 
     /// Triangles left out when building (bad indices, non-finite vertices, zero area).
@@ -48,7 +56,10 @@ impl ParryTriMesh {
         let ray = Ray::new(Vector::new(a.x, a.y, a.z), Vector::new(d.x, d.y, d.z));
         let hit = self.mesh.cast_local_ray_and_get_normal(&ray, 1.0, false)?;
         let n = hit.normal;
-        Some((f64::from(hit.time_of_impact), DVec3::new(n.x.into(), n.y.into(), n.z.into())))
+        Some((
+            f64::from(hit.time_of_impact),
+            DVec3::new(n.x.into(), n.y.into(), n.z.into()),
+        ))
     }
 }
 

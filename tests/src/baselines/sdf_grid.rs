@@ -61,7 +61,10 @@ fn signs(
             if ijk[a] + 1 < n[a] {
                 let other = idx + strides[a];
                 if dist[idx] > far || dist[other] > far {
-                    let (ra, rb) = (find(&mut parent, idx as u32), find(&mut parent, other as u32));
+                    let (ra, rb) = (
+                        find(&mut parent, idx as u32),
+                        find(&mut parent, other as u32),
+                    );
                     if ra != rb {
                         parent[ra.max(rb) as usize] = ra.min(rb);
                     }
@@ -73,8 +76,14 @@ fn signs(
     let mut reps: Vec<u32> = roots.clone();
     reps.sort_unstable();
     reps.dedup();
-    let inside: Vec<bool> = reps.par_iter().map(|&r| gt.is_inside(point(r as usize))).collect();
-    roots.iter().map(|r| inside[reps.binary_search(r).unwrap_or(0)]).collect()
+    let inside: Vec<bool> = reps
+        .par_iter()
+        .map(|&r| gt.is_inside(point(r as usize)))
+        .collect();
+    roots
+        .iter()
+        .map(|r| inside[reps.binary_search(r).unwrap_or(0)])
+        .collect()
 }
 
 /// Fills the samples at `band` or beyond with a chamfer distance transform (weights 1, √2,
@@ -140,7 +149,11 @@ pub struct SdfGrid {
 
 /// Samples along each axis for cell size `h` over extents `ext`.
 fn dims_for(ext: [f64; 3], h: f64) -> [u64; 3] {
-    ext.map(|e| ((e / h).ceil().max(0.0) as u64).saturating_add(2 * MARGIN_CELLS as u64 + 1).max(2))
+    ext.map(|e| {
+        ((e / h).ceil().max(0.0) as u64)
+            .saturating_add(2 * MARGIN_CELLS as u64 + 1)
+            .max(2)
+    })
 }
 
 fn count(d: [u64; 3]) -> u64 {
@@ -153,7 +166,12 @@ impl SdfGrid {
     /// budget). `closed` picks the sign: inside/outside for a closed mesh, a one-cell shell
     /// around the surface otherwise. Bad triangles (indices past the vertex list, non-finite
     /// vertices, zero area) are ignored.
-    pub fn new(positions: &[[f32; 3]], triangles: &[[u32; 3]], memory_budget_bytes: usize, closed: bool) -> Self {
+    pub fn new(
+        positions: &[[f32; 3]],
+        triangles: &[[u32; 3]],
+        memory_budget_bytes: usize,
+        closed: bool,
+    ) -> Self {
         let (triangles, _) = super::valid_triangles(positions, triangles);
         let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
         for t in &triangles {
@@ -170,9 +188,12 @@ impl SdfGrid {
             hi = [1.0; 3];
         }
         let ext = [hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]];
-        let samples = ((memory_budget_bytes.saturating_sub(std::mem::size_of::<Self>())) / 4) as u64;
+        let samples =
+            ((memory_budget_bytes.saturating_sub(std::mem::size_of::<Self>())) / 4) as u64;
         // The smallest cell size whose grid fits: the count falls as the cell grows.
-        let diag = (ext[0] * ext[0] + ext[1] * ext[1] + ext[2] * ext[2]).sqrt().max(1e-30);
+        let diag = (ext[0] * ext[0] + ext[1] * ext[1] + ext[2] * ext[2])
+            .sqrt()
+            .max(1e-30);
         let (mut small, mut big) = (diag * 1e-7, diag * 2.0);
         for _ in 0..200 {
             let mid = (small * big).sqrt();
@@ -188,25 +209,42 @@ impl SdfGrid {
         let h = big;
         let d = dims_for(ext, h);
         let dims = d.map(|n| n.min(u64::from(u32::MAX)) as u32);
-        let origin = [lo[0] - MARGIN_CELLS * h, lo[1] - MARGIN_CELLS * h, lo[2] - MARGIN_CELLS * h];
+        let origin = [
+            lo[0] - MARGIN_CELLS * h,
+            lo[1] - MARGIN_CELLS * h,
+            lo[2] - MARGIN_CELLS * h,
+        ];
         let gt = GroundTruth::new(positions, &triangles);
         let n = [dims[0] as usize, dims[1] as usize, dims[2] as usize];
         let total = n[0] * n[1] * n[2];
         let point = |idx: usize| {
             let (i, j, k) = (idx % n[0], (idx / n[0]) % n[1], idx / (n[0] * n[1]));
-            [(origin[0] + i as f64 * h) as f32, (origin[1] + j as f64 * h) as f32, (origin[2] + k as f64 * h) as f32]
+            [
+                (origin[0] + i as f64 * h) as f32,
+                (origin[1] + j as f64 * h) as f32,
+                (origin[2] + k as f64 * h) as f32,
+            ]
         };
         // Exact distances in a band of BAND_CELLS cells around the surface.
         let band = BAND_CELLS * h;
-        let mut dist: Vec<f64> = (0..total).into_par_iter().map(|idx| gt.distance_capped(point(idx), band)).collect();
-        let sign = if closed { Some(signs(&gt, &dist, n, h, &point)) } else { None };
+        let mut dist: Vec<f64> = (0..total)
+            .into_par_iter()
+            .map(|idx| gt.distance_capped(point(idx), band))
+            .collect();
+        let sign = if closed {
+            Some(signs(&gt, &dist, n, h, &point))
+        } else {
+            None
+        };
         // Beyond the band, a chamfer distance transform from it.
         chamfer(&mut dist, n, h, band);
         let half = h * 0.5;
         let data: Vec<f32> = match sign {
-            Some(sign) => {
-                dist.iter().zip(&sign).map(|(&d, &inside)| if inside { -d as f32 } else { d as f32 }).collect()
-            }
+            Some(sign) => dist
+                .iter()
+                .zip(&sign)
+                .map(|(&d, &inside)| if inside { -d as f32 } else { d as f32 })
+                .collect(),
             None => dist.iter().map(|&d| (d - half) as f32).collect(),
         };
         SdfGrid {

@@ -90,7 +90,12 @@ impl TriangleOctree {
     /// Builds the tree. Triangles with an index past `positions`, a non-finite vertex or zero
     /// area are left out ([`TriangleOctree::dropped_triangles`]); `max_depth` is capped at
     /// [`MAX_DEPTH`] and `max_leaf_triangles` raised to 1.
-    pub fn new(positions: &[[f32; 3]], triangles: &[[u32; 3]], max_depth: u32, max_leaf_triangles: usize) -> Self {
+    pub fn new(
+        positions: &[[f32; 3]],
+        triangles: &[[u32; 3]],
+        max_depth: u32,
+        max_leaf_triangles: usize,
+    ) -> Self {
         let (triangles, dropped) = super::valid_triangles(positions, triangles);
         let standoff = super::standoff(positions, &triangles);
         let max_depth = max_depth.min(MAX_DEPTH);
@@ -110,10 +115,20 @@ impl TriangleOctree {
         let center = (lo + hi) * 0.5;
         let root_min = center - DVec3::splat(size * 0.5);
         let all: Vec<u32> = (0..triangles.len() as u32).collect();
-        let builder = Builder { positions, triangles: &triangles, max_depth, max_leaf, pad: size * 1e-9 };
+        let builder = Builder {
+            positions,
+            triangles: &triangles,
+            max_depth,
+            max_leaf,
+            pad: size * 1e-9,
+        };
         let tmp = builder.build(all, root_min, size, 0);
         // Flatten breadth first, each node's eight children together.
-        let mut nodes = vec![Node { first_child: 0, start: 0, count: 0 }];
+        let mut nodes = vec![Node {
+            first_child: 0,
+            start: 0,
+            count: 0,
+        }];
         let mut indices = Vec::new();
         let mut queue = std::collections::VecDeque::from([(0usize, tmp)]);
         let mut depth_of = vec![0u32];
@@ -121,7 +136,11 @@ impl TriangleOctree {
         while let Some((at, t)) = queue.pop_front() {
             match t {
                 Tmp::Leaf(list) => {
-                    nodes[at] = Node { first_child: 0, start: indices.len() as u32, count: list.len() as u32 };
+                    nodes[at] = Node {
+                        first_child: 0,
+                        start: indices.len() as u32,
+                        count: list.len() as u32,
+                    };
                     indices.extend_from_slice(&list);
                 }
                 Tmp::Inner(children) => {
@@ -130,7 +149,11 @@ impl TriangleOctree {
                     let d = depth_of[at] + 1;
                     depth = depth.max(d);
                     for (k, c) in (*children).into_iter().enumerate() {
-                        nodes.push(Node { first_child: 0, start: 0, count: 0 });
+                        nodes.push(Node {
+                            first_child: 0,
+                            start: 0,
+                            count: 0,
+                        });
                         depth_of.push(d);
                         queue.push_back((first + k, c));
                     }
@@ -139,7 +162,10 @@ impl TriangleOctree {
         }
         indices.shrink_to_fit();
         TriangleOctree {
-            tris: triangles.iter().map(|t| t.map(|i| positions[i as usize])).collect(),
+            tris: triangles
+                .iter()
+                .map(|t| t.map(|i| positions[i as usize]))
+                .collect(),
             nodes,
             indices,
             root_min,
@@ -168,7 +194,11 @@ impl TriangleOctree {
     /// The nearest hit of the segment `a → a + d`: its parameter in `[0, 1]` and the
     /// triangle's geometric normal.
     pub(crate) fn cast(&self, a: DVec3, d: DVec3) -> Hit {
-        let seg = Segment { a, d, inv: d.recip() };
+        let seg = Segment {
+            a,
+            d,
+            inv: d.recip(),
+        };
         let root_max = self.root_min + DVec3::splat(self.root_size);
         segment_box(a, d, seg.inv, self.root_min, root_max, 1.0)?;
         let mut best = (f64::INFINITY, u32::MAX);
@@ -218,7 +248,14 @@ impl TriangleOctree {
                 continue;
             }
             let cmin = child_min(min, half, k);
-            if let Some(t) = segment_box(seg.a, seg.d, seg.inv, cmin, cmin + DVec3::splat(half), reach) {
+            if let Some(t) = segment_box(
+                seg.a,
+                seg.d,
+                seg.inv,
+                cmin,
+                cmin + DVec3::splat(half),
+                reach,
+            ) {
                 // Insertion sort, nearest first.
                 let mut j = n;
                 while j > 0 && hits[j - 1].1 > t {
@@ -233,7 +270,13 @@ impl TriangleOctree {
             if t > best.0 {
                 break;
             }
-            self.visit(seg, node.first_child + k, child_min(min, half, k), half, best);
+            self.visit(
+                seg,
+                node.first_child + k,
+                child_min(min, half, k),
+                half,
+                best,
+            );
         }
     }
 }
@@ -271,11 +314,20 @@ impl Builder<'_> {
         let half = size * 0.5;
         let child = |k: u32| {
             let cmin = child_min(min, half, k);
-            let (lo, hi) = (cmin - DVec3::splat(self.pad), cmin + DVec3::splat(half + self.pad));
+            let (lo, hi) = (
+                cmin - DVec3::splat(self.pad),
+                cmin + DVec3::splat(half + self.pad),
+            );
             let list: Vec<u32> = tris
                 .iter()
                 .copied()
-                .filter(|&t| triangle_overlaps_box(&tri_of(self.positions, self.triangles[t as usize]), lo, hi))
+                .filter(|&t| {
+                    triangle_overlaps_box(
+                        &tri_of(self.positions, self.triangles[t as usize]),
+                        lo,
+                        hi,
+                    )
+                })
                 .collect();
             self.build(list, cmin, half, depth + 1)
         };
@@ -285,7 +337,9 @@ impl Builder<'_> {
             (0..8u32).map(child).collect()
         };
         let mut it = children.into_iter();
-        Tmp::Inner(Box::new(std::array::from_fn(|_| it.next().unwrap_or(Tmp::Leaf(Vec::new())))))
+        Tmp::Inner(Box::new(std::array::from_fn(|_| {
+            it.next().unwrap_or(Tmp::Leaf(Vec::new()))
+        })))
     }
 }
 

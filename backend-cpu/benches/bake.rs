@@ -7,7 +7,7 @@ use std::time::Instant;
 
 use octoproxy_core::{initial_side, Backend, ProxyView, StepParams};
 use octoproxy_cpu::emit::emit_box;
-use octoproxy_cpu::mesh::{load_mesh, Mesh};
+use octoproxy_cpu::io::{load_mesh, Mesh};
 use octoproxy_cpu::{bake, BuildParams, CpuBackend, MeshRef};
 
 fn subdivide(m: &Mesh) -> Mesh {

@@ -4,7 +4,7 @@
 use glam::{DVec3, Vec3};
 use octoproxy_core::Particle;
 
-use crate::build::MeshRef;
+use crate::bake::MeshRef;
 
 /// A small, fast, seedable generator (xorshift64*), so emission needs no dependency.
 #[derive(Clone, Debug)]

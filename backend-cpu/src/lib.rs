@@ -1,9 +1,12 @@
 //! octoproxy on the CPU: everything host-side.
 //!
-//! - [`build`]: baking triangle meshes into an encoded proxy (subdivision, normals,
+//! - [`bake`]: baking triangle meshes into an encoded proxy (subdivision, normals,
 //!   view-visible labelling, encoding, lookup table), in parallel with rayon.
-//! - [`mesh`]: reading PLY, OBJ and STL meshes (each also gzipped).
-//! - [`particles`]: particle point clouds in PLY, in and out.
+//! - [`io`]: reading OBJ, STL and PLY meshes (each also gzipped), and particle point clouds
+//!   in PLY, in and out.
+//! - [`emit`]: particles in a box or on a mesh's surface.
+//! - [`ground_truth`], [`harness`], [`scenes`]: checking a scene the way the tests do: exact
+//!   winding numbers and segment crossings, the penetration harness, procedural meshes.
 //! - [`CpuBackend`]: the core step over particles with rayon, behind the core `Backend` trait.
 //!
 //! # Example
@@ -13,8 +16,8 @@
 //!
 //! ```
 //! use octoproxy_core::{initial_side, Backend, Particle, ProxyView, StepParams, SIDE_BACK};
-//! use octoproxy_cpu::mesh::{parse_mesh, MeshFormat};
-//! use octoproxy_cpu::particles::{encode_particles, ParticleCloud, PlyEncoding};
+//! use octoproxy_cpu::io::{parse_mesh, MeshFormat};
+//! use octoproxy_cpu::io::{encode_particles, ParticleCloud, PlyEncoding};
 //! use octoproxy_cpu::{bake, BuildParams, CpuBackend, MeshRef};
 //!
 //! // A unit cube, faces wound outward (`mesh::load_mesh` reads a file, gzipped or not).
@@ -57,14 +60,15 @@
 //! ```
 
 pub mod backend;
-pub mod build;
+pub mod bake;
 pub mod emit;
+pub mod ground_truth;
+pub mod harness;
+pub mod io;
+pub mod scenes;
 
 pub use backend::{CpuBackend, CpuError};
-pub use build::{bake, BuildError, BuildParams, BuildProgress, BuildReport, MeshRef};
-pub mod mesh;
-pub mod particles;
-pub mod ply;
+pub use bake::{bake, BuildError, BuildParams, BuildProgress, BuildReport, MeshRef};
 
 /// The README's examples, compiled and run as doctests.
 #[doc = include_str!("../../README.md")]

@@ -5,7 +5,8 @@
 
 use octoproxy_core::*;
 use octoproxy_cpu::{bake, BuildParams, MeshRef};
-use octoproxy_tests::{ground_truth::GroundTruth, harness::*, meshes, scenes};
+use octoproxy_cpu::{ground_truth::GroundTruth, harness::*, scenes};
+use octoproxy_tests::meshes;
 fn main() {
     let dt = 1.0 / 60.0;
     let mut cases: Vec<(String, scenes::Mesh, bool)> = vec![

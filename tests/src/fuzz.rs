@@ -16,13 +16,13 @@ use octoproxy_core::{
     initial_side, step_particle, step_particle_hinted, step_particle_traced, LeafHint, Particle,
     ProxyView, StepOutcome, StepParams, FLAG_INVALID, SIDE_BACK, SIDE_FRONT,
 };
-use octoproxy_cpu::build::{bake, BuildError, BuildParams, MeshRef};
-use octoproxy_cpu::mesh::{parse_mesh, Mesh};
-use octoproxy_cpu::particles::{encode_particles, parse_particles, PlyEncoding};
+use octoproxy_cpu::bake::{bake, BuildError, BuildParams, MeshRef};
+use octoproxy_cpu::io::{encode_particles, parse_particles, PlyEncoding};
+use octoproxy_cpu::io::{parse_mesh, Mesh};
 
-use crate::ground_truth::GroundTruth;
-use crate::harness::{aligned_velocity, deep_on_the_other_side, jumps_back, tolerance};
-use crate::scenes;
+use octoproxy_cpu::ground_truth::GroundTruth;
+use octoproxy_cpu::harness::{aligned_velocity, deep_on_the_other_side, jumps_back, tolerance};
+use octoproxy_cpu::scenes;
 
 // ---------------------------------------------------------------------------------------------
 // Shared input decoding.

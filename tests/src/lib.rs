@@ -1,9 +1,8 @@
-//! Cross-crate test support for octoproxy: exact ground truth, procedural scenes, the
-//! penetration harness, and the shared test meshes.
+//! Development support for octoproxy's tests and bench: the baselines users would pick
+//! instead (a triangle-list octree, parry3d, a signed-distance grid), the fuzz target bodies,
+//! and the shared test meshes. The exact ground truth, the penetration harness and the
+//! procedural scenes are product features and live in `octoproxy-cpu`.
 
 pub mod baselines;
 pub mod fuzz;
-pub mod ground_truth;
-pub mod harness;
 pub mod meshes;
-pub mod scenes;

@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use octoproxy_cpu::mesh::{load_mesh, Mesh};
+use octoproxy_cpu::io::{load_mesh, Mesh};
 
 /// The directory of the shared meshes.
 pub fn dir() -> PathBuf {

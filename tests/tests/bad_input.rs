@@ -6,10 +6,10 @@ use octoproxy_core::{
     step_particle, FormatError, ParamError, Particle, ProxyView, StepOutcome, StepParams,
     FLAG_INVALID, FORMAT_VERSION,
 };
-use octoproxy_cpu::build::{bake, BuildError, BuildParams, MeshRef};
-use octoproxy_cpu::mesh::{parse_mesh, MeshError, MeshFormat};
-use octoproxy_cpu::particles::{parse_particles, ParticleIoError};
-use octoproxy_tests::scenes;
+use octoproxy_cpu::bake::{bake, BuildError, BuildParams, MeshRef};
+use octoproxy_cpu::io::{parse_mesh, MeshError, MeshFormat};
+use octoproxy_cpu::io::{parse_particles, ParticleIoError};
+use octoproxy_cpu::scenes;
 
 /// A small valid proxy (a cube, dmax 4, with a lookup table).
 fn cube_proxy() -> Vec<u32> {

@@ -4,11 +4,11 @@
 //! grid must stay within its memory budget.
 
 use octoproxy_core::{Particle, StepParams, FLAG_INVALID};
+use octoproxy_cpu::scenes::{self, Mesh};
 use octoproxy_tests::baselines::parry::ParryTriMesh;
 use octoproxy_tests::baselines::sdf_grid::SdfGrid;
 use octoproxy_tests::baselines::triangle_octree::TriangleOctree;
 use octoproxy_tests::baselines::Method;
-use octoproxy_tests::scenes::{self, Mesh};
 
 /// The unit cube `[0, 1]³` (closed, normals out).
 fn cube() -> Mesh {
@@ -278,7 +278,7 @@ fn sdf_grid_matches_ground_truth() {
     // Signs (grouped winding numbers) and distances (exact near the surface, a chamfer
     // transform beyond) against exact ground truth at random points, on closed meshes whose
     // faces do and do not lie on grid samples.
-    use octoproxy_tests::ground_truth::GroundTruth;
+    use octoproxy_cpu::ground_truth::GroundTruth;
     let meshes = [
         scenes::cube([0.0; 3], [1.0; 3]),
         scenes::torus([0.1, 0.2, 0.3], 1.0, 0.35, 48, 24),

@@ -17,11 +17,11 @@ use octoproxy_core::{
     step_particle, Backend, Particle, ProxyView, StepParams, FLAG_INVALID, MAX_DEPTH,
 };
 use octoproxy_cpu::emit::Rng;
+use octoproxy_cpu::ground_truth::GroundTruth;
+use octoproxy_cpu::harness::random_particles;
+use octoproxy_cpu::scenes::{self, Mesh};
 use octoproxy_cpu::{bake, BuildParams, CpuBackend, MeshRef};
-use octoproxy_tests::ground_truth::GroundTruth;
-use octoproxy_tests::harness::random_particles;
 use octoproxy_tests::meshes;
-use octoproxy_tests::scenes::{self, Mesh};
 use octoproxy_wgpu::WgpuBackend;
 
 const DT: f32 = 1.0 / 60.0;

@@ -145,7 +145,7 @@ fn fuzz_mesh_files_corpus_and_sweep() {
 #[test]
 #[ignore = "rewrites fuzz/corpus; run by hand"]
 fn write_seed_corpus() {
-    use octoproxy_tests::scenes;
+    use octoproxy_cpu::scenes;
     let write = |target: &str, name: &str, bytes: &[u8]| {
         let dir = corpus_dir(target);
         std::fs::create_dir_all(&dir).expect("corpus dir");
@@ -212,12 +212,12 @@ fn write_seed_corpus() {
         }
         bin_stl.extend([0u8; 2]);
     }
-    let particles = octoproxy_cpu::particles::encode_particles(
-        &octoproxy_cpu::particles::ParticleCloud::from_particles(vec![
+    let particles = octoproxy_cpu::io::encode_particles(
+        &octoproxy_cpu::io::ParticleCloud::from_particles(vec![
             octoproxy_core::Particle::new([0.0, 1.0, 2.0], [0.5, 0.0, -1.0]),
             octoproxy_core::Particle::new([f32::NAN, 0.0, f32::INFINITY], [0.0; 3]),
         ]),
-        octoproxy_cpu::particles::PlyEncoding::BinaryLittleEndian,
+        octoproxy_cpu::io::PlyEncoding::BinaryLittleEndian,
     );
     let ascii_particles = "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\nproperty float temperature\nend_header\n1 2 3 300\n-1 0.5 nan 20\n";
     let with = |sel: u8, body: &[u8]| -> Vec<u8> {

@@ -5,8 +5,8 @@
 use glam::Vec3;
 use octoproxy_core::{Backend, Particle, StepParams};
 use octoproxy_cpu::emit::emit_box;
+use octoproxy_cpu::scenes;
 use octoproxy_cpu::{bake, BuildParams, CpuBackend, MeshRef};
-use octoproxy_tests::scenes;
 use octoproxy_wgpu::wgpu;
 use octoproxy_wgpu::{WgpuBackend, WgpuError, PARTICLE_BYTES};
 

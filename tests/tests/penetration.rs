@@ -4,13 +4,13 @@
 //! scene per step.
 
 use octoproxy_core::{initial_side, Particle, ProxyView, StepParams};
-use octoproxy_cpu::{bake, BuildError, BuildParams, MeshRef};
-use octoproxy_tests::ground_truth::GroundTruth;
-use octoproxy_tests::harness::{
+use octoproxy_cpu::ground_truth::GroundTruth;
+use octoproxy_cpu::harness::{
     grid_aligned_particles, random_particles, run_check, tolerance, CheckReport,
 };
+use octoproxy_cpu::scenes::{self, Mesh};
+use octoproxy_cpu::{bake, BuildError, BuildParams, MeshRef};
 use octoproxy_tests::meshes;
-use octoproxy_tests::scenes::{self, Mesh};
 
 const DT: f32 = 1.0 / 60.0;
 

@@ -7,8 +7,8 @@
 use glam::Vec3;
 use octoproxy_core::{step_particle, Particle, ProxyView, StepParams};
 use octoproxy_cpu::emit::Rng;
+use octoproxy_cpu::scenes::{self, Mesh};
 use octoproxy_cpu::{bake, BuildParams, MeshRef};
-use octoproxy_tests::scenes::{self, Mesh};
 
 /// A 2 × 2 open sheet of two triangles, tilted by `angle` about z: facing `(-sin, cos, 0)`.
 fn tilted_sheet(angle: f32) -> Mesh {

@@ -4,11 +4,11 @@
 
 use octoproxy_core::{initial_side, Particle, ProxyView, StepParams};
 use octoproxy_cpu::emit::Rng;
+use octoproxy_cpu::ground_truth::GroundTruth;
+use octoproxy_cpu::harness::{run_check, tolerance};
+use octoproxy_cpu::scenes::{self, Mesh};
 use octoproxy_cpu::{bake, BuildParams, MeshRef};
-use octoproxy_tests::ground_truth::GroundTruth;
-use octoproxy_tests::harness::{run_check, tolerance};
 use octoproxy_tests::meshes;
-use octoproxy_tests::scenes::{self, Mesh};
 
 const STEPS: u32 = 3000;
 

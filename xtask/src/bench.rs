@@ -10,13 +10,13 @@ use anyhow::{bail, Context, Result};
 use glam::Vec3;
 use octoproxy_core::{initial_side, Backend, Particle, ProxyView, StepParams};
 use octoproxy_cpu::emit::Rng;
-use octoproxy_cpu::mesh::{load_mesh, Mesh};
+use octoproxy_cpu::ground_truth::GroundTruth;
+use octoproxy_cpu::io::{load_mesh, Mesh};
+use octoproxy_cpu::scenes::subdivide;
 use octoproxy_cpu::{bake, BuildParams, CpuBackend, MeshRef};
 use octoproxy_tests::baselines::{
     parry::ParryTriMesh, sdf_grid::SdfGrid, triangle_octree::TriangleOctree, Method,
 };
-use octoproxy_tests::ground_truth::GroundTruth;
-use octoproxy_tests::scenes::subdivide;
 use octoproxy_wgpu::WgpuBackend;
 use rayon::prelude::*;
 

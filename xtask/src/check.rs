@@ -1,7 +1,7 @@
 //! `cargo xtask check`: the penetration harness on any scene. Steps particles many times and
 //! counts, against exact ground truth (not the proxy), particles that change side deeper
 //! than one dmax-leaf diagonal and particles that become NaN. The tests run the same code
-//! (`octoproxy_tests::harness::run_check`).
+//! (`octoproxy_cpu::harness::run_check`).
 
 use std::ffi::OsString;
 use std::path::PathBuf;
@@ -9,11 +9,11 @@ use std::time::Instant;
 
 use anyhow::{bail, Result};
 use octoproxy_core::StepParams;
-use octoproxy_cpu::mesh::Mesh;
-use octoproxy_cpu::particles::read_particles;
-use octoproxy_tests::ground_truth::GroundTruth;
-use octoproxy_tests::harness::{random_particles, run_check};
-use octoproxy_tests::scenes::{self, MeshExt};
+use octoproxy_cpu::ground_truth::GroundTruth;
+use octoproxy_cpu::harness::{random_particles, run_check};
+use octoproxy_cpu::io::read_particles;
+use octoproxy_cpu::io::Mesh;
+use octoproxy_cpu::scenes::{self, MeshExt};
 
 use crate::flags::{self, BuildFlags};
 use crate::scene;

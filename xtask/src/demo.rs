@@ -47,7 +47,7 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
         anyhow::bail!("--particles must be at least 1");
     }
 
-    let mesh = octoproxy_tests::scenes::hemisphere([0.0; 3], 1.0, 96, 24);
+    let mesh = octoproxy_cpu::scenes::hemisphere([0.0; 3], 1.0, 96, 24);
     let scene = scene::bake_meshes(
         vec![mesh],
         &BuildParams {

@@ -5,7 +5,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
 use octoproxy_core::ProxyView;
-use octoproxy_cpu::mesh::{load_mesh, Mesh};
+use octoproxy_cpu::io::{load_mesh, Mesh};
 use octoproxy_cpu::{bake, BuildParams, BuildReport, MeshRef};
 
 use crate::progress::BakeBars;

@@ -10,7 +10,7 @@ use octoproxy_core::{
     initial_side, StepParams, FLAG_BLOCKED, FLAG_BOUND_HIT, FLAG_INVALID, SIDE_BACK,
 };
 use octoproxy_cpu::emit::{emit_box, emit_surface};
-use octoproxy_cpu::particles::{read_particles, write_particles, ParticleCloud, PlyEncoding};
+use octoproxy_cpu::io::{read_particles, write_particles, ParticleCloud, PlyEncoding};
 use octoproxy_cpu::MeshRef;
 
 use crate::backends::{select_backend, BackendChoice};

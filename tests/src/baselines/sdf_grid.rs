@@ -23,7 +23,7 @@ use octoproxy_core::{respond, Particle, StepParams, FLAG_INVALID};
 use rayon::prelude::*;
 
 use super::Method;
-use crate::ground_truth::GroundTruth;
+use octoproxy_cpu::ground_truth::GroundTruth;
 
 /// Cells of margin around the mesh's bounding box on every side.
 const MARGIN_CELLS: f64 = 2.0;

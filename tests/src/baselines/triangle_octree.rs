@@ -3,7 +3,7 @@
 //!
 //! Building: the root is the mesh's bounding cube (slightly grown); a node is split into eight
 //! while it overlaps more than `max_leaf_triangles` triangles and is shallower than
-//! `max_depth`. Overlap is the exact separating-axis test of `octoproxy_cpu::build::geom`
+//! `max_depth`. Overlap is the exact separating-axis test of `octoproxy_cpu::bake::geom`
 //! against the node's box grown by a hair, so a triangle touching a face is in both nodes.
 //!
 //! Stepping: the segment `x → x + v t` is walked through the tree front to back (children
@@ -13,7 +13,7 @@
 
 use glam::DVec3;
 use octoproxy_core::{Particle, StepParams};
-use octoproxy_cpu::build::geom::{self, triangle_overlaps_box};
+use octoproxy_cpu::bake::geom::{self, triangle_overlaps_box};
 use rayon::prelude::*;
 
 use super::{Hit, Method};

@@ -9,7 +9,7 @@
 use std::collections::HashMap;
 use std::f32::consts::{PI, TAU};
 
-pub use octoproxy_cpu::mesh::Mesh;
+pub use crate::io::Mesh;
 
 /// Checks on a [`Mesh`].
 pub trait MeshExt {
@@ -416,9 +416,9 @@ pub fn rotated(mesh: &Mesh, about_z_deg: f32, about_x_deg: f32) -> Mesh {
 /// on the first's +x face, overlapping part of it, face to face), a quad in a depth-4 cell
 /// plane, and a staircase of three depth-5 cells. Triangles on a cell face belong to the
 /// cells on both sides of it.
-pub fn on_cell_planes(params: &octoproxy_cpu::BuildParams) -> Mesh {
+pub fn on_cell_planes(params: &crate::BuildParams) -> Mesh {
+    use crate::{bake, MeshRef};
     use octoproxy_core::{ProxyView, MAX_DEPTH};
-    use octoproxy_cpu::{bake, MeshRef};
     let outer = cube([-1.0; 3], [1.0; 3]);
     let (words, _) = bake(&[MeshRef::from(&outer)], params, &()).expect("a cube bakes");
     let view = ProxyView::new(&words).expect("valid");
@@ -477,7 +477,7 @@ pub fn sheet_stack(count: u32, gap: f32) -> Mesh {
 /// of it, facing every way and passing through each other: no orientation, no inside, the
 /// hardest case for labels. The same `seed` gives the same soup.
 pub fn triangle_soup(count: u32, seed: u64) -> Mesh {
-    let mut rng = octoproxy_cpu::emit::Rng::new(seed);
+    let mut rng = crate::emit::Rng::new(seed);
     let mut positions = Vec::with_capacity(3 * count as usize);
     for _ in 0..count {
         let c = [

@@ -12,12 +12,12 @@
 //! shared edges and vertices counted once per passage (see `GroundTruth::segment_crossings`).
 //! Passing through a hole crosses no triangle, so open meshes may be passed only through holes.
 
+use crate::emit::Rng;
 use glam::Vec3;
 use octoproxy_core::{
     initial_side, step_particle_traced, Particle, ProxyView, StepParams, FLAG_BLOCKED,
     FLAG_BOUND_HIT, FLAG_INVALID, MAX_DEPTH,
 };
-use octoproxy_cpu::emit::Rng;
 use rayon::prelude::*;
 
 use crate::ground_truth::GroundTruth;

@@ -28,7 +28,7 @@ use glam::DVec3;
 use octoproxy_core::Label;
 use rayon::prelude::*;
 
-use super::encode::{Flat, Kind};
+use super::flat::{Flat, Kind};
 use super::{geom, BuildProgress, Grid, Tri};
 
 /// Segments cast per (surface leaf, empty leaf) pair.

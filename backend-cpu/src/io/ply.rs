@@ -1,5 +1,5 @@
-//! A small, self-contained PLY reader and writer, shared by the mesh reader
-//! ([`crate::mesh`]) and the particle files ([`crate::particles`]).
+//! PLY: a small, self-contained reader and writer, shared by the mesh reader (this file's
+//! `parse_ply`) and the particle files ([`crate::io::particles`]).
 //!
 //! Reading: [`parse_header`] parses the header (ascii, binary little- or big-endian; the
 //! scalar types `char uchar short ushort int uint float double` and their `int8 ... float64`
@@ -15,6 +15,8 @@
 
 use std::collections::HashSet;
 use std::fmt::Write as _;
+
+use super::{fan, parse_error, LoadReport, Mesh, MeshError, MAX_VERTICES};
 
 /// Largest header accepted, in bytes; a file without `end_header` by then is not PLY.
 pub const MAX_HEADER_BYTES: usize = 1 << 20;
@@ -679,6 +681,144 @@ impl Writer {
     pub fn finish(self) -> Vec<u8> {
         self.out
     }
+}
+
+/// Reads a PLY mesh: the `vertex` element's `x y z` and the `face` element's vertex index
+/// lists (`vertex_indices` or `vertex_index`), polygons triangulated as fans.
+pub(super) fn parse_ply(
+    name: &str,
+    data: &[u8],
+    report: &mut LoadReport,
+) -> Result<Mesh, MeshError> {
+    let ply_err = |e: PlyError| MeshError::Parse {
+        path: name.to_string(),
+        line: e.line,
+        message: e.message,
+    };
+    let header = parse_header(data).map_err(ply_err)?;
+    let plain = |m: String| parse_error(name, None, m);
+    let vertex_el = header
+        .element("vertex")
+        .ok_or_else(|| plain("there is no vertex element".into()))?;
+    let vertices = vertex_el.count;
+    if vertices > MAX_VERTICES {
+        return Err(plain(format!(
+            "{vertices} vertices are more than 32-bit indices can address"
+        )));
+    }
+    let mut axes = [0usize; 3];
+    for (axis, slot) in ["x", "y", "z"].iter().zip(&mut axes) {
+        *slot = vertex_el
+            .find(axis)
+            .ok_or_else(|| plain(format!("the vertex element has no `{axis}` property")))?;
+        if !matches!(
+            vertex_el.properties.get(*slot).map(|p| p.kind),
+            Some(PropertyKind::Scalar(_))
+        ) {
+            return Err(plain(format!(
+                "the vertex property `{axis}` is a list, not a number"
+            )));
+        }
+    }
+    let face_el = header.element("face").ok_or_else(|| MeshError::Empty {
+        path: name.to_string(),
+    })?;
+    let list = face_el
+        .properties
+        .iter()
+        .position(|p| p.name == "vertex_indices" || p.name == "vertex_index")
+        .ok_or_else(|| plain("the face element has no `vertex_indices` property".into()))?;
+    if !matches!(
+        face_el.properties.get(list).map(|p| p.kind),
+        Some(PropertyKind::List { .. })
+    ) {
+        return Err(plain(
+            "the face property `vertex_indices` is not a list".into(),
+        ));
+    }
+
+    let mut mesh = Mesh::default();
+    let mut r = Reader::new(data, &header);
+    // Adds which entry of which element to a body error.
+    let at = |el: &str, i: usize, e: PlyError| MeshError::Parse {
+        path: name.to_string(),
+        line: e.line,
+        message: format!("{el} {i} (0-based): {}", e.message),
+    };
+    let mut poly: Vec<u32> = Vec::new();
+    let mut items: Vec<f64> = Vec::new();
+    for el in &header.elements {
+        match el.name.as_str() {
+            "vertex" => {
+                r.check_fits(el).map_err(ply_err)?;
+                mesh.positions.reserve(el.count);
+                for i in 0..el.count {
+                    let line = r.line();
+                    let mut p = [0.0f32; 3];
+                    for (k, prop) in el.properties.iter().enumerate() {
+                        match (axes.iter().position(|&a| a == k), prop.kind) {
+                            (Some(axis), PropertyKind::Scalar(s)) => {
+                                let v = r.scalar(s).map_err(|e| at("vertex", i, e))?;
+                                if let Some(c) = p.get_mut(axis) {
+                                    *c = v as f32;
+                                }
+                            }
+                            (_, kind) => r.skip(kind).map_err(|e| at("vertex", i, e))?,
+                        }
+                    }
+                    if !p.iter().all(|c| c.is_finite()) {
+                        return Err(MeshError::NonFinite {
+                            path: name.to_string(),
+                            line,
+                            vertex: i,
+                        });
+                    }
+                    mesh.positions.push(p);
+                }
+            }
+            "face" => {
+                r.check_fits(el).map_err(ply_err)?;
+                for face in 0..el.count {
+                    let line = r.line();
+                    for (k, prop) in el.properties.iter().enumerate() {
+                        let (true, PropertyKind::List { count, item }) = (k == list, prop.kind)
+                        else {
+                            r.skip(prop.kind).map_err(|e| at("face", face, e))?;
+                            continue;
+                        };
+                        items.clear();
+                        r.list(count, item, &mut items)
+                            .map_err(|e| at("face", face, e))?;
+                        poly.clear();
+                        for &v in &items {
+                            let ok = v >= 0.0 && v.fract() == 0.0 && v < vertices as f64;
+                            if !ok {
+                                return Err(MeshError::IndexOutOfRange {
+                                    path: name.to_string(),
+                                    line,
+                                    face,
+                                    // Saturating, and 0 for NaN: the message stays readable.
+                                    index: v as i64,
+                                    vertices,
+                                });
+                            }
+                            poly.push(v as u32);
+                        }
+                        if poly.len() < 3 {
+                            return Err(parse_error(
+                                name,
+                                line,
+                                format!("face {face} (0-based) has {} vertices, a face needs at least 3", poly.len()),
+                            ));
+                        }
+                        fan(&poly, &mut mesh.triangles, report);
+                    }
+                }
+            }
+            _ => r.skip_element(el).map_err(|e| at(&el.name, 0, e))?,
+        }
+    }
+    Ok(mesh)
 }
 
 /// Test helpers shared by the readers' tests: a xorshift generator and an input mutator.

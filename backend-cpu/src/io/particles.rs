@@ -14,8 +14,8 @@ use std::path::{Path, PathBuf};
 
 use octoproxy_core::{Particle, SIDE_BACK, SIDE_FRONT};
 
-use crate::mesh::{gunzip, MAX_DECOMPRESSED_BYTES};
-use crate::ply::{self, Element, Encoding, PlyError, Property, PropertyKind, Scalar};
+use super::gzip::{gunzip, MAX_DECOMPRESSED_BYTES};
+use crate::io::ply::{self, Element, Encoding, PlyError, Property, PropertyKind, Scalar};
 
 /// The properties every written file starts with, in this order.
 const STANDARD: [(&str, Scalar); 8] = [
@@ -759,9 +759,9 @@ mod tests {
         let mut gz = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::default());
         gz.write_all(&seeds[0]).unwrap();
         seeds.push(gz.finish().unwrap());
-        let mut rng = crate::ply::fuzz::Rng::new(0x2545_f491_4f6c_dd1d);
+        let mut rng = crate::io::ply::fuzz::Rng::new(0x2545_f491_4f6c_dd1d);
         let mut ok = 0;
-        for i in 0..crate::ply::fuzz::iterations() {
+        for i in 0..crate::io::ply::fuzz::iterations() {
             let input = rng.mutate(&seeds[i % seeds.len()]);
             if let Ok(c) = parse_particles("fuzz.ply", &input) {
                 ok += 1;

@@ -29,6 +29,7 @@
 //! 6. **Encode** breadth first, then fill the lookup table.
 
 mod encode;
+mod flat;
 pub mod geom;
 mod label;
 
@@ -365,7 +366,7 @@ pub fn bake(
         report.timings.push(("subdivide", t.elapsed()));
 
         let t = Instant::now();
-        let tree = encode::Flat::new(root, &tris, &grid);
+        let tree = flat::Flat::new(root, &tris, &grid);
         report.timings.push(("normals", t.elapsed()));
 
         let t = Instant::now();
@@ -378,7 +379,7 @@ pub fn bake(
             .filter_map(|&i| {
                 let n = &tree.nodes[i as usize];
                 let solid = labels.conflicted(i)
-                    || matches!(&n.kind, encode::Kind::Surface(s) if s.two_sided);
+                    || matches!(&n.kind, flat::Kind::Surface(s) if s.two_sided);
                 (n.depth < params.dmax && (solid || touches_other_parts(&tree, i, &tris)))
                     .then_some((n.depth, n.cell))
             })
@@ -404,9 +405,9 @@ pub fn bake(
 /// a neighbouring surface leaf. Across one surface (a closed component, or one sheet) that side
 /// still holds, but not across another part: between two parallel sheets, or a sheet and a
 /// solid, a particle behind the one is in front of the other, and would pass through it.
-fn touches_other_parts(tree: &encode::Flat, leaf: u32, tris: &[Tri]) -> bool {
+fn touches_other_parts(tree: &flat::Flat, leaf: u32, tris: &[Tri]) -> bool {
     let node = &tree.nodes[leaf as usize];
-    let encode::Kind::Surface(surface) = &node.kind else {
+    let flat::Kind::Surface(surface) = &node.kind else {
         return false;
     };
     let Some(&first) = surface.tris.first() else {
@@ -416,7 +417,7 @@ fn touches_other_parts(tree: &encode::Flat, leaf: u32, tris: &[Tri]) -> bool {
     let (lo, hi) = node.range();
     let mut other = false;
     tree.for_each_touching_surface(lo, hi, |n| {
-        if let encode::Kind::Surface(s) = &tree.nodes[n as usize].kind {
+        if let flat::Kind::Surface(s) = &tree.nodes[n as usize].kind {
             other |= s
                 .tris
                 .iter()

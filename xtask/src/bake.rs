@@ -1,4 +1,4 @@
-//! `cargo xtask bake`: meshes → a proxy file.
+//! `octoproxy bake`: meshes → a proxy file.
 
 use std::ffi::OsString;
 use std::path::PathBuf;
@@ -10,7 +10,7 @@ use crate::scene;
 
 fn help() -> String {
     format!(
-        "usage: cargo xtask bake --mesh MESH [--mesh MESH...] -o FILE [build options]\n\n\
+        "usage: octoproxy bake --mesh MESH [--mesh MESH...] -o FILE [build options]\n\n\
          Bakes the meshes (PLY, OBJ or STL, each optionally .gz) into one proxy file.\n\n{}",
         flags::BUILD_HELP
     )

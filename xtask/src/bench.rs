@@ -1,4 +1,4 @@
-//! `cargo xtask bench`: octoproxy against what users would pick instead, in one process, on
+//! `octoproxy bench`: octoproxy against what users would pick instead, in one process, on
 //! the same scenes, particles and step parameters. Writes `target/bench/results.json`, a
 //! Markdown table and PNG plots, and prints a summary.
 
@@ -24,7 +24,7 @@ use crate::flags;
 use crate::plot;
 
 const USAGE: &str = "\
-usage: cargo xtask bench [--quick] [--backends cpu,wgpu] [--scenes S,S...] [--particles N,N...]
+usage: octoproxy bench [--quick] [--backends cpu,wgpu] [--scenes S,S...] [--particles N,N...]
 
   --quick          one scene (the bunny), 100k particles, every method: a few minutes
   --backends L     which of cpu, wgpu to run (default: both; wgpu only when an adapter exists)
@@ -141,7 +141,7 @@ fn parse(args: Vec<std::ffi::OsString>) -> Result<Option<Opts>> {
                 println!("{USAGE}");
                 return Ok(None);
             }
-            other => bail!("unknown option {other} (see `cargo xtask bench --help`)"),
+            other => bail!("unknown option {other} (see `octoproxy bench --help`)"),
         }
     }
     if o.scenes.is_empty() {

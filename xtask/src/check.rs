@@ -1,4 +1,4 @@
-//! `cargo xtask check`: the penetration harness on any scene. Steps particles many times and
+//! `octoproxy check`: the penetration harness on any scene. Steps particles many times and
 //! counts, against exact ground truth (not the proxy), particles that change side deeper
 //! than one dmax-leaf diagonal and particles that become NaN. The tests run the same code
 //! (`octoproxy_cpu::harness::run_check`).
@@ -21,7 +21,7 @@ use crate::scene;
 fn help() -> String {
     format!(
         "\
-usage: cargo xtask check (--mesh MESH... | --scene NAME) [options]
+usage: octoproxy check (--mesh MESH... | --scene NAME) [options]
 
 Counts penetrations against exact ground truth: generalized winding numbers for closed
 meshes (at every step's end, and along every piece of a path that crosses the surface, so a

@@ -1,4 +1,4 @@
-//! `cargo xtask demo`: particles raining onto an open dome and fired up into it from below,
+//! `octoproxy demo`: particles raining onto an open dome and fired up into it from below,
 //! colliding with both of its sides; prints a summary and writes a picture.
 
 use std::ffi::OsString;
@@ -17,7 +17,7 @@ use crate::render::{Camera, Canvas, BACK, FRONT};
 use crate::scene;
 
 const HELP: &str = "\
-usage: cargo xtask demo [--particles N] [--steps N] [-o PICTURE.png] [--backend auto|cpu|wgpu]
+usage: octoproxy demo [--particles N] [--steps N] [-o PICTURE.png] [--backend auto|cpu|wgpu]
 
 Runs a built-in scene: an open dome (no files needed). Half the particles rain onto it and
 slide off its front side; half are fired up from beneath and hit its back side.";

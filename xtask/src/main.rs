@@ -1,19 +1,24 @@
-//! `cargo xtask`: the octoproxy command line.
+//! `octoproxy`: the command line.
 //!
 //! - `demo`: a built-in scene, stepped on the best backend, with a summary and a picture.
 //! - `bake`: meshes → proxy file.
 //! - `sim`: a proxy (or meshes) and particles → stepped particles, optionally every frame.
 //! - `check`: the penetration harness against exact ground truth.
-//! - `bench`: octoproxy against the alternatives, with a table, plots and JSON.
+//! - `bench` (feature `dev`, as `cargo xtask bench`): octoproxy against the alternatives,
+//!   with a table, plots and JSON.
 //!
-//! Errors print as one line and exit non-zero.
+//! Installed with `cargo install --path xtask --locked`; developers run the same binary with
+//! its development extras as `cargo xtask <command>`. Errors print as one line and exit
+//! non-zero.
 
 mod backends;
 mod bake;
+#[cfg(feature = "dev")]
 mod bench;
 mod check;
 mod demo;
 mod flags;
+#[cfg(feature = "dev")]
 mod plot;
 mod progress;
 mod render;
@@ -22,17 +27,38 @@ mod sim;
 
 use std::process::ExitCode;
 
-const USAGE: &str = "\
-usage: cargo xtask <command> [options]
+/// The top-level help; `bench` is listed where it is built.
+fn usage() -> String {
+    format!(
+        "\
+usage: octoproxy <command> [options]
 
 commands:
   demo   run a built-in scene and write a picture of it
   bake   --mesh MESH [--mesh MESH...] -o FILE [--dmin N --dmax N --epsilon X --lut-depth N]
   sim    (--mesh MESH... | --proxy FILE) (--particles IN.ply | --emit N ...) -o OUT.ply [options]
   check  (--mesh MESH... | --scene NAME) [options]: count penetrations against exact ground truth
-  bench  [--quick] [--backends cpu,wgpu] [--scenes ...] [--particles ...]: speed, memory, leaks
+{BENCH_USAGE}
+run `octoproxy <command> --help` for a command's options"
+    )
+}
 
-run `cargo xtask <command> --help` for a command's options";
+#[cfg(feature = "dev")]
+const BENCH_USAGE: &str =
+    "  bench  [--quick] [--backends cpu,wgpu] [--scenes ...] [--particles ...]: speed, memory, leaks\n";
+#[cfg(not(feature = "dev"))]
+const BENCH_USAGE: &str = "";
+
+/// `bench` in a build without the development extras: say where it is.
+#[cfg(not(feature = "dev"))]
+mod bench {
+    pub fn run(_: Vec<std::ffi::OsString>) -> anyhow::Result<()> {
+        anyhow::bail!(
+            "bench is a development command: run it in the repository as `cargo xtask bench` \
+             (the `dev` feature, which builds the baselines it compares against)"
+        )
+    }
+}
 
 fn main() -> ExitCode {
     // The Vulkan loader complains on every start without it; the value does not matter to us.
@@ -41,7 +67,7 @@ fn main() -> ExitCode {
     }
     let mut args = std::env::args_os().skip(1);
     let Some(cmd) = args.next() else {
-        eprintln!("{USAGE}");
+        eprintln!("{}", usage());
         return ExitCode::from(2);
     };
     let rest: Vec<_> = args.collect();
@@ -52,11 +78,11 @@ fn main() -> ExitCode {
         Some("check") => check::run(rest),
         Some("bench") => bench::run(rest),
         Some("-h" | "--help" | "help") => {
-            println!("{USAGE}");
+            println!("{}", usage());
             return ExitCode::SUCCESS;
         }
         _ => {
-            eprintln!("error: unknown command {cmd:?} (commands: demo, bake, sim, check, bench; see `cargo xtask --help`)");
+            eprintln!("error: unknown command {cmd:?} (commands: demo, bake, sim, check, bench; see `octoproxy --help`)");
             return ExitCode::from(2);
         }
     };

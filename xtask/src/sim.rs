@@ -1,4 +1,4 @@
-//! `cargo xtask sim`: step particles against a scene and write them out.
+//! `octoproxy sim`: step particles against a scene and write them out.
 
 use std::ffi::OsString;
 use std::path::{Path, PathBuf};
@@ -20,11 +20,11 @@ use crate::scene;
 
 fn help() -> String {
     format!(
-        "usage: cargo xtask sim (--mesh MESH... | --proxy FILE) (--particles IN.ply | --emit N ...) -o OUT.ply [options]
+        "usage: octoproxy sim (--mesh MESH... | --proxy FILE) (--particles IN.ply | --emit N ...) -o OUT.ply [options]
 
 scene:
   --mesh MESH       a mesh of the scene (repeat for several); baked before stepping
-  --proxy FILE      a proxy file from `cargo xtask bake` (build options are then an error)
+  --proxy FILE      a proxy file from `octoproxy bake` (build options are then an error)
 {}
 
 particles:

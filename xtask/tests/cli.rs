@@ -4,12 +4,12 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-fn xtask(args: &[&str], dir: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_xtask"))
+fn octoproxy(args: &[&str], dir: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_octoproxy"))
         .args(args)
         .current_dir(dir)
         .output()
-        .expect("xtask runs")
+        .expect("octoproxy runs")
 }
 
 /// A fresh directory under the system's temporary one, removed when the test passes (and
@@ -56,7 +56,7 @@ fn assert_one_line_error(out: &Output, needle: &str) {
 #[test]
 fn demo_writes_a_picture() {
     let dir = scratch("demo");
-    let out = xtask(
+    let out = octoproxy(
         &[
             "demo",
             "--particles",
@@ -92,13 +92,17 @@ fn demo_writes_a_picture() {
 #[test]
 fn every_help_lists_its_options_indented() {
     let dir = scratch("help");
-    for command in ["demo", "bake", "sim", "check", "bench"] {
-        let out = xtask(&[command, "--help"], &dir);
+    let mut commands = vec!["demo", "bake", "sim", "check"];
+    if cfg!(feature = "dev") {
+        commands.push("bench");
+    }
+    for command in commands {
+        let out = octoproxy(&[command, "--help"], &dir);
         assert!(out.status.success(), "{command} --help failed");
         let text = String::from_utf8_lossy(&out.stdout).into_owned()
             + &String::from_utf8_lossy(&out.stderr);
         assert!(
-            text.starts_with("usage: cargo xtask"),
+            text.starts_with("usage: octoproxy"),
             "{command} --help: {text}"
         );
         for line in text.lines().skip(1) {
@@ -114,7 +118,7 @@ fn every_help_lists_its_options_indented() {
 fn bake_then_sim_keeps_every_particle_in_order() {
     let dir = scratch("sim");
     std::fs::write(dir.join("box.obj"), BOX_OBJ).unwrap();
-    let out = xtask(
+    let out = octoproxy(
         &[
             "bake",
             "--mesh",
@@ -135,7 +139,7 @@ fn bake_then_sim_keeps_every_particle_in_order() {
     let ply = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nproperty int id\nend_header\n\
 0 3 0 7\n0.5 0 0 8\n5 5 5 9\n";
     std::fs::write(dir.join("in.ply"), ply).unwrap();
-    let out = xtask(
+    let out = octoproxy(
         &[
             "sim",
             "--proxy",
@@ -198,7 +202,7 @@ fn bake_then_sim_keeps_every_particle_in_order() {
         ]
     );
     // Output continues in the next run, and existing frames are refused without --force.
-    let out = xtask(
+    let out = octoproxy(
         &[
             "sim",
             "--proxy",
@@ -214,7 +218,7 @@ fn bake_then_sim_keeps_every_particle_in_order() {
     );
     assert_one_line_error(&out, "--force");
     // A negative first gravity component parses (it is a value, not an option).
-    let out = xtask(
+    let out = octoproxy(
         &[
             "sim",
             "--proxy",
@@ -349,14 +353,14 @@ fn bad_input_gets_one_readable_line() {
         (&["frobnicate"], "unknown command"),
     ];
     for (args, needle) in cases {
-        let out = xtask(args, &dir);
+        let out = octoproxy(args, &dir);
         assert_one_line_error(&out, needle);
     }
 }
 
 /// Whether wgpu finds an adapter here; under `CI=true` it must (lavapipe).
 fn gpu_present(dir: &Path) -> bool {
-    let probe = xtask(
+    let probe = octoproxy(
         &[
             "demo",
             "--particles",
@@ -393,7 +397,7 @@ fn sim_on_wgpu_writes_the_same_file_as_on_cpu() {
     let mut outputs = Vec::new();
     for backend in ["cpu", "wgpu"] {
         let out_file = format!("out-{backend}.ply");
-        let out = xtask(
+        let out = octoproxy(
             &[
                 "sim",
                 "--mesh",
@@ -439,6 +443,14 @@ fn sim_on_wgpu_writes_the_same_file_as_on_cpu() {
 }
 
 #[test]
+#[cfg(not(feature = "dev"))]
+fn bench_without_the_dev_feature_says_where_it_is() {
+    let dir = scratch("nobench");
+    assert_one_line_error(&octoproxy(&["bench"], &dir), "cargo xtask bench");
+}
+
+#[test]
+#[cfg(feature = "dev")]
 fn bench_writes_json_table_and_plots_with_every_method() {
     let meshes =
         Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/meshes/stanford-bunny.obj.gz");
@@ -452,7 +464,7 @@ fn bench_writes_json_table_and_plots_with_every_method() {
         return;
     }
     let dir = scratch("bench");
-    let out = xtask(
+    let out = octoproxy(
         &[
             "bench",
             "--scenes",
@@ -513,8 +525,11 @@ fn bench_writes_json_table_and_plots_with_every_method() {
     }
     // Bad options are one readable line.
     assert_one_line_error(
-        &xtask(&["bench", "--scenes", "moon"], &dir),
+        &octoproxy(&["bench", "--scenes", "moon"], &dir),
         "unknown scene",
     );
-    assert_one_line_error(&xtask(&["bench", "--particles", "0"], &dir), "out of range");
+    assert_one_line_error(
+        &octoproxy(&["bench", "--particles", "0"], &dir),
+        "out of range",
+    );
 }

@@ -16,7 +16,7 @@ use octoproxy_core::{
     initial_side, step_particle, step_particle_hinted, step_particle_traced, LeafHint, Particle,
     ProxyView, StepOutcome, StepParams, FLAG_INVALID, SIDE_BACK, SIDE_FRONT,
 };
-use octoproxy_cpu::bake::{bake, BuildError, BuildParams, MeshRef};
+use octoproxy_cpu::bake::{self as baker, BuildError, BuildParams, MeshRef};
 use octoproxy_cpu::io::{encode_particles, parse_particles, PlyEncoding};
 use octoproxy_cpu::io::{parse_mesh, Mesh};
 
@@ -162,7 +162,7 @@ pub fn seed_proxies() -> &'static [Vec<u32>] {
         scenes
             .iter()
             .map(|(m, params)| {
-                bake(&[MeshRef::from(m)], params, &())
+                baker::bake(&[MeshRef::from(m)], params, &())
                     .expect("seed proxy bakes")
                     .0
             })
@@ -537,9 +537,9 @@ pub fn proxy_bytes(data: &[u8]) {
 // build
 // ---------------------------------------------------------------------------------------------
 
-/// Largest dmax the `build` target bakes (so one input bakes in well under a second).
+/// Largest dmax the `bake` target bakes (so one input bakes in well under a second).
 pub const BUILD_MAX_DMAX: u32 = 7;
-/// Most triangles per mesh the `build` target makes.
+/// Most triangles per mesh the `bake` target makes.
 pub const BUILD_MAX_TRIANGLES: usize = 300;
 
 fn soup(u: &mut Unstructured<'_>) -> Result<Mesh> {
@@ -666,8 +666,8 @@ fn expected_input_error(meshes: &[Mesh]) -> Option<String> {
     None
 }
 
-/// The parameters and meshes the `build` target makes of `data` (for reproducing a case).
-pub fn build_case(data: &[u8]) -> Option<(BuildParams, Vec<Mesh>)> {
+/// The parameters and meshes the `bake` target makes of `data` (for reproducing a case).
+pub fn bake_case(data: &[u8]) -> Option<(BuildParams, Vec<Mesh>)> {
     let u = &mut Unstructured::new(data);
     let params = build_params(u).ok()?;
     let count = u.int_in_range(1usize..=3).ok()?;
@@ -709,7 +709,7 @@ fn build_inner(u: &mut Unstructured<'_>) -> Result<()> {
     } else {
         params
     };
-    match bake(&refs, &params, &()) {
+    match baker::bake(&refs, &params, &()) {
         Ok((words, report)) => {
             assert!(valid, "bake accepted invalid parameters {params:?}");
             assert_eq!(
@@ -807,10 +807,10 @@ fn build_inner(u: &mut Unstructured<'_>) -> Result<()> {
     Ok(())
 }
 
-/// Target `build`: arbitrary triangle soups (degenerate, duplicated, NaN, huge, tiny, all in
+/// Target `bake`: arbitrary triangle soups (degenerate, duplicated, NaN, huge, tiny, all in
 /// one point, far from the origin, indices out of range) and parameters (out of range too)
 /// into `bake`: the right error, or a proxy the view accepts; never a panic.
-pub fn build(data: &[u8]) {
+pub fn bake(data: &[u8]) {
     let _ = build_inner(&mut Unstructured::new(data));
 }
 
@@ -980,7 +980,7 @@ fn penetration_inner(u: &mut Unstructured<'_>) -> Result<()> {
         lut_depth: u.int_in_range(0..=4)?,
         ..BuildParams::default()
     };
-    let Ok((words, _)) = bake(&[MeshRef::from(&mesh)], &params, &()) else {
+    let Ok((words, _)) = baker::bake(&[MeshRef::from(&mesh)], &params, &()) else {
         return Ok(());
     };
     let view = ProxyView::new(&words).expect("bake gives a valid proxy");

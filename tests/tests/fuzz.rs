@@ -85,9 +85,9 @@ fn fuzz_proxy_bytes_corpus_and_sweep() {
 
 #[test]
 fn fuzz_build_corpus_and_sweep() {
-    let corpus = run_corpus("bake", fuzz::build);
+    let corpus = run_corpus("bake", fuzz::bake);
     assert!(corpus >= 3, "the bake corpus has {corpus} files");
-    let swept = run_sweep("build", fuzz::build, 1500, 2048, 2);
+    let swept = run_sweep("bake", fuzz::bake, 1500, 2048, 2);
     assert_eq!(swept, 1500);
 }
 
@@ -284,7 +284,7 @@ fn reproduce() {
     let t = std::time::Instant::now();
     match std::env::var("FUZZ_TARGET").expect("FUZZ_TARGET").as_str() {
         "proxy_bytes" => fuzz::proxy_bytes(&data),
-        "bake" | "build" => fuzz::build(&data),
+        "bake" => fuzz::bake(&data),
         "penetration" => fuzz::penetration(&data),
         "mesh_files" => fuzz::mesh_files(&data),
         other => panic!("unknown target {other}"),

@@ -283,8 +283,8 @@ fn encode_components(u: f32, v: f32) -> u32 {
 }
 
 /// Decodes [`encode_normal`]'s bits to a unit vector. WGSL's `decode_normal` mirrors this
-/// operation for operation.
-#[inline]
+/// operation for operation. Always inlined: the march decodes one per surface leaf it finds.
+#[inline(always)]
 pub fn decode_normal(bits: u32) -> Vec3 {
     let comp = |q: u32| -> f32 { (q as f32 - OCT_MAX as f32) * (1.0 / OCT_MAX as f32) };
     let u = comp(bits & ((1 << OCT_BITS) - 1));

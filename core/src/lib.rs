@@ -57,10 +57,11 @@ mod view;
 pub use backend::Backend;
 pub use format::{Label, NodeRecord, FORMAT_VERSION, MAX_DEPTH, MAX_LUT_DEPTH};
 pub use particle::*;
-pub use query::{Aabb, LeafInfo, LeafKind};
+pub use query::{Aabb, LeafInfo, LeafKind, NO_LEAF};
 pub use step::{
-    initial_side, max_leaves_per_step, pinch, respond, step_particle, step_particle_hinted,
-    step_particle_traced, LeafHint, ParamError, StepOutcome, StepParams, MAX_LEAVES_PER_STEP,
+    initial_side, max_leaves_per_step, pinch, respond, step_particle, step_particle_counted,
+    step_particle_hinted, step_particle_traced, LeafHint, MarchBranch, MarchCounts, ParamError,
+    StepOutcome, StepParams, LEAF_BOUND_EXTRA, LEAF_BOUND_PER_CELL, MAX_LEAVES_PER_STEP,
     PINCH_PARALLEL,
 };
 #[cfg(feature = "alloc")]

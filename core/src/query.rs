@@ -19,14 +19,20 @@ pub struct Aabb {
     pub max: Vec3,
 }
 
-/// What a leaf holds.
+/// What a leaf holds. The discriminants are the codes WGSL's `LEAF_EMPTY` and `LEAF_SURFACE`
+/// take (generated from these).
+#[repr(u32)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum LeafKind {
     /// No triangle touches the leaf.
-    Empty,
+    Empty = 0,
     /// Triangles touch the leaf; it keeps one representative normal.
-    Surface,
+    Surface = 1,
 }
+
+/// A record index that names no record: the `node` of a leaf known only by its cell (a
+/// hinted leaf), and a march's last collided leaf when there is none.
+pub const NO_LEAF: u32 = u32::MAX;
 
 /// The leaf that holds a point.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -32,14 +32,22 @@ use glam::{UVec3, Vec3, Vec3A};
 use crate::format::{Label, MAX_DEPTH};
 use crate::math;
 use crate::particle::*;
-use crate::query::{Aabb, LeafInfo, LeafKind};
+use crate::query::{Aabb, LeafInfo, LeafKind, NO_LEAF};
 use crate::view::ProxyView;
 
-/// Bound on the leaves one step visits in a tree of depth `tree_depth`: a straight path
-/// crosses at most `3 * 2^depth` cells of a `2^depth` grid, and an octree has no more cells
-/// on a line than its finest grid. The rest is room for collisions and re-entries.
+/// Leaves a step may visit per cell along an axis of its tree's finest grid, in
+/// [`max_leaves_per_step`]: a straight path crosses at most `3 * 2^depth` cells of a
+/// `2^depth` grid, and an octree has no more cells on a line than its finest grid.
+pub const LEAF_BOUND_PER_CELL: u32 = 4;
+
+/// Leaves a step may visit beyond [`LEAF_BOUND_PER_CELL`]'s, in [`max_leaves_per_step`].
+pub const LEAF_BOUND_EXTRA: u32 = 64;
+
+/// Bound on the leaves one step visits in a tree of depth `tree_depth`: `3 * 2^depth` for a
+/// straight crossing (see [`LEAF_BOUND_PER_CELL`]); the rest is room for collisions and
+/// re-entries. WGSL's twin reads both constants, generated from these.
 pub const fn max_leaves_per_step(tree_depth: u32) -> u32 {
-    (4u32 << tree_depth) + 64
+    (LEAF_BOUND_PER_CELL << tree_depth) + LEAF_BOUND_EXTRA
 }
 
 /// [`max_leaves_per_step`] at [`MAX_DEPTH`]: the largest bound any proxy can have.
@@ -222,10 +230,20 @@ fn entry_faces(b: &Aabb, x: Vec3, v: Vec3) -> u32 {
     axes
 }
 
-/// Time and point at which a ray from `x` (inside `b`) with velocity `v` leaves `b`, and the
-/// axes whose face it leaves through. The exit point lies exactly on those faces.
-#[inline]
-fn exit_box(b: &Aabb, x: Vec3, v: Vec3) -> (f32, Vec3, u32) {
+/// Where a ray crosses a box's boundary: after time `t`, at `point` (exactly on the faces of
+/// the axes in `axes`, clamped into the box on the others). WGSL's `BoxCrossing` is this
+/// struct, and its `BoxCrossingOption` is [`enter_box`]'s `Option`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct BoxCrossing {
+    t: f32,
+    point: Vec3,
+    axes: u32,
+}
+
+/// Where a ray from `x` (inside `b`) with velocity `v` leaves `b`, and the axes whose face it
+/// leaves through. The exit point lies exactly on those faces.
+#[inline(always)]
+fn exit_box(b: &Aabb, x: Vec3, v: Vec3) -> BoxCrossing {
     // Selects, not branches: the signs of a velocity are coin tosses for the branch
     // predictor. Per axis this is `(bmax - x) / v` for `v > 0`, `(bmin - x) / v` for `v < 0`
     // and infinity for `v == 0`, clamped below at 0, exactly as written out with `if`s.
@@ -256,13 +274,17 @@ fn exit_box(b: &Aabb, x: Vec3, v: Vec3) -> (f32, Vec3, u32) {
         let along = (xa[a] + va[a] * t).clamp(bmin[a], bmax[a]);
         p[a] = if on_face { far[a] } else { along };
     }
-    (t, Vec3::from_array(p), axes)
+    BoxCrossing {
+        t,
+        point: Vec3::from_array(p),
+        axes,
+    }
 }
 
-/// Time and point at which a ray from `x` (outside `b`) with velocity `v` enters `b` within
-/// `limit`, and the axes whose faces it enters through; `None` if it does not.
+/// Where a ray from `x` (outside `b`) with velocity `v` enters `b` within `limit`, and the
+/// axes whose faces it enters through; `None` if it does not.
 #[inline]
-fn enter_box(b: &Aabb, x: Vec3, v: Vec3, limit: f32) -> Option<(f32, Vec3, u32)> {
+fn enter_box(b: &Aabb, x: Vec3, v: Vec3, limit: f32) -> Option<BoxCrossing> {
     let mut near = f32::NEG_INFINITY;
     let mut far = f32::INFINITY;
     let mut axes = 0;
@@ -298,7 +320,11 @@ fn enter_box(b: &Aabb, x: Vec3, v: Vec3, limit: f32) -> Option<(f32, Vec3, u32)>
             p[a] = (x[a] + v[a] * near).clamp(b.min[a], b.max[a]);
         }
     }
-    Some((near, p, axes))
+    Some(BoxCrossing {
+        t: near,
+        point: p,
+        axes,
+    })
 }
 
 #[inline]
@@ -309,8 +335,6 @@ fn side_of(label: Label) -> u32 {
         SIDE_FRONT
     }
 }
-
-const NO_LEAF: u32 = u32::MAX;
 
 /// The empty leaf a particle ended its last step in, kept by a backend beside the particle so
 /// that the next step can start there instead of descending the tree. Two words, zero when
@@ -401,7 +425,7 @@ impl LeafHint {
 /// Allocates nothing; visits at most `view.max_leaves_per_step()` leaves.
 #[inline]
 pub fn step_particle(view: &ProxyView<'_>, p: &mut Particle, params: &StepParams) -> StepOutcome {
-    march(view, p, params, &mut LeafHint::default(), &mut |_, _| {})
+    march(view, p, params, &mut LeafHint::default(), &mut Unobserved)
 }
 
 /// [`step_particle`], starting from the leaf in `hint` when the particle is still strictly
@@ -521,7 +545,7 @@ fn march_from_hint(
     params: &StepParams,
     hint: &mut LeafHint,
 ) -> StepOutcome {
-    march(view, p, params, hint, &mut |_, _| {})
+    march(view, p, params, hint, &mut Unobserved)
 }
 
 /// [`step_particle`], calling `trace(from, to)` for every straight piece of the particle's
@@ -537,7 +561,144 @@ pub fn step_particle_traced<F: FnMut(Vec3, Vec3)>(
     params: &StepParams,
     trace: &mut F,
 ) -> StepOutcome {
-    march(view, p, params, &mut LeafHint::default(), trace)
+    march(
+        view,
+        p,
+        params,
+        &mut LeafHint::default(),
+        &mut Pieces(trace),
+    )
+}
+
+/// [`step_particle`], adding to `counts` every rare branch the march takes ([`MarchBranch`]).
+/// Host-only, for tests: the differential tests assert that the scenes built to reach a rare
+/// branch do reach it, so that a mirror drifting in that branch cannot pass unseen. The same
+/// march as [`step_particle`]'s, so the same bits.
+pub fn step_particle_counted(
+    view: &ProxyView<'_>,
+    p: &mut Particle,
+    params: &StepParams,
+    counts: &mut MarchCounts,
+) -> StepOutcome {
+    march(view, p, params, &mut LeafHint::default(), counts)
+}
+
+/// The rare branches of a march, as [`step_particle_counted`] counts them. Each is a place
+/// where the WGSL mirror could drift without the common paths noticing.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum MarchBranch {
+    /// The particle was outside the root cube and its path entered it (`enter_root`).
+    RootEntry,
+    /// The particle was outside the root cube and its path missed it (`enter_root`; the march,
+    /// not `settle_leaving_root`, which settles only particles moving away).
+    RootMiss,
+    /// A step started on a face between an empty leaf labelled with the other side and the
+    /// shell, and starts in the shell (`start_beside_shell`).
+    StartBesideShell,
+    /// A particle sliding along a face of a solid (two-sided) leaf was located on the face's
+    /// outer side (`slide_off_solid_face`).
+    SlideOffSolid,
+    /// The shell rule put a particle back where it entered the shell (`block_at_shell`).
+    ShellBlock,
+    /// A collision with a solid (two-sided) leaf, whose normal comes from the faces entered
+    /// (`collision_normal`).
+    SolidCollision,
+    /// A collision at the point of the last one, still into its surface: pinched (`collide`).
+    Pinch,
+    /// Pinched again at that point: stopped there (`collide`).
+    PinchStop,
+    /// The step ended on the leaf's boundary, not strictly inside it, before the exit
+    /// (`travel_through_leaf`'s clamped end).
+    EndOnFace,
+    /// The leaf bound stopped the step (`stop_at_leaf_bound`).
+    LeafBound,
+    /// ... inside the shell, so the particle went back to where it entered it.
+    LeafBoundInShell,
+    /// A non-finite position or velocity on input.
+    InvalidStart,
+    /// A non-finite position or velocity at the end of the march.
+    InvalidEnd,
+}
+
+impl MarchBranch {
+    /// Every branch, in the order of the variants.
+    pub const ALL: [MarchBranch; 13] = [
+        MarchBranch::RootEntry,
+        MarchBranch::RootMiss,
+        MarchBranch::StartBesideShell,
+        MarchBranch::SlideOffSolid,
+        MarchBranch::ShellBlock,
+        MarchBranch::SolidCollision,
+        MarchBranch::Pinch,
+        MarchBranch::PinchStop,
+        MarchBranch::EndOnFace,
+        MarchBranch::LeafBound,
+        MarchBranch::LeafBoundInShell,
+        MarchBranch::InvalidStart,
+        MarchBranch::InvalidEnd,
+    ];
+}
+
+/// How often each [`MarchBranch`] was taken, indexed by the branch.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct MarchCounts([u64; MarchBranch::ALL.len()]);
+
+impl MarchCounts {
+    /// Adds `other`'s counts to these.
+    pub fn add(&mut self, other: &MarchCounts) {
+        for (a, b) in self.0.iter_mut().zip(other.0) {
+            *a += b;
+        }
+    }
+}
+
+impl core::ops::Index<MarchBranch> for MarchCounts {
+    type Output = u64;
+    fn index(&self, branch: MarchBranch) -> &u64 {
+        &self.0[branch as usize]
+    }
+}
+
+/// What a march reports besides its result: the straight pieces of the path and the rare
+/// branches taken. The step's own entry points observe nothing ([`Unobserved`] inlines to
+/// nothing); the host-only ones trace pieces ([`Pieces`]) or count branches
+/// ([`MarchCounts`]). WGSL has no observer.
+trait MarchObserver {
+    /// The particle moved (or, for a jump back to the shell entry, was put) from `from` to `to`.
+    fn piece(&mut self, from: Vec3, to: Vec3);
+    /// The march took `branch`.
+    fn branch(&mut self, branch: MarchBranch);
+}
+
+/// The observer of the step itself: nothing.
+struct Unobserved;
+
+impl MarchObserver for Unobserved {
+    #[inline(always)]
+    fn piece(&mut self, _: Vec3, _: Vec3) {}
+    #[inline(always)]
+    fn branch(&mut self, _: MarchBranch) {}
+}
+
+/// [`step_particle_traced`]'s observer: the pieces, to a closure.
+struct Pieces<'a, F>(&'a mut F);
+
+impl<F: FnMut(Vec3, Vec3)> MarchObserver for Pieces<'_, F> {
+    #[inline(always)]
+    fn piece(&mut self, from: Vec3, to: Vec3) {
+        (self.0)(from, to)
+    }
+    #[inline(always)]
+    fn branch(&mut self, _: MarchBranch) {}
+}
+
+impl MarchObserver for MarchCounts {
+    #[inline(always)]
+    fn piece(&mut self, _: Vec3, _: Vec3) {}
+    #[inline(always)]
+    fn branch(&mut self, branch: MarchBranch) {
+        self.0[branch as usize] += 1;
+    }
 }
 
 /// The leaf a step that starts at `x` (with velocity `v`, on side `side`) starts in, given the
@@ -583,210 +744,421 @@ fn start_beside_shell(
     leaf
 }
 
-/// The step itself, for every public entry point above.
+/// A march between two leaves: where the particle is, how it moves and how long it has left,
+/// and what the rules remember of the leaves behind it. WGSL's `MarchState` has the same
+/// fields in the same order (an `Option<LeafInfo>` is a `LeafOption` there).
+struct MarchState {
+    /// Where the particle is.
+    x: Vec3,
+    /// Its velocity, gravity integrated.
+    v: Vec3,
+    /// The side it is on, normalised: [`SIDE_FRONT`] or [`SIDE_BACK`].
+    side: u32,
+    /// Time left in the step.
+    remaining: f32,
+    /// Collisions in this step (a shell block counts as one).
+    collisions: u32,
+    /// Whether the particle went into the shell of surface leaves and has not come out.
+    in_shell: bool,
+    /// Where it went in.
+    shell_entry: Vec3,
+    /// The surface leaf it last collided in, since it last crossed a face ([`NO_LEAF`]: none).
+    last_collided: u32,
+    /// Where the last collision was (when `collisions > 0`), the normal it used, and whether
+    /// it pinched ([`pinch`]).
+    hit_x: Vec3,
+    hit_n: Vec3,
+    pinched: bool,
+    /// The face the particle last crossed (axes) and the signs of its velocity then.
+    cross_axes: u32,
+    cross_signs: Vec3,
+    /// The leaf the particle was last in, while it is on that leaf's closed box.
+    last_leaf: Option<LeafInfo>,
+    /// The hinted leaf, until the first leaf takes it (the particle has not moved yet).
+    hinted: Option<LeafInfo>,
+    /// Leaves visited, against [`ProxyView::max_leaves_per_step`].
+    visited: u32,
+    /// How the step ends, unless the particle turns out invalid.
+    outcome: StepOutcome,
+}
+
+/// The leaf the march goes through next, and whether it is the shell beside the point the
+/// step starts on (`start_beside_shell`).
+struct NextLeaf {
+    leaf: LeafInfo,
+    beside_shell: bool,
+}
+
+/// The march set up for a particle with a finite position and velocity: gravity integrated,
+/// the side normalised, the hinted leaf found (if the hint holds the particle).
 #[inline(always)]
-fn march<F: FnMut(Vec3, Vec3)>(
+fn start_march(
     view: &ProxyView<'_>,
-    p: &mut Particle,
+    p: &Particle,
     params: &StepParams,
-    hint: &mut LeafHint,
-    trace: &mut F,
-) -> StepOutcome {
-    let start_hint = core::mem::take(hint);
+    start_hint: LeafHint,
+) -> MarchState {
     let x0 = Vec3::from_array(p.position);
     let v0 = Vec3::from_array(p.velocity);
-    if !x0.is_finite() || !v0.is_finite() {
-        p.flags |= FLAG_INVALID;
-        return StepOutcome::Invalid;
-    }
-    let (e, mu) = (params.restitution, params.friction);
-    let mut v = v0 + Vec3::from_array(params.gravity) * params.dt;
-    let mut x = x0;
-    let mut side = if p.side == SIDE_BACK {
-        SIDE_BACK
-    } else {
-        SIDE_FRONT
-    };
-    let mut hinted = start_hint.leaf(view, x0);
-    let mut remaining = params.dt;
-    let mut collisions = 0u32;
-    let mut in_shell = false;
-    let mut shell_entry = x0;
-    let mut last_collided = NO_LEAF;
-    // Where the last collision was (when `collisions > 0`) and the normal it used, and
-    // whether it pinched (`pinch`).
-    let (mut hit_x, mut hit_n, mut pinched) = (x0, Vec3::ZERO, false);
-    // The face the particle last crossed (axes) and the signs of its velocity then.
-    let mut cross_axes = 0u32;
-    let mut cross_signs = Vec3::ZERO;
-    // The leaf the particle was last in, while it is on that leaf's closed box.
-    let mut last_leaf: Option<LeafInfo> = None;
-    let mut outcome = StepOutcome::Done;
-    let budget = view.max_leaves_per_step();
-    let mut visited = 0u32;
-    while remaining > 0.0 {
-        if visited >= budget {
-            outcome = StepOutcome::BoundHit;
-            if in_shell {
-                trace(x, shell_entry);
-                x = shell_entry;
-            }
-            break;
-        }
-        visited += 1;
-        // Whether this leaf is the shell beside the point the step starts on.
-        let mut beside_shell = false;
-        // Only the first leaf of a step can come from the hint: the particle has not moved yet.
-        // After it, the particle is on the closed box of the leaf it was last in, and the next
-        // leaf is found from that leaf's cell.
-        let mut leaf = if let Some(leaf) = hinted.take() {
-            leaf
-        } else if let Some(leaf) = last_leaf
-            .as_ref()
-            .and_then(|from| view.locate_next(from, x, v))
-        {
-            leaf
+    MarchState {
+        x: x0,
+        v: v0 + Vec3::from_array(params.gravity) * params.dt,
+        side: if p.side == SIDE_BACK {
+            SIDE_BACK
         } else {
-            if !view.root_contains(x, v) {
-                match enter_box(&view.root_aabb(), x, v, remaining) {
-                    Some((t, entry, axes)) => {
-                        trace(x, entry);
-                        x = entry;
-                        remaining -= t;
-                        cross_axes = axes;
-                        cross_signs = v;
-                        last_collided = NO_LEAF;
-                        last_leaf = None;
-                        continue;
-                    }
-                    None => {
-                        let end = x + v * remaining;
-                        trace(x, end);
-                        x = end;
-                        break;
-                    }
-                }
-            }
-            let leaf = view.locate_inside(x, v);
-            if visited == 1 {
-                let start = start_beside_shell(view, leaf, x, v, side);
-                beside_shell = start.kind != leaf.kind;
-                start
-            } else {
-                leaf
-            }
-        };
-        if leaf.two_sided && !beside_shell && entry_faces(&leaf.aabb, x, v) == 0 {
-            // A particle sliding along a face of a solid leaf (no velocity across it), and not
-            // entering through another, is not in the leaf: locate it on the face's outer side.
-            let mut dir = v;
-            for a in 0..3 {
-                if v[a] == 0.0 && x[a] == leaf.aabb.min[a] {
-                    dir[a] = -1.0;
-                } else if v[a] == 0.0 && x[a] == leaf.aabb.max[a] {
-                    dir[a] = 1.0;
-                }
-            }
-            if dir != v {
-                leaf = view.locate_inside(x, dir);
-            }
-        }
-        last_leaf = Some(leaf);
-        match leaf.kind {
-            LeafKind::Empty => {
-                // Selects, not a branch on the label: labelled or not is a coin toss for the
-                // branch predictor; coming out of the shell on the other side is rare.
-                let labelled = leaf.label != Label::None;
-                let label_side = side_of(leaf.label);
-                if (labelled as u32 & in_shell as u32 & (label_side != side) as u32) != 0 {
-                    trace(x, shell_entry);
-                    x = shell_entry;
-                    v = respond(v, face_normal(cross_axes, cross_signs), e, mu);
-                    collisions += 1;
-                    outcome = StepOutcome::Blocked;
-                    break;
-                }
-                side = if labelled { label_side } else { side };
-                in_shell = false;
-            }
-            LeafKind::Surface => {
-                if !in_shell {
-                    in_shell = true;
-                    shell_entry = x;
-                }
-                if leaf.node != last_collided {
-                    let n = if leaf.two_sided {
-                        // Solid from every side: the faces it is entering through, found from
-                        // the box, so a particle resting on one at the start of a step counts.
-                        face_normal(entry_faces(&leaf.aabb, x, v), v)
-                    } else if side == SIDE_BACK {
-                        -leaf.normal
-                    } else {
-                        leaf.normal
-                    };
-                    if v.dot(n) < 0.0 {
-                        v = respond(v, n, e, mu);
-                        if collisions > 0 && x == hit_x && v.dot(hit_n) < 0.0 {
-                            // Pinched; pinched again at the same point (rounding left the
-                            // velocity a hair into a surface), it stops there.
-                            v = if pinched {
-                                Vec3::ZERO
-                            } else {
-                                pinch(v, n, hit_n)
-                            };
-                            pinched = true;
-                        } else {
-                            pinched = false;
-                        }
-                        (hit_x, hit_n) = (x, n);
-                        collisions += 1;
-                        last_collided = leaf.node;
-                        continue;
-                    }
-                }
-            }
-        }
-        // Most steps end in the leaf they start in: an end point strictly inside the box
-        // settles it without the exit time (the segment stays in the convex box).
-        let end = x + v * remaining;
-        // One test of a mask, not six short-circuit branches.
-        if (end.cmpgt(leaf.aabb.min) & end.cmplt(leaf.aabb.max)).bitmask() == 0b111 {
-            trace(x, end);
-            x = end;
-            *hint = LeafHint::of(&leaf);
-            break;
-        }
-        let (t_exit, exit, axes) = exit_box(&leaf.aabb, x, v);
-        if t_exit >= remaining {
-            let end = (x + v * remaining).clamp(leaf.aabb.min, leaf.aabb.max);
-            trace(x, end);
-            x = end;
-            *hint = LeafHint::of(&leaf);
-            break;
-        }
-        trace(x, exit);
-        x = exit;
-        remaining -= t_exit;
-        cross_axes = axes;
-        cross_signs = v;
-        last_collided = NO_LEAF;
+            SIDE_FRONT
+        },
+        remaining: params.dt,
+        collisions: 0,
+        in_shell: false,
+        shell_entry: x0,
+        last_collided: NO_LEAF,
+        hit_x: x0,
+        hit_n: Vec3::ZERO,
+        pinched: false,
+        cross_axes: 0,
+        cross_signs: Vec3::ZERO,
+        last_leaf: None,
+        hinted: start_hint.leaf(view, x0),
+        visited: 0,
+        outcome: StepOutcome::Done,
     }
-    if !x.is_finite() || !v.is_finite() {
+}
+
+/// The leaf bound was hit: the particle stays at its last safe point, which is where it
+/// entered the shell if it is in it.
+#[inline(always)]
+fn stop_at_leaf_bound<O: MarchObserver>(st: &mut MarchState, obs: &mut O) {
+    obs.branch(MarchBranch::LeafBound);
+    st.outcome = StepOutcome::BoundHit;
+    if st.in_shell {
+        obs.branch(MarchBranch::LeafBoundInShell);
+        obs.piece(st.x, st.shell_entry);
+        st.x = st.shell_entry;
+    }
+}
+
+/// The leaf the particle is in now; `None` when it is outside the root cube. Only the first
+/// leaf of a step can come from the hint: the particle has not moved yet. After it, the
+/// particle is on the closed box of the leaf it was last in, and the next leaf is found from
+/// that leaf's cell; otherwise (the first leaf, or just after entering the root) by point
+/// location, and for the first leaf of all, beside the shell as `start_beside_shell` says.
+#[inline(always)]
+fn find_next_leaf<O: MarchObserver>(
+    view: &ProxyView<'_>,
+    st: &mut MarchState,
+    obs: &mut O,
+) -> Option<NextLeaf> {
+    let leaf = if let Some(leaf) = st.hinted.take() {
+        leaf
+    } else if let Some(leaf) = st
+        .last_leaf
+        .as_ref()
+        .and_then(|from| view.locate_next(from, st.x, st.v))
+    {
+        leaf
+    } else {
+        if !view.root_contains(st.x, st.v) {
+            return None;
+        }
+        let leaf = view.locate_inside(st.x, st.v);
+        if st.visited == 1 {
+            let start = start_beside_shell(view, leaf, st.x, st.v, st.side);
+            let beside_shell = start.kind != leaf.kind;
+            if beside_shell {
+                obs.branch(MarchBranch::StartBesideShell);
+            }
+            return Some(NextLeaf {
+                leaf: start,
+                beside_shell,
+            });
+        }
+        leaf
+    };
+    Some(NextLeaf {
+        leaf,
+        beside_shell: false,
+    })
+}
+
+/// The particle is outside the root cube: it enters the root within the time left (`true`,
+/// the march goes on from the entry point) or flies past it to the end of the step (`false`).
+#[inline(always)]
+fn enter_root<O: MarchObserver>(view: &ProxyView<'_>, st: &mut MarchState, obs: &mut O) -> bool {
+    match enter_box(&view.root_aabb(), st.x, st.v, st.remaining) {
+        Some(entry) => {
+            obs.branch(MarchBranch::RootEntry);
+            obs.piece(st.x, entry.point);
+            st.x = entry.point;
+            st.remaining -= entry.t;
+            st.cross_axes = entry.axes;
+            st.cross_signs = st.v;
+            st.last_collided = NO_LEAF;
+            st.last_leaf = None;
+            true
+        }
+        None => {
+            obs.branch(MarchBranch::RootMiss);
+            let end = st.x + st.v * st.remaining;
+            obs.piece(st.x, end);
+            st.x = end;
+            false
+        }
+    }
+}
+
+/// The leaf the march is in: `next`'s, unless the particle slides along a face of a solid leaf
+/// (no velocity across it) and does not enter through another, when it is not in the leaf
+/// but in the one on the face's outer side.
+#[inline(always)]
+fn slide_off_solid_face<O: MarchObserver>(
+    view: &ProxyView<'_>,
+    st: &MarchState,
+    next: NextLeaf,
+    obs: &mut O,
+) -> LeafInfo {
+    let (x, v) = (st.x, st.v);
+    let mut leaf = next.leaf;
+    if leaf.two_sided && !next.beside_shell && entry_faces(&leaf.aabb, x, v) == 0 {
+        let mut dir = v;
+        for a in 0..3 {
+            if v[a] == 0.0 && x[a] == leaf.aabb.min[a] {
+                dir[a] = -1.0;
+            } else if v[a] == 0.0 && x[a] == leaf.aabb.max[a] {
+                dir[a] = 1.0;
+            }
+        }
+        if dir != v {
+            obs.branch(MarchBranch::SlideOffSolid);
+            leaf = view.locate_inside(x, dir);
+        }
+    }
+    leaf
+}
+
+/// Into an empty leaf: a labelled one stamps its side and the particle is out of the shell,
+/// unless it came out of the shell on the other side, which the shell rule blocks (`true`:
+/// the step ends).
+#[inline(always)]
+fn enter_empty_leaf<O: MarchObserver>(
+    st: &mut MarchState,
+    leaf: &LeafInfo,
+    params: &StepParams,
+    obs: &mut O,
+) -> bool {
+    // Selects, not a branch on the label: labelled or not is a coin toss for the branch
+    // predictor; coming out of the shell on the other side is rare.
+    let labelled = leaf.label != Label::None;
+    let label_side = side_of(leaf.label);
+    if (labelled as u32 & st.in_shell as u32 & (label_side != st.side) as u32) != 0 {
+        block_at_shell(st, params, obs);
+        return true;
+    }
+    st.side = if labelled { label_side } else { st.side };
+    st.in_shell = false;
+    false
+}
+
+/// The shell rule: the particle would leave the shell on the other side. It goes back to where
+/// it entered the shell, its velocity reflected off the face it tried to cross.
+#[inline(always)]
+fn block_at_shell<O: MarchObserver>(st: &mut MarchState, params: &StepParams, obs: &mut O) {
+    obs.branch(MarchBranch::ShellBlock);
+    obs.piece(st.x, st.shell_entry);
+    st.x = st.shell_entry;
+    let n = face_normal(st.cross_axes, st.cross_signs);
+    st.v = respond(st.v, n, params.restitution, params.friction);
+    st.collisions += 1;
+    st.outcome = StepOutcome::Blocked;
+}
+
+/// Into a surface leaf: the particle is in the shell (from here, if it was not), and collides
+/// when its velocity opposes the leaf's normal for its side, once per leaf between face
+/// crossings (`true`: it collided, and the march finds its leaf again with the new velocity).
+#[inline(always)]
+fn enter_surface_leaf<O: MarchObserver>(
+    st: &mut MarchState,
+    leaf: &LeafInfo,
+    params: &StepParams,
+    obs: &mut O,
+) -> bool {
+    if !st.in_shell {
+        st.in_shell = true;
+        st.shell_entry = st.x;
+    }
+    if leaf.node == st.last_collided {
+        return false;
+    }
+    let n = collision_normal(st, leaf);
+    if !(st.v.dot(n) < 0.0) {
+        return false;
+    }
+    if leaf.two_sided {
+        obs.branch(MarchBranch::SolidCollision);
+    }
+    collide(st, leaf, n, params, obs);
+    true
+}
+
+/// The normal a surface leaf collides with: for a solid (two-sided) leaf, that of the faces the
+/// particle is entering through, found from the box, so a particle resting on one at the
+/// start of a step counts; otherwise the leaf's normal, flipped for the back side.
+#[inline(always)]
+fn collision_normal(st: &MarchState, leaf: &LeafInfo) -> Vec3 {
+    if leaf.two_sided {
+        face_normal(entry_faces(&leaf.aabb, st.x, st.v), st.v)
+    } else if st.side == SIDE_BACK {
+        -leaf.normal
+    } else {
+        leaf.normal
+    }
+}
+
+/// A collision with normal `n` in `leaf`: the response, and the pinch rule when it is at the
+/// point of the last collision and still points into that surface.
+#[inline(always)]
+fn collide<O: MarchObserver>(
+    st: &mut MarchState,
+    leaf: &LeafInfo,
+    n: Vec3,
+    params: &StepParams,
+    obs: &mut O,
+) {
+    st.v = respond(st.v, n, params.restitution, params.friction);
+    if st.collisions > 0 && st.x == st.hit_x && st.v.dot(st.hit_n) < 0.0 {
+        // Pinched; pinched again at the same point (rounding left the velocity a hair into a
+        // surface), it stops there.
+        obs.branch(if st.pinched {
+            MarchBranch::PinchStop
+        } else {
+            MarchBranch::Pinch
+        });
+        st.v = if st.pinched {
+            Vec3::ZERO
+        } else {
+            pinch(st.v, n, st.hit_n)
+        };
+        st.pinched = true;
+    } else {
+        st.pinched = false;
+    }
+    (st.hit_x, st.hit_n) = (st.x, n);
+    st.collisions += 1;
+    st.last_collided = leaf.node;
+}
+
+/// Through the leaf: the step ends in it (`true`, leaving it in `hint`), or the particle moves
+/// to where it leaves it (`false`, the march goes on from the exit point).
+#[inline(always)]
+fn travel_through_leaf<O: MarchObserver>(
+    st: &mut MarchState,
+    leaf: &LeafInfo,
+    hint: &mut LeafHint,
+    obs: &mut O,
+) -> bool {
+    // Most steps end in the leaf they start in: an end point strictly inside the box settles
+    // it without the exit time (the segment stays in the convex box).
+    let end = st.x + st.v * st.remaining;
+    // One test of a mask, not six short-circuit branches.
+    if (end.cmpgt(leaf.aabb.min) & end.cmplt(leaf.aabb.max)).bitmask() == 0b111 {
+        obs.piece(st.x, end);
+        st.x = end;
+        *hint = LeafHint::of(leaf);
+        return true;
+    }
+    let exit = exit_box(&leaf.aabb, st.x, st.v);
+    if exit.t >= st.remaining {
+        obs.branch(MarchBranch::EndOnFace);
+        let end = (st.x + st.v * st.remaining).clamp(leaf.aabb.min, leaf.aabb.max);
+        obs.piece(st.x, end);
+        st.x = end;
+        *hint = LeafHint::of(leaf);
+        return true;
+    }
+    obs.piece(st.x, exit.point);
+    st.x = exit.point;
+    st.remaining -= exit.t;
+    st.cross_axes = exit.axes;
+    st.cross_signs = st.v;
+    st.last_collided = NO_LEAF;
+    false
+}
+
+/// The particle as the march leaves it: position, velocity and side, the collision count and
+/// the step's status flags; or flagged invalid when the march made it non-finite.
+#[inline(always)]
+fn finish_march<O: MarchObserver>(p: &mut Particle, st: &MarchState, obs: &mut O) -> StepOutcome {
+    if !st.x.is_finite() || !st.v.is_finite() {
+        obs.branch(MarchBranch::InvalidEnd);
         p.flags |= FLAG_INVALID;
         return StepOutcome::Invalid;
     }
-    p.position = x.to_array();
-    p.velocity = v.to_array();
-    p.side = side;
-    let count = (p.collisions() + collisions).min(MAX_COLLISIONS);
+    p.position = st.x.to_array();
+    p.velocity = st.v.to_array();
+    p.side = st.side;
+    let count = (p.collisions() + st.collisions).min(MAX_COLLISIONS);
     let mut status = p.flags & FLAG_STATUS_MASK & !FLAG_STEP_STATUS;
-    match outcome {
+    match st.outcome {
         StepOutcome::Blocked => status |= FLAG_BLOCKED,
         StepOutcome::BoundHit => status |= FLAG_BOUND_HIT,
         _ => {}
     }
     p.flags = status | count << COLLISION_SHIFT;
-    outcome
+    st.outcome
+}
+
+/// The step itself, for every public entry point above: leaf by leaf, each found from the
+/// last, until the time is used up, a rule stops the particle, or the leaf bound is hit.
+#[inline(always)]
+fn march<O: MarchObserver>(
+    view: &ProxyView<'_>,
+    p: &mut Particle,
+    params: &StepParams,
+    hint: &mut LeafHint,
+    obs: &mut O,
+) -> StepOutcome {
+    let start_hint = core::mem::take(hint);
+    if !Vec3::from_array(p.position).is_finite() || !Vec3::from_array(p.velocity).is_finite() {
+        obs.branch(MarchBranch::InvalidStart);
+        p.flags |= FLAG_INVALID;
+        return StepOutcome::Invalid;
+    }
+    let mut st = start_march(view, p, params, start_hint);
+    let budget = view.max_leaves_per_step();
+    while st.remaining > 0.0 {
+        if st.visited >= budget {
+            stop_at_leaf_bound(&mut st, obs);
+            break;
+        }
+        st.visited += 1;
+        let Some(next) = find_next_leaf(view, &mut st, obs) else {
+            if enter_root(view, &mut st, obs) {
+                continue;
+            }
+            break;
+        };
+        let leaf = slide_off_solid_face(view, &st, next, obs);
+        st.last_leaf = Some(leaf);
+        match leaf.kind {
+            LeafKind::Empty => {
+                let blocked = enter_empty_leaf(&mut st, &leaf, params, obs);
+                if blocked {
+                    break;
+                }
+            }
+            LeafKind::Surface => {
+                let collided = enter_surface_leaf(&mut st, &leaf, params, obs);
+                if collided {
+                    continue;
+                }
+            }
+        }
+        let ended = travel_through_leaf(&mut st, &leaf, hint, obs);
+        if ended {
+            break;
+        }
+    }
+    finish_march(p, &st, obs)
 }
 
 /// Initial side of a particle that has none: in an empty leaf, the leaf's label (front when

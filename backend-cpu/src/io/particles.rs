@@ -262,7 +262,7 @@ pub fn parse_particles(name: &str, bytes: &[u8]) -> Result<ParticleCloud, Partic
         let at = |e: PlyError| parse_err(e.line, format!("vertex {i} (0-based): {}", e.message));
         let mut p = Particle::default();
         for &(role, ty) in &roles {
-            let line = r.line();
+            let line = r.next_value_line();
             let v = r.scalar(ty).map_err(at)?;
             match role {
                 Role::Position(k) => {

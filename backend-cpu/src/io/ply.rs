@@ -381,6 +381,28 @@ impl<'a> Reader<'a> {
         (self.encoding == Encoding::Ascii).then_some(self.line)
     }
 
+    /// The line the next value starts on, for ascii bodies: whitespace before it (the end of
+    /// the previous entry's line) is skipped first, so an error about the entry about to be
+    /// read names that entry's line, not the one before.
+    pub fn next_value_line(&mut self) -> Option<usize> {
+        if self.encoding == Encoding::Ascii {
+            self.skip_ascii_whitespace();
+        }
+        self.line()
+    }
+
+    fn skip_ascii_whitespace(&mut self) {
+        while let Some(&b) = self.bytes.get(self.pos) {
+            if !b.is_ascii_whitespace() {
+                break;
+            }
+            if b == b'\n' {
+                self.line += 1;
+            }
+            self.pos += 1;
+        }
+    }
+
     fn error(&self, message: impl Into<String>) -> PlyError {
         PlyError::new(self.line(), message)
     }
@@ -422,15 +444,7 @@ impl<'a> Reader<'a> {
     }
 
     fn ascii_scalar(&mut self, ty: Scalar) -> Result<f64, PlyError> {
-        while let Some(&b) = self.bytes.get(self.pos) {
-            if !b.is_ascii_whitespace() {
-                break;
-            }
-            if b == b'\n' {
-                self.line += 1;
-            }
-            self.pos += 1;
-        }
+        self.skip_ascii_whitespace();
         let start = self.pos;
         while self
             .bytes
@@ -753,7 +767,7 @@ pub(super) fn parse_ply(
                 r.check_fits(el).map_err(ply_err)?;
                 mesh.positions.reserve(el.count);
                 for i in 0..el.count {
-                    let line = r.line();
+                    let line = r.next_value_line();
                     let mut p = [0.0f32; 3];
                     for (k, prop) in el.properties.iter().enumerate() {
                         match (axes.iter().position(|&a| a == k), prop.kind) {
@@ -779,7 +793,7 @@ pub(super) fn parse_ply(
             "face" => {
                 r.check_fits(el).map_err(ply_err)?;
                 for face in 0..el.count {
-                    let line = r.line();
+                    let line = r.next_value_line();
                     for (k, prop) in el.properties.iter().enumerate() {
                         let (true, PropertyKind::List { count, item }) = (k == list, prop.kind)
                         else {

@@ -629,3 +629,25 @@ fn shared_meshes_load_with_the_listed_counts() {
     }
     assert!(checked >= 9, "only {checked} meshes listed");
 }
+
+#[test]
+fn ascii_ply_entry_errors_name_the_entrys_own_line() {
+    // Header lines 1-9, body from line 10: vertices on 10, 11, 12, the face on 13.
+    let header = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n\
+                  property float z\nelement face 1\nproperty list uchar int vertex_indices\n\
+                  end_header\n";
+    let cases = [
+        ("0 0 0\n1 0 0\n0 inf 0\n3 0 1 2\n", "line 12"),
+        ("0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n", "line 13"),
+        ("0 0 0\n1 0 0\n0 1 0\n2 0 1\n", "line 13"),
+    ];
+    for (body, line) in cases {
+        let e = parse("entry.ply", format!("{header}{body}").as_bytes())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with(&format!("entry.ply, {line}")),
+            "{body:?}: {e}"
+        );
+    }
+}

@@ -3,7 +3,9 @@
 //!
 //! The `.wgsl` files beside this module mirror core's modules: `format.wgsl` (node records,
 //! header, `decode_normal`, `grid_plane`), `query.wgsl` (`locate_inside` and its helpers),
-//! `step.wgsl` (`step_particle` and its helpers) and `kernel.wgsl` (the entry points).
+//! `step.wgsl` (`step_particle_hinted`, its settles and the march's steps) and `kernel.wgsl`
+//! (the entry points). Every function has a Rust twin or a stated reason for none; the
+//! table is in `tests/wgsl.rs`.
 
 use octoproxy_core::format::{self, header};
 use octoproxy_core::*;
@@ -68,8 +70,8 @@ pub fn shared_constants() -> Vec<(&'static str, SharedValue)> {
         ("LABEL_NONE", U32(Label::None.bits())),
         ("LABEL_FRONT", U32(Label::Front.bits())),
         ("LABEL_BACK", U32(Label::Back.bits())),
-        ("LEAF_EMPTY", U32(0)),
-        ("LEAF_SURFACE", U32(1)),
+        ("LEAF_EMPTY", U32(LeafKind::Empty as u32)),
+        ("LEAF_SURFACE", U32(LeafKind::Surface as u32)),
         ("SIDE_FRONT", U32(SIDE_FRONT)),
         ("SIDE_BACK", U32(SIDE_BACK)),
         ("FLAG_INVALID", U32(FLAG_INVALID)),
@@ -83,7 +85,9 @@ pub fn shared_constants() -> Vec<(&'static str, SharedValue)> {
         ("STEP_BLOCKED", U32(outcome_code(StepOutcome::Blocked))),
         ("STEP_BOUND_HIT", U32(outcome_code(StepOutcome::BoundHit))),
         ("STEP_INVALID", U32(outcome_code(StepOutcome::Invalid))),
-        ("NO_LEAF", U32(u32::MAX)),
+        ("NO_LEAF", U32(NO_LEAF)),
+        ("LEAF_BOUND_PER_CELL", U32(LEAF_BOUND_PER_CELL)),
+        ("LEAF_BOUND_EXTRA", U32(LEAF_BOUND_EXTRA)),
         ("PINCH_PARALLEL", F32(PINCH_PARALLEL)),
         ("HINT_VALID", U32(LeafHint::VALID)),
         ("HINT_CELL_MASK", U32(LeafHint::CELL_MASK)),

@@ -43,7 +43,7 @@ fn step_kernel(
     load_header(run.use_lut != 0u);
     var p = particles[i];
     var hint = hints[i];
-    step_particle(&p, params, &hint);
+    step_particle_hinted(&p, params, &hint);
     particles[i] = p;
     hints[i] = hint;
 }

@@ -95,15 +95,15 @@ fn locate_inside(p: vec3<f32>, dir: vec3<f32>) -> LeafInfo {
     return descend(0u, 0u, vec3<u32>(0u), vec3<u32>(0u), 0u, p, dir);
 }
 
-// core's `locate_next` answers an `Option`: `hit` false (None) when the cell is outside the root.
-struct NextLeaf {
-    leaf: LeafInfo,
-    hit: bool,
+// A Rust `Option<LeafInfo>`: `some` false is None (and `value` then means nothing).
+struct LeafOption {
+    value: LeafInfo,
+    some: bool,
 }
 
 // core's `locate_next`: the leaf of a point on the closed box of the leaf `last`, found from
 // `last`'s cell in integers.
-fn locate_next(last: LeafInfo, p: vec3<f32>, dir: vec3<f32>) -> NextLeaf {
+fn locate_next(last: LeafInfo, p: vec3<f32>, dir: vec3<f32>) -> LeafOption {
     var c = last.cell;
     for (var a = 0u; a < 3u; a++) {
         let up = p[a] == last.aabb.max[a] && dir[a] >= 0.0;
@@ -112,9 +112,9 @@ fn locate_next(last: LeafInfo, p: vec3<f32>, dir: vec3<f32>) -> NextLeaf {
     }
     // Below zero wraps to a huge value: one test for both sides of the root.
     if ((c.x | c.y | c.z) >> last.depth) != 0u {
-        return NextLeaf(last, false);
+        return LeafOption(last, false);
     }
-    return NextLeaf(locate_in_cell(c, last.depth, p, dir), true);
+    return LeafOption(locate_in_cell(c, last.depth, p, dir), true);
 }
 
 // core's `locate_in_cell`.

@@ -1,6 +1,9 @@
 // The step, as core/src/step.rs: one particle marched leaf by leaf along x(t) -> x(t + dt).
 // Read the Rust module for the rules; this file mirrors it function for function, with the
-// same names, the same order of floating-point operations, and no tracing.
+// same names (a Rust method `LeafHint::of` is `leaf_hint_of` here), the same order of
+// floating-point operations, and no observer (Rust's march reports pieces and rare branches to
+// one; here there is nothing to report to). A Rust `Option<T>` is a `TOption { value, some }`;
+// the twins are listed, and checked, in backend-wgpu/tests/wgsl.rs.
 
 // core's `Particle`: 32 bytes, vec3 members at offsets 0 and 16.
 struct Particle {
@@ -72,54 +75,50 @@ fn entry_faces(b: Aabb, x: vec3<f32>, v: vec3<f32>) -> u32 {
     return axes;
 }
 
-// Where a ray crosses a box face: time, point (exactly on the faces in `axes`), and whether
-// it does at all (enter_box only).
+// core's `BoxCrossing`: where a ray crosses a box's boundary, after time `t`, at `point`
+// (exactly on the faces of the axes in `axes`).
 struct BoxCrossing {
     t: f32,
-    p: vec3<f32>,
+    point: vec3<f32>,
     axes: u32,
-    hit: bool,
 }
 
+// A Rust `Option<BoxCrossing>`.
+struct BoxCrossingOption {
+    value: BoxCrossing,
+    some: bool,
+}
+
+// Selects, as core's: per axis `(far - x) / v`, clamped below at 0, and infinity for `v == 0`
+// (the quotient by zero is computed and thrown away).
 fn exit_box(b: Aabb, x: vec3<f32>, v: vec3<f32>) -> BoxCrossing {
     let inf = infinity();
-    var t = inf;
     var ts = vec3<f32>(inf);
+    var far = vec3<f32>(0.0);
     for (var a = 0u; a < 3u; a++) {
-        var ta = inf;
-        if v[a] > 0.0 {
-            ta = (b.max[a] - x[a]) / v[a];
-        } else if v[a] < 0.0 {
-            ta = (b.min[a] - x[a]) / v[a];
-        }
-        if ta > 0.0 {
-            ts[a] = ta;
-        } else {
-            ts[a] = 0.0;
-        }
-        if ts[a] < t {
-            t = ts[a];
-        }
+        far[a] = select(b.min[a], b.max[a], v[a] > 0.0);
+        let ta = (far[a] - x[a]) / v[a];
+        ts[a] = select(select(0.0, ta, ta > 0.0), inf, v[a] == 0.0);
     }
+    var t = inf;
+    for (var a = 0u; a < 3u; a++) {
+        t = select(t, ts[a], ts[a] < t);
+    }
+    let finite = is_finite(t);
     var axes = 0u;
     var p = x;
     for (var a = 0u; a < 3u; a++) {
-        if ts[a] == t && is_finite(t) {
-            axes |= 1u << a;
-            if v[a] > 0.0 {
-                p[a] = b.max[a];
-            } else {
-                p[a] = b.min[a];
-            }
-        } else {
-            p[a] = clamp(x[a] + v[a] * t, b.min[a], b.max[a]);
-        }
+        let on_face = ts[a] == t && finite;
+        axes |= select(0u, 1u, on_face) << a;
+        let along = clamp(x[a] + v[a] * t, b.min[a], b.max[a]);
+        p[a] = select(along, far[a], on_face);
     }
-    return BoxCrossing(t, p, axes, true);
+    return BoxCrossing(t, p, axes);
 }
 
-fn enter_box(b: Aabb, x: vec3<f32>, v: vec3<f32>, limit: f32) -> BoxCrossing {
-    let miss = BoxCrossing(0.0, x, 0u, false);
+fn enter_box(b: Aabb, x: vec3<f32>, v: vec3<f32>, limit: f32) -> BoxCrossingOption {
+    var miss: BoxCrossingOption;
+    miss.some = false;
     let inf = infinity();
     var near = -inf;
     var far = inf;
@@ -165,12 +164,21 @@ fn enter_box(b: Aabb, x: vec3<f32>, v: vec3<f32>, limit: f32) -> BoxCrossing {
             p[a] = clamp(x[a] + v[a] * near, b.min[a], b.max[a]);
         }
     }
-    return BoxCrossing(near, p, axes, true);
+    return BoxCrossingOption(BoxCrossing(near, p, axes), true);
 }
 
-// core's `LeafHint`, as `vec2<u32>(xy, z_depth_label)`: the empty leaf a particle ended its
+fn side_of(label: u32) -> u32 {
+    if label == LABEL_BACK {
+        return SIDE_BACK;
+    }
+    return SIDE_FRONT;
+}
+
+// core's `LeafHint` is `vec2<u32>(xy, z_depth_label)`: the empty leaf a particle ended its
 // last step in, or zero.
-fn hint_of(leaf: LeafInfo) -> vec2<u32> {
+
+// core's `LeafHint::of`: the hint for `leaf`, none for a surface leaf.
+fn leaf_hint_of(leaf: LeafInfo) -> vec2<u32> {
     if leaf.kind != LEAF_EMPTY {
         return vec2<u32>(0u);
     }
@@ -180,44 +188,106 @@ fn hint_of(leaf: LeafInfo) -> vec2<u32> {
     );
 }
 
-struct HintedLeaf {
-    leaf: LeafInfo,
-    hit: bool,
-}
-
 // core's `LeafHint::leaf`: the hinted leaf, if the hint is well formed and `x` lies strictly
 // inside its box.
-fn hint_leaf(hint: vec2<u32>, x: vec3<f32>) -> HintedLeaf {
-    var out: HintedLeaf;
-    out.hit = false;
+fn leaf_hint_leaf(hint: vec2<u32>, x: vec3<f32>) -> LeafOption {
+    var none: LeafOption;
+    none.some = false;
     let w = hint.y;
     let depth = (w >> HINT_DEPTH_SHIFT) & HINT_DEPTH_MASK;
     // Depth 0 would be the root, which is never a leaf.
     if (w & HINT_VALID) == 0u || depth == 0u || depth > MAX_DEPTH {
-        return out;
+        return none;
     }
     let cell = vec3<u32>(hint.x & HINT_CELL_MASK, hint.x >> HINT_Y_SHIFT, w & HINT_CELL_MASK);
     if ((cell.x | cell.y | cell.z) >> depth) != 0u {
-        return out;
+        return none;
     }
     let label = (w >> HINT_LABEL_SHIFT) & 3u;
     if label > LABEL_BACK {
-        return out;
+        return none;
     }
     let leaf = empty_leaf(cell, depth, NO_LEAF, label);
     if !(all(x > leaf.aabb.min) && all(x < leaf.aabb.max)) {
-        return out;
+        return none;
     }
-    out.leaf = leaf;
-    out.hit = true;
-    return out;
+    return LeafOption(leaf, true);
 }
 
-fn side_of(label: u32) -> u32 {
-    if label == LABEL_BACK {
-        return SIDE_BACK;
+// core's `max_leaves_per_step`, from the same constants.
+fn max_leaves_per_step(tree_depth: u32) -> u32 {
+    return (LEAF_BOUND_PER_CELL << tree_depth) + LEAF_BOUND_EXTRA;
+}
+
+// core's `Particle::collisions`.
+fn collisions(p: Particle) -> u32 {
+    return p.flags >> COLLISION_SHIFT;
+}
+
+// Advances one particle by params.dt; returns the outcome (STEP_DONE, STEP_BLOCKED,
+// STEP_BOUND_HIT or STEP_INVALID). `load_header` must have run. Starts from the leaf in
+// `hint` when the particle is still strictly inside it, and leaves in `hint` the empty leaf
+// the step ended in: the two settles, then the march.
+fn step_particle_hinted(p: ptr<function, Particle>, params: StepParams, hint: ptr<function, vec2<u32>>) -> u32 {
+    if settle_in_hinted_leaf(p, params, *hint) {
+        return STEP_DONE;
     }
-    return SIDE_FRONT;
+    // A particle outside the root has no hint; one moving away from the root stays outside.
+    if all(*hint == vec2<u32>(0u)) && settle_leaving_root(p, params) {
+        return STEP_DONE;
+    }
+    return march(p, params, hint);
+}
+
+// core's `settle_leaving_root`: a particle outside the root cube, beyond one of its faces and
+// not moving back toward it, moved to its end point as the march would.
+fn settle_leaving_root(p: ptr<function, Particle>, params: StepParams) -> bool {
+    let x0 = (*p).position;
+    let v = (*p).velocity + params.gravity * params.dt;
+    let end = x0 + v * params.dt;
+    let root = root_aabb();
+    let zero = vec3<f32>(0.0);
+    let leaving = ((x0 < root.min) & (v <= zero)) | ((x0 > root.max) & (v >= zero));
+    let settled = any(leaving) & is_finite3(x0) & is_finite3(v) & is_finite3(end) & (params.dt > 0.0);
+    if !settled {
+        return false;
+    }
+    (*p).position = end;
+    (*p).velocity = v;
+    (*p).side = select(SIDE_FRONT, SIDE_BACK, (*p).side == SIDE_BACK);
+    (*p).flags &= ~FLAG_STEP_STATUS;
+    return true;
+}
+
+// core's `settle_in_hinted_leaf`: the particle stays strictly inside its hinted empty leaf for
+// the whole step; the checks folded into one value, the label's side computed.
+fn settle_in_hinted_leaf(p: ptr<function, Particle>, params: StepParams, hint: vec2<u32>) -> bool {
+    let w = hint.y;
+    let depth = (w >> HINT_DEPTH_SHIFT) & HINT_DEPTH_MASK;
+    let label_bits = (w >> HINT_LABEL_SHIFT) & 3u;
+    let cell = vec3<u32>(hint.x & HINT_CELL_MASK, hint.x >> HINT_Y_SHIFT, w & HINT_CELL_MASK);
+    // `leaf_hint_leaf`'s shape checks; `depth - 1 < MAX_DEPTH` is `1 <= depth <= MAX_DEPTH`.
+    let shape_ok = ((w & HINT_VALID) != 0u) & (depth - 1u < MAX_DEPTH) & (((cell.x | cell.y | cell.z) >> depth) == 0u) & (label_bits != 3u);
+    if !shape_ok {
+        return false;
+    }
+    let b = cell_aabb(cell, depth);
+    let x0 = (*p).position;
+    let v = (*p).velocity + params.gravity * params.dt;
+    let end = x0 + v * params.dt;
+    // (`dt > 0` as the march's loop condition: unvalidated parameters take the march.)
+    let settled = all((x0 > b.min) & (x0 < b.max) & (end > b.min) & (end < b.max)) & is_finite3(v) & (params.dt > 0.0);
+    if !settled {
+        return false;
+    }
+    (*p).position = end;
+    (*p).velocity = v;
+    // An unlabelled leaf keeps the side (normalised); a labelled one stamps it: label bits 1
+    // (front) and 2 (back) are sides 0 and 1.
+    let kept = select(SIDE_FRONT, SIDE_BACK, (*p).side == SIDE_BACK);
+    (*p).side = select(label_bits - 1u, kept, label_bits == 0u);
+    (*p).flags &= ~FLAG_STEP_STATUS;
+    return true;
 }
 
 // core's `start_beside_shell`: a step that starts on a face between a surface leaf and an
@@ -244,235 +314,281 @@ fn start_beside_shell(leaf: LeafInfo, x: vec3<f32>, v: vec3<f32>, side: u32) -> 
     return leaf;
 }
 
-fn max_leaves_per_step(tree_depth: u32) -> u32 {
-    return (4u << tree_depth) + 64u;
+// core's `MarchState`: the march between two leaves, field for field.
+struct MarchState {
+    x: vec3<f32>,
+    v: vec3<f32>,
+    side: u32,
+    remaining: f32,
+    collisions: u32,
+    in_shell: bool,
+    shell_entry: vec3<f32>,
+    last_collided: u32,
+    hit_x: vec3<f32>,
+    hit_n: vec3<f32>,
+    pinched: bool,
+    cross_axes: u32,
+    cross_signs: vec3<f32>,
+    last_leaf: LeafOption,
+    hinted: LeafOption,
+    visited: u32,
+    outcome: u32,
 }
 
-fn collisions(p: Particle) -> u32 {
-    return p.flags >> COLLISION_SHIFT;
+// core's `NextLeaf`: the leaf the march goes through next, and whether it is the shell beside
+// the point the step starts on.
+struct NextLeaf {
+    leaf: LeafInfo,
+    beside_shell: bool,
 }
 
-// Advances one particle by params.dt; returns the outcome (STEP_DONE, STEP_BLOCKED,
-// STEP_BOUND_HIT or STEP_INVALID). `load_header` must have run. Starts from the leaf in
-// `hint` when the particle is still strictly inside it, and leaves in `hint` the empty leaf
-// the step ended in (core's `step_particle_hinted`).
-fn step_particle(p: ptr<function, Particle>, params: StepParams, hint: ptr<function, vec2<u32>>) -> u32 {
-    let start_hint = *hint;
-    *hint = vec2<u32>(0u);
-    let x0 = (*p).position;
-    let v0 = (*p).velocity;
-    if !is_finite3(x0) || !is_finite3(v0) {
+// A Rust `Option<NextLeaf>`.
+struct NextLeafOption {
+    value: NextLeaf,
+    some: bool,
+}
+
+fn start_march(p: Particle, params: StepParams, start_hint: vec2<u32>) -> MarchState {
+    let x0 = p.position;
+    let v0 = p.velocity;
+    var st: MarchState;
+    st.x = x0;
+    st.v = v0 + params.gravity * params.dt;
+    st.side = select(SIDE_FRONT, SIDE_BACK, p.side == SIDE_BACK);
+    st.remaining = params.dt;
+    st.collisions = 0u;
+    st.in_shell = false;
+    st.shell_entry = x0;
+    st.last_collided = NO_LEAF;
+    st.hit_x = x0;
+    st.hit_n = vec3<f32>(0.0);
+    st.pinched = false;
+    st.cross_axes = 0u;
+    st.cross_signs = vec3<f32>(0.0);
+    st.last_leaf.some = false;
+    st.hinted = leaf_hint_leaf(start_hint, x0);
+    st.visited = 0u;
+    st.outcome = STEP_DONE;
+    return st;
+}
+
+fn stop_at_leaf_bound(st: ptr<function, MarchState>) {
+    (*st).outcome = STEP_BOUND_HIT;
+    if (*st).in_shell {
+        (*st).x = (*st).shell_entry;
+    }
+}
+
+fn find_next_leaf(st: ptr<function, MarchState>) -> NextLeafOption {
+    var leaf: LeafInfo;
+    if (*st).hinted.some {
+        leaf = (*st).hinted.value;
+        (*st).hinted.some = false;
+    } else {
+        var next: LeafOption;
+        next.some = false;
+        if (*st).last_leaf.some {
+            next = locate_next((*st).last_leaf.value, (*st).x, (*st).v);
+        }
+        if next.some {
+            leaf = next.value;
+        } else {
+            if !root_contains((*st).x, (*st).v) {
+                var none: NextLeafOption;
+                none.some = false;
+                return none;
+            }
+            leaf = locate_inside((*st).x, (*st).v);
+            if (*st).visited == 1u {
+                let start = start_beside_shell(leaf, (*st).x, (*st).v, (*st).side);
+                return NextLeafOption(NextLeaf(start, start.kind != leaf.kind), true);
+            }
+        }
+    }
+    return NextLeafOption(NextLeaf(leaf, false), true);
+}
+
+fn enter_root(st: ptr<function, MarchState>) -> bool {
+    let entry = enter_box(root_aabb(), (*st).x, (*st).v, (*st).remaining);
+    if entry.some {
+        (*st).x = entry.value.point;
+        (*st).remaining -= entry.value.t;
+        (*st).cross_axes = entry.value.axes;
+        (*st).cross_signs = (*st).v;
+        (*st).last_collided = NO_LEAF;
+        (*st).last_leaf.some = false;
+        return true;
+    }
+    (*st).x = (*st).x + (*st).v * (*st).remaining;
+    return false;
+}
+
+fn slide_off_solid_face(st: ptr<function, MarchState>, next: NextLeaf) -> LeafInfo {
+    let x = (*st).x;
+    let v = (*st).v;
+    var leaf = next.leaf;
+    if leaf.two_sided && !next.beside_shell && entry_faces(leaf.aabb, x, v) == 0u {
+        var dir = v;
+        for (var a = 0u; a < 3u; a++) {
+            if v[a] == 0.0 && x[a] == leaf.aabb.min[a] {
+                dir[a] = -1.0;
+            } else if v[a] == 0.0 && x[a] == leaf.aabb.max[a] {
+                dir[a] = 1.0;
+            }
+        }
+        if any(dir != v) {
+            leaf = locate_inside(x, dir);
+        }
+    }
+    return leaf;
+}
+
+fn enter_empty_leaf(st: ptr<function, MarchState>, leaf: LeafInfo, params: StepParams) -> bool {
+    let labelled = leaf.label != LABEL_NONE;
+    let label_side = side_of(leaf.label);
+    if labelled && (*st).in_shell && label_side != (*st).side {
+        block_at_shell(st, params);
+        return true;
+    }
+    (*st).side = select((*st).side, label_side, labelled);
+    (*st).in_shell = false;
+    return false;
+}
+
+fn block_at_shell(st: ptr<function, MarchState>, params: StepParams) {
+    (*st).x = (*st).shell_entry;
+    let n = face_normal((*st).cross_axes, (*st).cross_signs);
+    (*st).v = respond((*st).v, n, params.restitution, params.friction);
+    (*st).collisions += 1u;
+    (*st).outcome = STEP_BLOCKED;
+}
+
+fn enter_surface_leaf(st: ptr<function, MarchState>, leaf: LeafInfo, params: StepParams) -> bool {
+    if !(*st).in_shell {
+        (*st).in_shell = true;
+        (*st).shell_entry = (*st).x;
+    }
+    if leaf.node == (*st).last_collided {
+        return false;
+    }
+    let n = collision_normal(st, leaf);
+    if !(dot3((*st).v, n) < 0.0) {
+        return false;
+    }
+    collide(st, leaf, n, params);
+    return true;
+}
+
+fn collision_normal(st: ptr<function, MarchState>, leaf: LeafInfo) -> vec3<f32> {
+    if leaf.two_sided {
+        return face_normal(entry_faces(leaf.aabb, (*st).x, (*st).v), (*st).v);
+    }
+    if (*st).side == SIDE_BACK {
+        return -leaf.normal;
+    }
+    return leaf.normal;
+}
+
+fn collide(st: ptr<function, MarchState>, leaf: LeafInfo, n: vec3<f32>, params: StepParams) {
+    (*st).v = respond((*st).v, n, params.restitution, params.friction);
+    if (*st).collisions > 0u && all((*st).x == (*st).hit_x) && dot3((*st).v, (*st).hit_n) < 0.0 {
+        // Pinched; pinched again at the same point, it stops there.
+        if (*st).pinched {
+            (*st).v = vec3<f32>(0.0);
+        } else {
+            (*st).v = pinch((*st).v, n, (*st).hit_n);
+        }
+        (*st).pinched = true;
+    } else {
+        (*st).pinched = false;
+    }
+    (*st).hit_x = (*st).x;
+    (*st).hit_n = n;
+    (*st).collisions += 1u;
+    (*st).last_collided = leaf.node;
+}
+
+fn travel_through_leaf(st: ptr<function, MarchState>, leaf: LeafInfo, hint: ptr<function, vec2<u32>>) -> bool {
+    let end = (*st).x + (*st).v * (*st).remaining;
+    if all(end > leaf.aabb.min) && all(end < leaf.aabb.max) {
+        (*st).x = end;
+        *hint = leaf_hint_of(leaf);
+        return true;
+    }
+    let exit = exit_box(leaf.aabb, (*st).x, (*st).v);
+    if exit.t >= (*st).remaining {
+        (*st).x = clamp((*st).x + (*st).v * (*st).remaining, leaf.aabb.min, leaf.aabb.max);
+        *hint = leaf_hint_of(leaf);
+        return true;
+    }
+    (*st).x = exit.point;
+    (*st).remaining -= exit.t;
+    (*st).cross_axes = exit.axes;
+    (*st).cross_signs = (*st).v;
+    (*st).last_collided = NO_LEAF;
+    return false;
+}
+
+fn finish_march(p: ptr<function, Particle>, st: ptr<function, MarchState>) -> u32 {
+    if !is_finite3((*st).x) || !is_finite3((*st).v) {
         (*p).flags |= FLAG_INVALID;
         return STEP_INVALID;
     }
-    let e = params.restitution;
-    let mu = params.friction;
-    var v = v0 + params.gravity * params.dt;
-    var x = x0;
-    var side = SIDE_FRONT;
-    if (*p).side == SIDE_BACK {
-        side = SIDE_BACK;
-    }
-    // The common case, settled before the march is set up: the particle stays strictly inside
-    // its hinted empty leaf for the whole step. This is what the march below does for it, in
-    // the same operations (its first leaf, the label, the end-point test, the flags).
-    var hinted = hint_leaf(start_hint, x0);
-    if hinted.hit {
-        let end = x0 + v * params.dt;
-        let inside = all(end > hinted.leaf.aabb.min) && all(end < hinted.leaf.aabb.max);
-        // (`dt > 0` as the loop's condition: unvalidated parameters take the loop.)
-        if params.dt > 0.0 && inside && is_finite3(v) {
-            (*p).position = end;
-            (*p).velocity = v;
-            if hinted.leaf.label != LABEL_NONE {
-                (*p).side = side_of(hinted.leaf.label);
-            } else {
-                (*p).side = side;
-            }
-            (*p).flags &= ~FLAG_STEP_STATUS;
-            *hint = start_hint;
-            return STEP_DONE;
-        }
-    }
-    // Core's `settle_leaving_root`: a particle with no hint, outside the root beyond one of
-    // its faces and not moving back toward it, never enters the root this step.
-    if all(start_hint == vec2<u32>(0u)) {
-        let end = x0 + v * params.dt;
-        let root = root_aabb();
-        let zero = vec3<f32>(0.0);
-        let leaving = ((x0 < root.min) & (v <= zero)) | ((x0 > root.max) & (v >= zero));
-        if any(leaving) && is_finite3(v) && is_finite3(end) && params.dt > 0.0 {
-            (*p).position = end;
-            (*p).velocity = v;
-            (*p).side = side;
-            (*p).flags &= ~FLAG_STEP_STATUS;
-            return STEP_DONE;
-        }
-    }
-    var remaining = params.dt;
-    var n_collisions = 0u;
-    var in_shell = false;
-    var shell_entry = x0;
-    var last_collided = NO_LEAF;
-    // Where the last collision was (when `n_collisions > 0`) and the normal it used, and
-    // whether it pinched (`pinch`).
-    var hit_x = x0;
-    var hit_n = vec3<f32>(0.0);
-    var pinched = false;
-    // The face the particle last crossed (axes) and the signs of its velocity then.
-    var cross_axes = 0u;
-    var cross_signs = vec3<f32>(0.0);
-    // The leaf the particle was last in, while it is on that leaf's closed box.
-    var last_leaf = empty_leaf(vec3<u32>(0u), 0u, NO_LEAF, LABEL_NONE);
-    var has_last_leaf = false;
-    var outcome = STEP_DONE;
-    let budget = max_leaves_per_step(header.tree_depth);
-    var visited = 0u;
-    while remaining > 0.0 {
-        if visited >= budget {
-            outcome = STEP_BOUND_HIT;
-            if in_shell {
-                x = shell_entry;
-            }
-            break;
-        }
-        visited += 1u;
-        // Whether this leaf is the shell beside the point the step starts on.
-        var beside_shell = false;
-        // Only the first leaf of a step can come from the hint: the particle has not moved yet.
-        // After it, the particle is on the closed box of the leaf it was last in, and the next
-        // leaf is found from that leaf's cell.
-        var next = NextLeaf(last_leaf, false);
-        if has_last_leaf {
-            next = locate_next(last_leaf, x, v);
-        }
-        var leaf: LeafInfo;
-        if hinted.hit {
-            leaf = hinted.leaf;
-            hinted.hit = false;
-        } else if next.hit {
-            leaf = next.leaf;
-        } else {
-            if !root_contains(x, v) {
-                let entry = enter_box(root_aabb(), x, v, remaining);
-                if entry.hit {
-                    x = entry.p;
-                    remaining -= entry.t;
-                    cross_axes = entry.axes;
-                    cross_signs = v;
-                    last_collided = NO_LEAF;
-                    has_last_leaf = false;
-                    continue;
-                }
-                x = x + v * remaining;
-                break;
-            }
-            leaf = locate_inside(x, v);
-            if visited == 1u {
-                let start = start_beside_shell(leaf, x, v, side);
-                beside_shell = start.kind != leaf.kind;
-                leaf = start;
-            }
-        }
-        if leaf.two_sided && !beside_shell && entry_faces(leaf.aabb, x, v) == 0u {
-            // A particle sliding along a face of a solid leaf (no velocity across it), and not
-            // entering through another, is not in the leaf: locate it on the face's outer side.
-            var dir = v;
-            for (var a = 0u; a < 3u; a++) {
-                if v[a] == 0.0 && x[a] == leaf.aabb.min[a] {
-                    dir[a] = -1.0;
-                } else if v[a] == 0.0 && x[a] == leaf.aabb.max[a] {
-                    dir[a] = 1.0;
-                }
-            }
-            if any(dir != v) {
-                leaf = locate_inside(x, dir);
-            }
-        }
-        last_leaf = leaf;
-        has_last_leaf = true;
-        if leaf.kind == LEAF_EMPTY {
-            if leaf.label != LABEL_NONE {
-                let label_side = side_of(leaf.label);
-                if in_shell && label_side != side {
-                    x = shell_entry;
-                    v = respond(v, face_normal(cross_axes, cross_signs), e, mu);
-                    n_collisions += 1u;
-                    outcome = STEP_BLOCKED;
-                    break;
-                }
-                side = label_side;
-            }
-            in_shell = false;
-        } else {
-            if !in_shell {
-                in_shell = true;
-                shell_entry = x;
-            }
-            if leaf.node != last_collided {
-                var n = leaf.normal;
-                if leaf.two_sided {
-                    // Solid from every side: the faces it is entering through, found from
-                    // the box, so a particle resting on one at the start of a step counts.
-                    n = face_normal(entry_faces(leaf.aabb, x, v), v);
-                } else if side == SIDE_BACK {
-                    n = -leaf.normal;
-                }
-                if dot3(v, n) < 0.0 {
-                    v = respond(v, n, e, mu);
-                    if n_collisions > 0u && all(x == hit_x) && dot3(v, hit_n) < 0.0 {
-                        // Pinched; pinched again at the same point, it stops there.
-                        if pinched {
-                            v = vec3<f32>(0.0);
-                        } else {
-                            v = pinch(v, n, hit_n);
-                        }
-                        pinched = true;
-                    } else {
-                        pinched = false;
-                    }
-                    hit_x = x;
-                    hit_n = n;
-                    n_collisions += 1u;
-                    last_collided = leaf.node;
-                    continue;
-                }
-            }
-        }
-        // Most steps end in the leaf they start in: an end point strictly inside the box
-        // settles it without the exit time (the segment stays in the convex box).
-        let end = x + v * remaining;
-        if all(end > leaf.aabb.min) && all(end < leaf.aabb.max) {
-            x = end;
-            *hint = hint_of(leaf);
-            break;
-        }
-        let exit = exit_box(leaf.aabb, x, v);
-        if exit.t >= remaining {
-            x = clamp(x + v * remaining, leaf.aabb.min, leaf.aabb.max);
-            *hint = hint_of(leaf);
-            break;
-        }
-        x = exit.p;
-        remaining -= exit.t;
-        cross_axes = exit.axes;
-        cross_signs = v;
-        last_collided = NO_LEAF;
-    }
-    if !is_finite3(x) || !is_finite3(v) {
-        (*p).flags |= FLAG_INVALID;
-        return STEP_INVALID;
-    }
-    (*p).position = x;
-    (*p).velocity = v;
-    (*p).side = side;
-    let count = min(collisions(*p) + n_collisions, MAX_COLLISIONS);
+    (*p).position = (*st).x;
+    (*p).velocity = (*st).v;
+    (*p).side = (*st).side;
+    let count = min(collisions(*p) + (*st).collisions, MAX_COLLISIONS);
     var status = (*p).flags & FLAG_STATUS_MASK & ~FLAG_STEP_STATUS;
-    if outcome == STEP_BLOCKED {
+    if (*st).outcome == STEP_BLOCKED {
         status |= FLAG_BLOCKED;
-    } else if outcome == STEP_BOUND_HIT {
+    } else if (*st).outcome == STEP_BOUND_HIT {
         status |= FLAG_BOUND_HIT;
     }
     (*p).flags = status | (count << COLLISION_SHIFT);
-    return outcome;
+    return (*st).outcome;
+}
+
+// core's `march`: leaf by leaf, each found from the last, until the time is used up, a rule
+// stops the particle, or the leaf bound is hit.
+fn march(p: ptr<function, Particle>, params: StepParams, hint: ptr<function, vec2<u32>>) -> u32 {
+    let start_hint = *hint;
+    *hint = vec2<u32>(0u);
+    if !is_finite3((*p).position) || !is_finite3((*p).velocity) {
+        (*p).flags |= FLAG_INVALID;
+        return STEP_INVALID;
+    }
+    var st = start_march(*p, params, start_hint);
+    let budget = max_leaves_per_step(header.tree_depth);
+    while st.remaining > 0.0 {
+        if st.visited >= budget {
+            stop_at_leaf_bound(&st);
+            break;
+        }
+        st.visited += 1u;
+        let next = find_next_leaf(&st);
+        if !next.some {
+            if enter_root(&st) {
+                continue;
+            }
+            break;
+        }
+        let leaf = slide_off_solid_face(&st, next.value);
+        st.last_leaf = LeafOption(leaf, true);
+        if leaf.kind == LEAF_EMPTY {
+            let blocked = enter_empty_leaf(&st, leaf, params);
+            if blocked {
+                break;
+            }
+        } else {
+            let collided = enter_surface_leaf(&st, leaf, params);
+            if collided {
+                continue;
+            }
+        }
+        let ended = travel_through_leaf(&st, leaf, hint);
+        if ended {
+            break;
+        }
+    }
+    return finish_march(p, &st);
 }

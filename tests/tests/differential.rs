@@ -10,11 +10,19 @@
 //! for bit identical, and these tests print how many did. On a GPU with approximate
 //! division, a particle that collides often can amplify an ULP into a visible difference,
 //! so the check is: the same collision count, side and status flags for every particle,
-//! and positions within `POSITION_TOLERANCE_LEAVES` of a finest leaf.
+//! and positions within `POSITION_TOLERANCE_LEAVES` of a finest leaf; on lavapipe, every
+//! particle bit for bit.
+//!
+//! Bits that agree on common paths say nothing of a rare branch no particle took. Each scene
+//! names the rare branches of the march it is built to reach ([`MarchBranch`]), and the
+//! CPU's reference run (`step_particle_counted`) must take each of them, so a mirror that
+//! drifts in one of those branches cannot pass; `every_rare_branch_has_a_scene` checks that
+//! every branch has such a scene.
 
 use glam::Vec3;
 use octoproxy_core::{
-    step_particle, Backend, Particle, ProxyView, StepParams, FLAG_INVALID, MAX_DEPTH,
+    step_particle, step_particle_counted, Backend, MarchBranch, MarchCounts, Particle, ProxyView,
+    StepParams, FLAG_INVALID, MAX_DEPTH,
 };
 use octoproxy_cpu::emit::Rng;
 use octoproxy_cpu::ground_truth::GroundTruth;
@@ -158,9 +166,113 @@ fn hand_placed(view: &ProxyView<'_>, n: usize, seed: u64) -> Vec<Particle> {
     out
 }
 
-/// Steps the same particles on both backends and checks the agreement. Without an adapter
-/// (and not under CI) only the CPU backend's agreement with unhinted stepping is checked.
+/// Whether the adapter is lavapipe (llvmpipe), where every particle must come out bit for bit
+/// identical (see the module documentation).
+fn is_lavapipe(gpu: &WgpuBackend) -> bool {
+    gpu.description().to_lowercase().contains("llvmpipe")
+}
+
+/// The rare branches each scene is built to reach, by the scene's name; `needs_meshes` for
+/// the scenes of the shared meshes, which may be absent outside CI.
+struct Reach {
+    scene: &'static str,
+    needs_meshes: bool,
+    branches: &'static [MarchBranch],
+}
+
+/// Taken in every scene, by the hand-placed particles: outside the root aimed at it or flying
+/// away, non-finite on input, overflowing in the step, ending on a leaf's face.
+const EVERY_SCENE: &[MarchBranch] = &[
+    MarchBranch::RootEntry,
+    MarchBranch::RootMiss,
+    MarchBranch::InvalidStart,
+    MarchBranch::InvalidEnd,
+    MarchBranch::EndOnFace,
+];
+
+const REACHES: &[Reach] = {
+    use MarchBranch::*;
+    &[
+        Reach {
+            scene: "bunny",
+            needs_meshes: true,
+            branches: &[SolidCollision, SlideOffSolid, Pinch],
+        },
+        Reach {
+            scene: "nefertiti",
+            needs_meshes: true,
+            branches: &[SolidCollision, Pinch],
+        },
+        Reach {
+            scene: "sphere at 2e5",
+            needs_meshes: false,
+            branches: &[StartBesideShell, ShellBlock],
+        },
+        Reach {
+            scene: "fandisk",
+            needs_meshes: true,
+            branches: &[Pinch],
+        },
+        Reach {
+            scene: "narrow gaps",
+            needs_meshes: false,
+            branches: &[Pinch],
+        },
+        Reach {
+            scene: "thin plates",
+            needs_meshes: false,
+            branches: &[
+                LeafBound,
+                LeafBoundInShell,
+                SolidCollision,
+                SlideOffSolid,
+                Pinch,
+            ],
+        },
+        Reach {
+            scene: "wedge + star",
+            needs_meshes: false,
+            branches: &[SolidCollision, Pinch, PinchStop],
+        },
+        Reach {
+            scene: "triangle soup + needle",
+            needs_meshes: false,
+            branches: &[
+                StartBesideShell,
+                SlideOffSolid,
+                ShellBlock,
+                SolidCollision,
+                Pinch,
+            ],
+        },
+        Reach {
+            scene: "nested shells, chunked",
+            needs_meshes: false,
+            branches: &[ShellBlock, SolidCollision, Pinch, PinchStop],
+        },
+        Reach {
+            scene: "faces on cell planes",
+            needs_meshes: false,
+            branches: &[SlideOffSolid, ShellBlock, Pinch],
+        },
+        Reach {
+            scene: "creases and apexes",
+            needs_meshes: false,
+            branches: &[ShellBlock, SlideOffSolid, Pinch, PinchStop],
+        },
+    ]
+};
+
+/// Steps the same particles on both backends and checks the agreement, and that the CPU's
+/// reference run took every branch its [`REACHES`] row names. Without an adapter (and not
+/// under CI) only the CPU backend's agreement with unhinted stepping, and the branches, are
+/// checked.
 fn differential(name: &str, mesh: &Mesh, build: &BuildParams, steps: u32, chunk: Option<u32>) {
+    let reaches = REACHES
+        .iter()
+        .find(|r| r.scene == name)
+        .unwrap_or_else(|| panic!("{name}: no row in REACHES (which rare branches is it for?)"))
+        .branches;
     let mut gpu = gpu();
     if let (Some(gpu), Some(n)) = (gpu.as_mut(), chunk) {
         gpu.set_chunk_particles(n);
@@ -195,6 +307,7 @@ fn differential(name: &str, mesh: &Mesh, build: &BuildParams, steps: u32, chunk:
         gpu.upload_proxy(&words).unwrap();
     }
     let mut worst = 0f32;
+    let mut counts = MarchCounts::default();
     for (k, params) in [
         StepParams {
             dt: DT,
@@ -224,12 +337,12 @@ fn differential(name: &str, mesh: &Mesh, build: &BuildParams, steps: u32, chunk:
         cpu.upload_particles(&particles).unwrap();
         cpu.step(&params, steps).unwrap();
         // The backends keep each particle's leaf between steps (`LeafHint`); a step without
-        // hints must give the same bits.
+        // hints must give the same bits. This reference run counts the march's rare branches.
         let plain_view = if use_lut { view } else { view.without_lut() };
         let mut plain = particles.clone();
         for _ in 0..steps {
             plain.iter_mut().for_each(|p| {
-                step_particle(&plain_view, p, &params);
+                step_particle_counted(&plain_view, p, &params, &mut counts);
             });
         }
         let unhinted_differ = plain
@@ -274,8 +387,32 @@ fn differential(name: &str, mesh: &Mesh, build: &BuildParams, steps: u32, chunk:
             cpu.particles()[i],
             from_gpu[i]
         );
+        if is_lavapipe(gpu) {
+            let first = (0..particles.len()).find(|&i| {
+                bytemuck::bytes_of(&cpu.particles()[i]) != bytemuck::bytes_of(&from_gpu[i])
+            });
+            assert_eq!(
+                a.identical, a.particles,
+                "{name}: lavapipe must give the CPU's bits; e.g. particle {first:?}"
+            );
+        }
         worst = worst.max(a.worst_leaves);
     }
+    let taken: Vec<String> = MarchBranch::ALL
+        .iter()
+        .filter(|b| counts[**b] > 0)
+        .map(|b| format!("{b:?} {}", counts[*b]))
+        .collect();
+    eprintln!("{name}: rare branches taken: {}", taken.join(", "));
+    let missed: Vec<_> = EVERY_SCENE
+        .iter()
+        .chain(reaches)
+        .filter(|b| counts[**b] == 0)
+        .collect();
+    assert!(
+        missed.is_empty(),
+        "{name}: the scene is built to reach {missed:?}, and no particle took them: the test no longer tests them"
+    );
     if gpu.is_some() {
         eprintln!("{name}: worst position difference {worst:.2e} of a finest leaf");
     } else {
@@ -395,6 +532,24 @@ fn resting_in_creases_and_apexes() {
         scenes::rotated(&scenes::funnel(15.0, 24), -20.0, 0.0),
     ]);
     differential("creases and apexes", &mesh, &build(6), 150, None);
+}
+
+#[test]
+fn every_rare_branch_has_a_scene() {
+    // Scenes of procedural meshes only: the shared meshes may be absent.
+    let missing: Vec<_> = MarchBranch::ALL
+        .iter()
+        .filter(|b| {
+            !EVERY_SCENE.contains(b)
+                && !REACHES
+                    .iter()
+                    .any(|r| !r.needs_meshes && r.branches.contains(b))
+        })
+        .collect();
+    assert!(
+        missing.is_empty(),
+        "rare branches of the march that no procedural scene is built to reach: {missing:?}"
+    );
 }
 
 #[test]

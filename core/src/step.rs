@@ -24,7 +24,21 @@
 //! Most steps start and end inside one empty leaf. [`step_particle_hinted`] takes the leaf a
 //! particle's last step ended in ([`LeafHint`]) and, while the particle is strictly inside it,
 //! starts there instead of descending the tree; a step that also ends strictly inside it is
-//! settled before the march is set up. The backends keep a hint beside every particle.
+//! settled before the march is set up (`settle_in_hinted_leaf`; `settle_leaving_root` for
+//! particles flying away outside the root). The backends keep a hint beside every particle.
+//!
+//! The march (`march`, out of line) keeps its loop state in one `MarchState`, and each turn
+//! of its loop is a sentence of steps: find the next leaf (`find_next_leaf`; outside the
+//! root, `enter_root`), step off a solid leaf's face it slides along
+//! (`slide_off_solid_face`), then, in an empty leaf, stamp its side or be blocked by the shell
+//! rule (`enter_empty_leaf`, `block_at_shell`), in a surface leaf, collide (`enter_surface_leaf`,
+//! `collision_normal`, `collide`), and last end the step in the leaf or cross to its exit
+//! (`travel_through_leaf`); `stop_at_leaf_bound` and `finish_march` close it. WGSL's
+//! `step.wgsl` has each of these functions under the same name, taking
+//! `ptr<function, MarchState>`. The march reports to an observer, which is nothing for the
+//! step itself, the path's pieces for [`step_particle_traced`], and the rare branches
+//! ([`MarchBranch`]) for [`step_particle_counted`], which the differential tests use to show
+//! that their scenes reach them.
 
 use bytemuck::{Pod, Zeroable};
 use glam::{UVec3, Vec3, Vec3A};

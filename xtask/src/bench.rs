@@ -1,6 +1,13 @@
 //! `octoproxy bench`: octoproxy against what users would pick instead, in one process, on
 //! the same scenes, particles and step parameters. Writes `target/bench/results.json`, a
 //! Markdown table and PNG plots, and prints a summary.
+//!
+//! The committed run lives in `docs/bench/`, and every benchmark figure in `README.md` and
+//! `docs/**.md` is rendered from its `results.json`: between markers such as
+//! `<!-- bench:table:summary -->` and `<!-- /bench:table:summary -->`. A run with
+//! `--out docs/bench` rewrites those regions; `--docs-only` rewrites them (and `results.md`)
+//! from the committed `results.json` without running anything; and a test fails when a region
+//! disagrees with its rendering.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -34,7 +41,10 @@ usage: octoproxy bench [--quick] [--backends cpu,wgpu] [--scenes S,S...] [--part
                    hardware GPU; suffixes k and m work)
   --steps N        timed steps per case (default: about 4M particle-steps per case, 2..50)
   --samples N      particles in each penetration check (default 2000; 60 steps each)
-  --out DIR        where results go (default target/bench)
+  --out DIR        where results go (default target/bench); with docs/bench, the committed
+                   results, it also rewrites the figures in README.md and docs/
+  --docs-only      run nothing: rewrite docs/bench/results.md and the figures in README.md
+                   and docs/ from the committed docs/bench/results.json
 
 Scenes come from ../shared/meshes. Methods: octoproxy-cpu, octoproxy-cpu-nolut,
 triangle-octree, parry3d, sdf-grid and floor on the CPU; octoproxy-wgpu and floor on the GPU.";
@@ -60,6 +70,8 @@ struct Opts {
     steps: Option<u32>,
     samples: usize,
     out: PathBuf,
+    /// Rewrite the docs from the committed results instead of running.
+    docs_only: bool,
     /// Particle counts run on a hardware GPU only.
     gpu_only: Vec<usize>,
 }
@@ -93,6 +105,7 @@ fn parse(args: Vec<std::ffi::OsString>) -> Result<Option<Opts>> {
         steps: None,
         samples: 2000,
         out: PathBuf::from("target/bench"),
+        docs_only: false,
         gpu_only: Vec::new(),
     };
     let mut p = lexopt::Parser::from_args(args);
@@ -137,6 +150,7 @@ fn parse(args: Vec<std::ffi::OsString>) -> Result<Option<Opts>> {
             }
             "--samples" => o.samples = flags::number(&mut p, "--samples")?,
             "--out" | "-o" => o.out = flags::path(&mut p, "--out")?,
+            "--docs-only" => o.docs_only = true,
             "-h" | "--help" => {
                 println!("{USAGE}");
                 return Ok(None);
@@ -349,6 +363,9 @@ fn today() -> String {
 
 pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
     let Some(o) = parse(args)? else { return Ok(()) };
+    if o.docs_only {
+        return docs::refresh_from_committed();
+    }
     std::fs::create_dir_all(&o.out).with_context(|| format!("creating {}", o.out.display()))?;
     let params = StepParams::default();
     let mut gpu = if o.wgpu {
@@ -594,6 +611,9 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
     };
     report.write(&o.out)?;
     report.print_summary();
+    if docs::is_committed_dir(&o.out) {
+        docs::refresh(&report)?;
+    }
     Ok(())
 }
 
@@ -888,6 +908,1143 @@ impl Report {
                     println!("  {m} takes {:.1}× octoproxy-cpu's time{target}", x / octo);
                 }
             }
+        }
+    }
+}
+
+/// The committed run (`docs/bench/results.json`) and every benchmark figure in the docs, which
+/// is rendered from it: between `<!-- bench:NAME -->` and `<!-- /bench:NAME -->`, each on a line
+/// of its own, in `README.md` and any Markdown file under `docs/`.
+mod docs {
+    use std::fmt::Write as _;
+    use std::path::{Path, PathBuf};
+
+    use anyhow::{anyhow, bail, Context, Result};
+
+    use super::{human_bytes, Report, Row, BANDS};
+
+    /// Where the committed run lives, from the repository root.
+    pub const COMMITTED_DIR: &str = "docs/bench";
+
+    /// Every generated region, and the file (from the repository root) that must hold it. The
+    /// same region may appear in other Markdown files too.
+    pub const REGIONS: [(&str, &str); 5] = [
+        ("README.md", "table:headline"),
+        ("docs/bench/README.md", "table:summary"),
+        ("docs/bench/README.md", "text:findings"),
+        ("docs/bench/README.md", "table:bands"),
+        ("docs/bench/README.md", "text:targets"),
+    ];
+
+    /// The CPU methods in the order the tables list them; others follow as they appear.
+    const METHODS: [&str; 6] = [
+        "octoproxy-cpu",
+        "octoproxy-cpu-nolut",
+        "triangle-octree",
+        "parry3d",
+        "sdf-grid",
+        "floor",
+    ];
+
+    pub fn repo_root() -> PathBuf {
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
+    }
+
+    /// Whether `out` is the committed run's directory.
+    pub fn is_committed_dir(out: &Path) -> bool {
+        match (
+            out.canonicalize(),
+            repo_root().join(COMMITTED_DIR).canonicalize(),
+        ) {
+            (Ok(a), Ok(b)) => a == b,
+            _ => false,
+        }
+    }
+
+    /// The committed run, parsed.
+    pub fn load_committed() -> Result<Report> {
+        let path = repo_root().join(COMMITTED_DIR).join("results.json");
+        let text = std::fs::read_to_string(&path)
+            .with_context(|| format!("reading {}", path.display()))?;
+        super::json::parse_report(&text).with_context(|| format!("parsing {}", path.display()))
+    }
+
+    /// `--docs-only`: `results.md` and every marked region from the committed `results.json`.
+    pub fn refresh_from_committed() -> Result<()> {
+        let report = load_committed()?;
+        let md = repo_root().join(COMMITTED_DIR).join("results.md");
+        write_if_changed(&md, &report.markdown())?;
+        refresh(&report)
+    }
+
+    /// Rewrites every marked region in `README.md` and `docs/**.md` from `report`.
+    pub fn refresh(report: &Report) -> Result<()> {
+        let root = repo_root();
+        for file in markdown_files(&root)? {
+            let text = std::fs::read_to_string(&file)
+                .with_context(|| format!("reading {}", file.display()))?;
+            let new = rewrite(&text, report).with_context(|| format!("in {}", file.display()))?;
+            write_if_changed(&file, &new)?;
+        }
+        let missing = missing_regions(&root);
+        if !missing.is_empty() {
+            bail!("{}", missing.join("; "));
+        }
+        Ok(())
+    }
+
+    fn write_if_changed(path: &Path, text: &str) -> Result<()> {
+        if std::fs::read_to_string(path).ok().as_deref() != Some(text) {
+            std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))?;
+            eprintln!("rewrote {}", path.display());
+        }
+        Ok(())
+    }
+
+    /// `README.md` and every `.md` file under `docs/`, sorted.
+    pub fn markdown_files(root: &Path) -> Result<Vec<PathBuf>> {
+        fn walk(dir: &Path, out: &mut Vec<PathBuf>) -> Result<()> {
+            for entry in
+                std::fs::read_dir(dir).with_context(|| format!("reading {}", dir.display()))?
+            {
+                let path = entry?.path();
+                if path.is_dir() {
+                    walk(&path, out)?;
+                } else if path.extension().is_some_and(|e| e == "md") {
+                    out.push(path);
+                }
+            }
+            Ok(())
+        }
+        let mut files = vec![root.join("README.md")];
+        let docs = root.join("docs");
+        if docs.is_dir() {
+            walk(&docs, &mut files)?;
+        }
+        files[1..].sort();
+        Ok(files)
+    }
+
+    /// One marked region: its name, the 1-based line of its opening marker, and the byte
+    /// range of its content (between the markers' lines).
+    pub struct Region {
+        pub name: String,
+        pub line: usize,
+        pub content: std::ops::Range<usize>,
+    }
+
+    fn marker<'a>(line: &'a str, prefix: &str) -> Option<&'a str> {
+        line.trim()
+            .strip_prefix(prefix)?
+            .strip_suffix("-->")
+            .map(str::trim)
+    }
+
+    /// The marked regions of a Markdown text, in order. Markers do not nest, and inside a
+    /// fenced code block they are text (so the docs can show them).
+    pub fn regions(text: &str) -> Result<Vec<Region>> {
+        let mut out = Vec::new();
+        let mut open: Option<(String, usize, usize)> = None;
+        let mut fenced = false;
+        let mut at = 0;
+        for (i, line) in text.split_inclusive('\n').enumerate() {
+            let next = at + line.len();
+            if line.trim_start().starts_with("```") {
+                fenced = !fenced;
+            }
+            if fenced || line.trim_start().starts_with("```") {
+                at = next;
+                continue;
+            }
+            if let Some(name) = marker(line, "<!-- bench:") {
+                if let Some((outer, l, _)) = &open {
+                    bail!(
+                        "line {}: bench:{name} opens inside bench:{outer} (opened on line {l})",
+                        i + 1
+                    );
+                }
+                open = Some((name.to_string(), i + 1, next));
+            } else if let Some(name) = marker(line, "<!-- /bench:") {
+                match open.take() {
+                    Some((n, l, start)) if n == name => out.push(Region {
+                        name: n,
+                        line: l,
+                        content: start..at,
+                    }),
+                    Some((n, l, _)) => bail!(
+                        "line {}: /bench:{name} closes bench:{n} (opened on line {l})",
+                        i + 1
+                    ),
+                    None => bail!("line {}: /bench:{name} closes nothing", i + 1),
+                }
+            }
+            at = next;
+        }
+        if let Some((n, l, _)) = open {
+            bail!("line {l}: bench:{n} is never closed (<!-- /bench:{n} -->)");
+        }
+        Ok(out)
+    }
+
+    /// `text` with every marked region replaced by its rendering.
+    pub fn rewrite(text: &str, report: &Report) -> Result<String> {
+        let mut out = String::with_capacity(text.len());
+        let mut at = 0;
+        for r in regions(text)? {
+            out.push_str(&text[at..r.content.start]);
+            out.push_str(&render(&r.name, report).with_context(|| format!("line {}", r.line))?);
+            at = r.content.end;
+        }
+        out.push_str(&text[at..]);
+        Ok(out)
+    }
+
+    /// The `REGIONS` that are not in their home file.
+    pub fn missing_regions(root: &Path) -> Vec<String> {
+        let mut missing = Vec::new();
+        for (file, name) in REGIONS {
+            let text = std::fs::read_to_string(root.join(file)).unwrap_or_default();
+            let found = regions(&text).is_ok_and(|rs| rs.iter().any(|r| r.name == name));
+            if !found {
+                missing.push(format!(
+                    "{file} lacks the region <!-- bench:{name} --> ... <!-- /bench:{name} -->"
+                ));
+            }
+        }
+        missing
+    }
+
+    /// A region's content: a blank line, the rendering, a blank line (so Markdown sees the
+    /// markers as their own blocks).
+    pub fn render(name: &str, report: &Report) -> Result<String> {
+        let run = Run::new(report)?;
+        let body = match name {
+            "table:headline" => run.headline(),
+            "table:summary" => run.summary(),
+            "text:findings" => run.findings(),
+            "table:bands" => run.bands(),
+            "text:targets" => run.targets(),
+            _ => bail!(
+                "unknown region bench:{name} (regions: {})",
+                REGIONS.map(|r| r.1).join(", ")
+            ),
+        };
+        Ok(format!("\n{body}\n"))
+    }
+
+    /// `1234567` as `1,234,567`.
+    fn thousands(n: u64) -> String {
+        let digits = n.to_string();
+        let mut out = String::new();
+        for (i, c) in digits.chars().enumerate() {
+            if i > 0 && (digits.len() - i) % 3 == 0 {
+                out.push(',');
+            }
+            out.push(c);
+        }
+        out
+    }
+
+    fn fixed(x: f64, digits: usize) -> String {
+        format!("{x:.digits$}")
+    }
+
+    /// The smallest and largest of `values`, as `a–b` (or `a` when they print the same).
+    fn span(values: impl IntoIterator<Item = f64>, digits: usize) -> String {
+        let (lo, hi) = values
+            .into_iter()
+            .filter(|x| x.is_finite())
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| {
+                (lo.min(x), hi.max(x))
+            });
+        if lo > hi {
+            return "–".into();
+        }
+        let (a, b) = (fixed(lo, digits), fixed(hi, digits));
+        if a == b {
+            a
+        } else {
+            format!("{a}–{b}")
+        }
+    }
+
+    fn penetrations(x: f64) -> String {
+        if x.is_finite() {
+            thousands(x.round() as u64)
+        } else {
+            "–".into()
+        }
+    }
+
+    fn seconds(ms: f64) -> String {
+        if ms > 0.0 {
+            format!("{:.2} s", ms / 1e3)
+        } else {
+            "–".into()
+        }
+    }
+
+    fn label(method: &str) -> &str {
+        if method == "floor" {
+            "floor (integration only)"
+        } else {
+            method
+        }
+    }
+
+    /// A sentence's list: `a`, `a and b`, `a, b and c`.
+    fn and_list(items: &[String]) -> String {
+        match items {
+            [] => String::new(),
+            [a] => a.clone(),
+            [rest @ .., last] => format!("{} and {last}", rest.join(", ")),
+        }
+    }
+
+    /// The figures of one run: the CPU methods at one particle count (1M where the run has
+    /// it), every scene.
+    struct Run<'a> {
+        report: &'a Report,
+        n: usize,
+        scenes: Vec<&'a str>,
+        methods: Vec<&'a str>,
+        largest: &'a Row,
+    }
+
+    impl<'a> Run<'a> {
+        fn new(report: &'a Report) -> Result<Self> {
+            let octo = || {
+                report.rows.iter().filter(|r| {
+                    r.method == "octoproxy-cpu" && r.backend == "cpu" && r.band == "mixed"
+                })
+            };
+            let n = if octo().any(|r| r.particles == 1_000_000) {
+                1_000_000
+            } else {
+                octo()
+                    .map(|r| r.particles)
+                    .max()
+                    .ok_or_else(|| anyhow!("the results have no octoproxy-cpu rows"))?
+            };
+            let mut scenes: Vec<&str> = Vec::new();
+            for r in octo().filter(|r| r.particles == n) {
+                if !scenes.contains(&r.scene.as_str()) {
+                    scenes.push(&r.scene);
+                }
+            }
+            let mut methods: Vec<&str> = METHODS.to_vec();
+            for r in &report.rows {
+                if r.backend == "cpu" && !methods.contains(&r.method.as_str()) {
+                    methods.push(&r.method);
+                }
+            }
+            let largest = octo()
+                .filter(|r| r.particles == n)
+                .max_by_key(|r| r.triangles)
+                .expect("a scene at n");
+            Ok(Run {
+                report,
+                n,
+                scenes,
+                methods,
+                largest,
+            })
+        }
+
+        /// The CPU, mixed-speed row of `method` on `scene` at the run's count.
+        fn row(&self, scene: &str, method: &str) -> Option<&'a Row> {
+            self.report.rows.iter().find(|r| {
+                r.scene == scene
+                    && r.method == method
+                    && r.backend == "cpu"
+                    && r.band == "mixed"
+                    && r.particles == self.n
+            })
+        }
+
+        /// `method`'s time over octoproxy-cpu's on `scene`.
+        fn vs_octo(&self, scene: &str, method: &str) -> Option<f64> {
+            let octo = self.row(scene, "octoproxy-cpu")?.ns_per_particle_step;
+            Some(self.row(scene, method)?.ns_per_particle_step / octo)
+        }
+
+        /// `f` of `method`'s row on every scene that has one, optionally leaving one out.
+        fn each(&self, method: &str, except: Option<&str>, f: impl Fn(&Row) -> f64) -> Vec<f64> {
+            self.scenes
+                .iter()
+                .filter(|s| Some(**s) != except)
+                .filter_map(|s| self.row(s, method))
+                .map(f)
+                .collect()
+        }
+
+        /// The methods other than octoproxy-cpu itself and the floor that this run has.
+        fn others(&self) -> Vec<&'a str> {
+            self.methods
+                .iter()
+                .copied()
+                .filter(|m| *m != "octoproxy-cpu" && *m != "floor")
+                .filter(|m| self.scenes.iter().any(|s| self.row(s, m).is_some()))
+                .collect()
+        }
+
+        /// The scene where octoproxy-cpu is slowest.
+        fn slowest(&self) -> &'a Row {
+            self.scenes
+                .iter()
+                .filter_map(|s| self.row(s, "octoproxy-cpu"))
+                .max_by(|a, b| a.ns_per_particle_step.total_cmp(&b.ns_per_particle_step))
+                .unwrap_or(self.largest)
+        }
+
+        fn floor_ns(&self, scene: &str) -> Option<f64> {
+            self.row(scene, "floor").map(|r| r.ns_per_particle_step)
+        }
+
+        fn table_row(&self, s: &mut String, r: &Row, with_scene: bool) {
+            if with_scene {
+                let _ = write!(s, "| {} | {} ", r.scene, thousands(r.triangles as u64));
+            }
+            let vs = self.vs_octo(&r.scene, &r.method).unwrap_or(f64::NAN);
+            let floor = self
+                .floor_ns(&r.scene)
+                .map_or(f64::NAN, |f| r.ns_per_particle_step / f);
+            let _ = writeln!(
+                s,
+                "| {} | {} | {} | {:.1} | {:.2}× | {:.0}× | {} |",
+                label(&r.method),
+                seconds(r.build_ms),
+                human_bytes(r.memory_bytes),
+                r.ns_per_particle_step,
+                vs,
+                floor,
+                penetrations(r.penetrations_per_million)
+            );
+        }
+
+        /// The README's table: every method on the largest scene.
+        fn headline(&self) -> String {
+            let big = self.largest;
+            let mut s = format!(
+                "{} ({} triangles), {} particles on {}, {}:\n\n",
+                big.scene,
+                thousands(big.triangles as u64),
+                thousands(self.n as u64),
+                self.report.machine,
+                self.report.date
+            );
+            s.push_str("| method | build | memory | ns / particle-step | vs octoproxy-cpu | × floor | penetrations / M |\n");
+            s.push_str("|---|---:|---:|---:|---:|---:|---:|\n");
+            for m in &self.methods {
+                if let Some(r) = self.row(&big.scene, m) {
+                    self.table_row(&mut s, r, false);
+                }
+            }
+            s
+        }
+
+        /// Every scene, every CPU method.
+        fn summary(&self) -> String {
+            let gpu = match &self.report.gpu {
+                None => "no GPU adapter was found, so there are no GPU rows".to_string(),
+                Some(g) if g.contains(", Cpu)") => format!(
+                    "the only GPU adapter was a software one ({g}), so the GPU rows time a CPU \
+                     emulating a GPU and are not worth reporting here"
+                ),
+                Some(g) => format!("GPU: {g}"),
+            };
+            let mut s = format!(
+                "Measured {} on {}; {gpu}. {} particles, the CPU methods:\n\n",
+                self.report.date,
+                self.report.machine,
+                thousands(self.n as u64)
+            );
+            s.push_str("| scene | triangles | method | build | memory | ns / particle-step | vs octoproxy-cpu | × floor | penetrations / M |\n");
+            s.push_str("|---|---:|---|---:|---:|---:|---:|---:|---:|\n");
+            for scene in &self.scenes {
+                for m in &self.methods {
+                    if let Some(r) = self.row(scene, m) {
+                        self.table_row(&mut s, r, true);
+                    }
+                }
+            }
+            s
+        }
+
+        /// The figures the account of the run cites, as a list.
+        fn findings(&self) -> String {
+            let big = self.largest;
+            let n = thousands(self.n as u64);
+            let mut s = String::new();
+            // Leaks.
+            let mut clean = Vec::new();
+            let mut leaky = Vec::new();
+            for m in self.methods.iter().filter(|m| **m != "floor") {
+                let pens = self.each(m, None, |r| r.penetrations_per_million);
+                if pens.is_empty() {
+                    continue;
+                }
+                if pens.iter().all(|p| *p == 0.0) {
+                    clean.push(format!("`{m}`"));
+                } else {
+                    let lo = pens.iter().copied().fold(f64::INFINITY, f64::min);
+                    let hi = pens.iter().copied().fold(0.0, f64::max);
+                    let range = if penetrations(lo) == penetrations(hi) {
+                        penetrations(lo)
+                    } else {
+                        format!("{}–{}", penetrations(lo), penetrations(hi))
+                    };
+                    leaky.push(format!("`{m}` {range}"));
+                }
+            }
+            let _ = writeln!(
+                s,
+                "- **Penetrations** per million particle-steps, {n} particles: 0 for {} on every \
+                 scene{}.",
+                and_list(&clean),
+                if leaky.is_empty() {
+                    String::new()
+                } else {
+                    format!("; {}", and_list(&leaky))
+                }
+            );
+            // Memory.
+            let per_scene = |m: &str| {
+                let items: Vec<String> = self
+                    .scenes
+                    .iter()
+                    .filter_map(|sc| self.row(sc, m))
+                    .map(|r| {
+                        format!(
+                            "{} {} ({} triangles)",
+                            r.scene,
+                            human_bytes(r.memory_bytes),
+                            thousands(r.triangles as u64)
+                        )
+                    })
+                    .collect();
+                items.join(", ")
+            };
+            let grow: Vec<String> = self
+                .others()
+                .into_iter()
+                .filter(|m| *m != "octoproxy-cpu-nolut")
+                .filter_map(|m| {
+                    let r = self.row(&big.scene, m)?;
+                    Some(format!("`{m}` {}", human_bytes(r.memory_bytes)))
+                })
+                .collect();
+            let _ = writeln!(
+                s,
+                "- **Memory:** the proxy takes {}. On {}: {}.",
+                per_scene("octoproxy-cpu"),
+                big.scene,
+                and_list(&grow)
+            );
+            // Speed on the largest scene, and across the scenes.
+            let on_big: Vec<String> = self
+                .others()
+                .into_iter()
+                .filter_map(|m| Some(format!("`{m}` {:.2}×", self.vs_octo(&big.scene, m)?)))
+                .collect();
+            let _ = writeln!(
+                s,
+                "- **On the largest scene** ({}, {} triangles, {n} particles) `octoproxy-cpu` \
+                 takes {:.1} ns per particle-step; the others take, as a multiple of that: {}.",
+                big.scene,
+                thousands(big.triangles as u64),
+                big.ns_per_particle_step,
+                and_list(&on_big)
+            );
+            let across: Vec<String> = self
+                .others()
+                .into_iter()
+                .map(|m| {
+                    let r = self.each(m, None, |r| {
+                        self.vs_octo(&r.scene, &r.method).unwrap_or(f64::NAN)
+                    });
+                    format!("`{m}` {}×", span(r, 2))
+                })
+                .collect();
+            let _ = writeln!(
+                s,
+                "- **Across the scenes**, as a multiple of `octoproxy-cpu`'s time: {}.",
+                and_list(&across)
+            );
+            let slow = self.slowest();
+            let _ = writeln!(
+                s,
+                "- **The slowest scene** for `octoproxy-cpu` is {} ({:.1} ns per particle-step); \
+                 the others take {} ns.",
+                slow.scene,
+                slow.ns_per_particle_step,
+                span(
+                    self.each("octoproxy-cpu", Some(&slow.scene), |r| r
+                        .ns_per_particle_step),
+                    1
+                )
+            );
+            let bakes: Vec<String> = self
+                .scenes
+                .iter()
+                .filter_map(|sc| self.row(sc, "octoproxy-cpu"))
+                .map(|r| {
+                    format!(
+                        "{} {} ({} triangles)",
+                        r.scene,
+                        seconds(r.build_ms),
+                        thousands(r.triangles as u64)
+                    )
+                })
+                .collect();
+            let _ = writeln!(s, "- **Bake:** {}.", bakes.join(", "));
+            s
+        }
+
+        /// octoproxy-cpu by speed band, where the run timed the bands alone.
+        fn bands(&self) -> String {
+            let bands = BANDS
+                .iter()
+                .map(|b| format!("{} {}–{}", b.0, b.1, b.2))
+                .collect::<Vec<_>>();
+            let mut s = format!(
+                "`octoproxy-cpu` by speed band ({} depth-8 leaves per step), each band's \
+                 particles alone, ns per particle-step (× floor):\n\n",
+                and_list(&bands)
+            );
+            s.push_str("| scene | particles |");
+            for b in BANDS {
+                let _ = write!(s, " {} |", b.0);
+            }
+            s.push_str("\n|---|---:|");
+            s.push_str(&"---:|".repeat(BANDS.len()));
+            s.push('\n');
+            for scene in &self.scenes {
+                let rows: Vec<&Row> = self
+                    .report
+                    .rows
+                    .iter()
+                    .filter(|r| {
+                        r.scene == *scene && r.method == "octoproxy-cpu" && r.band != "mixed"
+                    })
+                    .collect();
+                let Some(n) = rows.iter().map(|r| r.particles).max() else {
+                    continue;
+                };
+                let _ = write!(s, "| {scene} | {} |", thousands(n as u64));
+                for b in BANDS {
+                    match rows.iter().find(|r| r.band == b.0 && r.particles == n) {
+                        Some(r) => {
+                            let _ = write!(
+                                s,
+                                " {:.1} ({:.1}×) |",
+                                r.ns_per_particle_step, r.ratio_to_floor
+                            );
+                        }
+                        None => s.push_str(" – |"),
+                    }
+                }
+                s.push('\n');
+            }
+            s
+        }
+
+        /// The targets of issue 6, against this run.
+        fn targets(&self) -> String {
+            let slow = self.slowest();
+            let mut s = String::new();
+            let multiples = self.each("octoproxy-cpu", None, |r| {
+                self.floor_ns(&r.scene)
+                    .map_or(f64::NAN, |f| r.ns_per_particle_step / f)
+            });
+            let met = |ok: usize, of: usize| match (ok, of) {
+                (_, 0) => "no scene to judge".to_string(),
+                (0, _) => "not met on this machine".to_string(),
+                (a, b) if a == b => "met on every scene".to_string(),
+                (a, b) => format!("met on {a} of {b} scenes"),
+            };
+            let within = multiples.iter().filter(|x| **x <= 2.0).count();
+            let slow_multiple = self
+                .floor_ns(&slow.scene)
+                .map_or(f64::NAN, |f| slow.ns_per_particle_step / f);
+            let _ = writeln!(
+                s,
+                "- **The step against the floor** (target: within 2×; {}): `octoproxy-cpu` takes \
+                 {}× the floor's time ({}: {:.0}×, against a floor of {:.1} ns). The floor itself \
+                 comes out at {} ns per particle-step across the scenes. The leaking `sdf-grid`, \
+                 one trilinear lookup per step, takes {}× the floor.",
+                met(within, multiples.len()),
+                span(
+                    self.each("octoproxy-cpu", Some(&slow.scene), |r| {
+                        self.floor_ns(&r.scene)
+                            .map_or(f64::NAN, |f| r.ns_per_particle_step / f)
+                    }),
+                    0
+                ),
+                slow.scene,
+                slow_multiple,
+                self.floor_ns(&slow.scene).unwrap_or(f64::NAN),
+                span(self.each("floor", None, |r| r.ns_per_particle_step), 1),
+                span(
+                    self.each("sdf-grid", None, |r| {
+                        self.floor_ns(&r.scene)
+                            .map_or(f64::NAN, |f| r.ns_per_particle_step / f)
+                    }),
+                    0
+                )
+            );
+            for (m, target, what) in [
+                ("parry3d", 30.0, "its step, a ray cast through a BVH, takes"),
+                (
+                    "triangle-octree",
+                    3.0,
+                    "its step, exact segment tests in its leaves, takes",
+                ),
+            ] {
+                let ratios = self.each(m, None, |r| {
+                    self.vs_octo(&r.scene, &r.method).unwrap_or(f64::NAN)
+                });
+                if ratios.is_empty() {
+                    continue;
+                }
+                let ok = ratios.iter().filter(|x| **x >= target).count();
+                let _ = writeln!(
+                    s,
+                    "- **`{m}`** (target: {target}× `octoproxy-cpu`'s time; {}): {}×; {what} {} ns \
+                     ({}: {:.1} ns).",
+                    met(ok, ratios.len()),
+                    span(ratios, 2),
+                    span(self.each(m, Some(&slow.scene), |r| r.ns_per_particle_step), 0),
+                    slow.scene,
+                    self.row(&slow.scene, m)
+                        .map_or(f64::NAN, |r| r.ns_per_particle_step)
+                );
+            }
+            s
+        }
+    }
+
+    #[cfg(test)]
+    mod tests {
+        use super::*;
+
+        /// What to run when a region is stale.
+        const REFRESH: &str = "cargo xtask bench --docs-only";
+
+        /// Every benchmark figure in the docs is the committed run's: each marked region of
+        /// README.md and docs/**.md equals its rendering from docs/bench/results.json, and
+        /// results.md is that run's table.
+        #[test]
+        fn the_figures_in_the_docs_are_the_committed_runs() {
+            let root = repo_root();
+            let report = load_committed().unwrap_or_else(|e| panic!("{e:#}"));
+            let mut problems = missing_regions(&root);
+            for file in markdown_files(&root).unwrap() {
+                let rel = file
+                    .strip_prefix(&root)
+                    .unwrap_or(&file)
+                    .display()
+                    .to_string();
+                let text = std::fs::read_to_string(&file).unwrap();
+                let regions = match regions(&text) {
+                    Ok(r) => r,
+                    Err(e) => {
+                        problems.push(format!("{rel}: {e:#}"));
+                        continue;
+                    }
+                };
+                for r in regions {
+                    match render(&r.name, &report) {
+                        Ok(want) if want == text[r.content.clone()] => {}
+                        Ok(_) => problems.push(format!(
+                            "{rel}: the table bench:{} (line {}) is not the rendering of \
+                             {COMMITTED_DIR}/results.json",
+                            r.name, r.line
+                        )),
+                        Err(e) => problems.push(format!("{rel}: line {}: {e:#}", r.line)),
+                    }
+                }
+            }
+            let md = std::fs::read_to_string(root.join(COMMITTED_DIR).join("results.md"))
+                .unwrap_or_default();
+            if md != report.markdown() {
+                problems.push(format!(
+                    "{COMMITTED_DIR}/results.md is not the rendering of {COMMITTED_DIR}/results.json"
+                ));
+            }
+            assert!(
+                problems.is_empty(),
+                "{}\nrun `{REFRESH}` to rewrite them from the committed results",
+                problems.join("\n")
+            );
+        }
+
+        #[test]
+        fn markers_must_pair() {
+            let report = load_committed().unwrap();
+            let ok = "a\n<!-- bench:table:bands -->\nold\n<!-- /bench:table:bands -->\nb\n";
+            let new = rewrite(ok, &report).unwrap();
+            assert!(new.starts_with("a\n<!-- bench:table:bands -->\n\n`octoproxy-cpu` by"));
+            assert!(new.ends_with("|\n\n<!-- /bench:table:bands -->\nb\n"));
+            assert_eq!(rewrite(&new, &report).unwrap(), new);
+            for bad in [
+                "<!-- bench:table:bands -->\n",
+                "<!-- /bench:table:bands -->\n",
+                "<!-- bench:table:bands -->\n<!-- /bench:table:summary -->\n",
+                "<!-- bench:table:bands -->\n<!-- bench:table:bands -->\n",
+                "<!-- bench:table:nothing -->\n<!-- /bench:table:nothing -->\n",
+            ] {
+                assert!(rewrite(bad, &report).is_err(), "{bad}");
+            }
+            // Markers in a fenced code block are an example, not a region.
+            let shown = "```text\n<!-- bench:table:bands -->\n<!-- /bench:table:nothing -->\n```\n";
+            assert_eq!(rewrite(shown, &report).unwrap(), shown);
+        }
+
+        #[test]
+        fn numbers_print_as_the_tables_print_them() {
+            assert_eq!(thousands(6_396_032), "6,396,032");
+            assert_eq!(thousands(999), "999");
+            assert_eq!(thousands(1000), "1,000");
+            assert_eq!(span([1.04, 0.96, f64::NAN], 1), "1.0");
+            assert_eq!(span([5.59, 14.26], 2), "5.59–14.26");
+            assert_eq!(span([], 2), "–");
+            assert_eq!(
+                and_list(&["a".into(), "b".into(), "c".into()]),
+                "a, b and c"
+            );
+        }
+    }
+}
+
+/// The JSON that `Report::json` writes, read back: objects, arrays, strings, numbers and null
+/// (the crate has no serde, and needs none for its own output).
+mod json {
+    use anyhow::{anyhow, bail, Context, Result};
+
+    use super::{Report, Row};
+
+    #[derive(Debug, PartialEq)]
+    pub enum Value {
+        Null,
+        Bool(bool),
+        Number(f64),
+        String(String),
+        Array(Vec<Value>),
+        Object(Vec<(String, Value)>),
+    }
+
+    impl Value {
+        fn get(&self, key: &str) -> Result<&Value> {
+            match self {
+                Value::Object(fields) => fields
+                    .iter()
+                    .find(|(k, _)| k == key)
+                    .map(|(_, v)| v)
+                    .ok_or_else(|| anyhow!("no \"{key}\"")),
+                _ => bail!("not an object (looking for \"{key}\")"),
+            }
+        }
+
+        fn str(&self, key: &str) -> Result<&str> {
+            match self.get(key)? {
+                Value::String(s) => Ok(s),
+                v => bail!("\"{key}\" is {v:?}, not a string"),
+            }
+        }
+
+        /// A number; null reads as NaN (how `Report::json` writes a missing figure).
+        fn num(&self, key: &str) -> Result<f64> {
+            match self.get(key)? {
+                Value::Number(x) => Ok(*x),
+                Value::Null => Ok(f64::NAN),
+                v => bail!("\"{key}\" is {v:?}, not a number"),
+            }
+        }
+
+        fn count(&self, key: &str) -> Result<usize> {
+            let x = self.num(key)?;
+            if !(x >= 0.0 && x.fract() == 0.0 && x <= 1e15) {
+                bail!("\"{key}\" is {x}, not a count");
+            }
+            Ok(x as usize)
+        }
+    }
+
+    struct Parser<'a> {
+        s: &'a [u8],
+        at: usize,
+    }
+
+    impl Parser<'_> {
+        fn skip_space(&mut self) {
+            while self.s.get(self.at).is_some_and(|c| c.is_ascii_whitespace()) {
+                self.at += 1;
+            }
+        }
+
+        fn expect(&mut self, c: u8) -> Result<()> {
+            self.skip_space();
+            if self.s.get(self.at) != Some(&c) {
+                bail!("expected '{}' at byte {}", c as char, self.at);
+            }
+            self.at += 1;
+            Ok(())
+        }
+
+        fn value(&mut self, depth: usize) -> Result<Value> {
+            if depth > 64 {
+                bail!("nested too deep at byte {}", self.at);
+            }
+            self.skip_space();
+            let rest = &self.s[self.at..];
+            match rest.first() {
+                Some(b'{') => {
+                    self.at += 1;
+                    let mut fields = Vec::new();
+                    self.skip_space();
+                    if self.s.get(self.at) == Some(&b'}') {
+                        self.at += 1;
+                        return Ok(Value::Object(fields));
+                    }
+                    loop {
+                        self.skip_space();
+                        let key = self.string()?;
+                        self.expect(b':')?;
+                        fields.push((key, self.value(depth + 1)?));
+                        self.skip_space();
+                        match self.s.get(self.at) {
+                            Some(b',') => self.at += 1,
+                            Some(b'}') => {
+                                self.at += 1;
+                                return Ok(Value::Object(fields));
+                            }
+                            _ => bail!("expected ',' or '}}' at byte {}", self.at),
+                        }
+                    }
+                }
+                Some(b'[') => {
+                    self.at += 1;
+                    let mut items = Vec::new();
+                    self.skip_space();
+                    if self.s.get(self.at) == Some(&b']') {
+                        self.at += 1;
+                        return Ok(Value::Array(items));
+                    }
+                    loop {
+                        items.push(self.value(depth + 1)?);
+                        self.skip_space();
+                        match self.s.get(self.at) {
+                            Some(b',') => self.at += 1,
+                            Some(b']') => {
+                                self.at += 1;
+                                return Ok(Value::Array(items));
+                            }
+                            _ => bail!("expected ',' or ']' at byte {}", self.at),
+                        }
+                    }
+                }
+                Some(b'"') => Ok(Value::String(self.string()?)),
+                _ if rest.starts_with(b"null") => {
+                    self.at += 4;
+                    Ok(Value::Null)
+                }
+                _ if rest.starts_with(b"true") => {
+                    self.at += 4;
+                    Ok(Value::Bool(true))
+                }
+                _ if rest.starts_with(b"false") => {
+                    self.at += 5;
+                    Ok(Value::Bool(false))
+                }
+                Some(c) if *c == b'-' || c.is_ascii_digit() => {
+                    let len = rest
+                        .iter()
+                        .take_while(|c| c.is_ascii_digit() || b"+-.eE".contains(c))
+                        .count();
+                    let text = std::str::from_utf8(&rest[..len]).expect("ASCII");
+                    let x: f64 = text
+                        .parse()
+                        .with_context(|| format!("{text:?} at byte {} is not a number", self.at))?;
+                    self.at += len;
+                    Ok(Value::Number(x))
+                }
+                _ => bail!("expected a value at byte {}", self.at),
+            }
+        }
+
+        fn string(&mut self) -> Result<String> {
+            if self.s.get(self.at) != Some(&b'"') {
+                bail!("expected a string at byte {}", self.at);
+            }
+            self.at += 1;
+            let mut out = Vec::new();
+            loop {
+                let Some(&c) = self.s.get(self.at) else {
+                    bail!("a string is never closed");
+                };
+                self.at += 1;
+                match c {
+                    b'"' => break,
+                    b'\\' => {
+                        let Some(&e) = self.s.get(self.at) else {
+                            bail!("a string is never closed");
+                        };
+                        self.at += 1;
+                        let ch = match e {
+                            b'"' => '"',
+                            b'\\' => '\\',
+                            b'/' => '/',
+                            b'n' => '\n',
+                            b't' => '\t',
+                            b'r' => '\r',
+                            b'b' => '\u{8}',
+                            b'f' => '\u{c}',
+                            b'u' => {
+                                let hex = self
+                                    .s
+                                    .get(self.at..self.at + 4)
+                                    .and_then(|h| std::str::from_utf8(h).ok())
+                                    .and_then(|h| u32::from_str_radix(h, 16).ok())
+                                    .ok_or_else(|| anyhow!("bad \\u escape at byte {}", self.at))?;
+                                self.at += 4;
+                                char::from_u32(hex).unwrap_or('\u{fffd}')
+                            }
+                            _ => bail!("bad escape at byte {}", self.at - 1),
+                        };
+                        let mut buf = [0; 4];
+                        out.extend_from_slice(ch.encode_utf8(&mut buf).as_bytes());
+                    }
+                    c => out.push(c),
+                }
+            }
+            String::from_utf8(out).context("a string is not UTF-8")
+        }
+    }
+
+    pub fn parse(text: &str) -> Result<Value> {
+        let mut p = Parser {
+            s: text.as_bytes(),
+            at: 0,
+        };
+        let v = p.value(0)?;
+        p.skip_space();
+        if p.at != p.s.len() {
+            bail!("trailing text at byte {}", p.at);
+        }
+        Ok(v)
+    }
+
+    /// A name the bench writes, as the `&'static str` its rows hold.
+    fn known(what: &str, s: &str, names: &[&'static str]) -> Result<&'static str> {
+        names.iter().copied().find(|n| *n == s).ok_or_else(|| {
+            anyhow!(
+                "unknown {what} {s:?} (expected one of {})",
+                names.join(", ")
+            )
+        })
+    }
+
+    fn row(r: &Value, bands: &[&'static str]) -> Result<Row> {
+        Ok(Row {
+            scene: r.str("scene")?.to_string(),
+            triangles: r.count("triangles")?,
+            particles: r.count("particles")?,
+            method: r.str("method")?.to_string(),
+            backend: known("backend", r.str("backend")?, &["cpu", "wgpu"])?,
+            build_ms: r.num("build_ms")?,
+            memory_bytes: r.count("memory_bytes")?,
+            ns_per_particle_step: r.num("ns_per_particle_step")?,
+            ratio_to_floor: r.num("ratio_to_floor")?,
+            penetrations_per_million: r.num("penetrations_per_million_particle_steps")?,
+            band: known("speed band", r.str("speed_band")?, bands)?,
+        })
+    }
+
+    /// A `results.json` back into the report that wrote it.
+    pub fn parse_report(text: &str) -> Result<Report> {
+        let v = parse(text)?;
+        let gpu = match v.get("gpu")? {
+            Value::Null => None,
+            Value::String(s) => Some(s.clone()),
+            g => bail!("\"gpu\" is {g:?}"),
+        };
+        let Value::Array(items) = v.get("rows")? else {
+            bail!("\"rows\" is not an array");
+        };
+        let bands: Vec<&'static str> = std::iter::once("mixed")
+            .chain(super::BANDS.iter().map(|b| b.0))
+            .collect();
+        let rows = items
+            .iter()
+            .enumerate()
+            .map(|(i, r)| row(r, &bands).with_context(|| format!("row {i}")))
+            .collect::<Result<Vec<_>>>()?;
+        Ok(Report {
+            machine: v.str("machine")?.to_string(),
+            date: v.str("date")?.to_string(),
+            gpu,
+            rows,
+        })
+    }
+
+    #[cfg(test)]
+    mod tests {
+        use super::*;
+
+        #[test]
+        fn a_report_reads_back_as_written() {
+            let report = Report {
+                machine: "a \"quoted\" \\ machine\t".into(),
+                date: "2026-11-25".into(),
+                gpu: None,
+                rows: vec![Row {
+                    scene: "bunny".into(),
+                    triangles: 69_451,
+                    particles: 1_000_000,
+                    method: "floor".into(),
+                    backend: "cpu",
+                    build_ms: 0.0,
+                    memory_bytes: 0,
+                    ns_per_particle_step: 1.25,
+                    ratio_to_floor: 1.0,
+                    penetrations_per_million: f64::NAN,
+                    band: "slow",
+                }],
+            };
+            let back = parse_report(&report.json()).unwrap();
+            assert_eq!(back.machine, report.machine);
+            assert_eq!(back.gpu, None);
+            assert_eq!(back.rows.len(), 1);
+            let r = &back.rows[0];
+            assert_eq!(
+                (r.triangles, r.particles, r.band),
+                (69_451, 1_000_000, "slow")
+            );
+            assert_eq!(r.ns_per_particle_step, 1.25);
+            assert!(r.penetrations_per_million.is_nan());
+            assert_eq!(back.json(), report.json());
+        }
+
+        #[test]
+        fn bad_json_is_an_error() {
+            for bad in ["", "{", "{\"a\": }", "[1,]", "\"open", "{} x", "nul", "-"] {
+                assert!(parse(bad).is_err(), "{bad:?}");
+            }
+            assert_eq!(
+                parse(" {\"a\": [1, -2.5e1, null, true, \"\\u00e9\"]} ").unwrap(),
+                Value::Object(vec![(
+                    "a".into(),
+                    Value::Array(vec![
+                        Value::Number(1.0),
+                        Value::Number(-25.0),
+                        Value::Null,
+                        Value::Bool(true),
+                        Value::String("é".into()),
+                    ])
+                )])
+            );
+            assert!(parse_report("{\"machine\": \"m\"}").is_err());
         }
     }
 }

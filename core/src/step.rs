@@ -191,7 +191,7 @@ pub const PINCH_PARALLEL: f32 = 1e-6;
 /// turn would only halve the velocity across them, some 300 times over, until the leaf bound
 /// stopped the step; instead the velocity keeps only its part along both surfaces: along the
 /// crease where they meet, or in their common plane when they face each other.
-#[inline]
+#[inline(always)]
 pub fn pinch(v: Vec3, n: Vec3, m: Vec3) -> Vec3 {
     // `n × m`, written out so that WGSL's mirror does the same operations.
     let c = Vec3::new(
@@ -244,6 +244,19 @@ fn entry_faces(b: &Aabb, x: Vec3, v: Vec3) -> u32 {
     axes
 }
 
+/// `f32::clamp` for a box's bounds (`lo <= hi`), without its assertion: the step does not
+/// panic, and a panic path kept the march from inlining it. The same value: `lo` below it,
+/// `hi` above it, `x` otherwise (NaN included).
+#[inline(always)]
+fn clamp(x: f32, lo: f32, hi: f32) -> f32 {
+    let x = if x < lo { lo } else { x };
+    if x > hi {
+        hi
+    } else {
+        x
+    }
+}
+
 /// Where a ray crosses a box's boundary: after time `t`, at `point` (exactly on the faces of
 /// the axes in `axes`, clamped into the box on the others). WGSL's `BoxCrossing` is this
 /// struct, and its `BoxCrossingOption` is [`enter_box`]'s `Option`.
@@ -285,7 +298,7 @@ fn exit_box(b: &Aabb, x: Vec3, v: Vec3) -> BoxCrossing {
     for a in 0..3 {
         let on_face = (ts[a] == t) & finite;
         axes |= (on_face as u32) << a;
-        let along = (xa[a] + va[a] * t).clamp(bmin[a], bmax[a]);
+        let along = clamp(xa[a] + va[a] * t, bmin[a], bmax[a]);
         p[a] = if on_face { far[a] } else { along };
     }
     BoxCrossing {
@@ -297,7 +310,7 @@ fn exit_box(b: &Aabb, x: Vec3, v: Vec3) -> BoxCrossing {
 
 /// Where a ray from `x` (outside `b`) with velocity `v` enters `b` within `limit`, and the
 /// axes whose faces it enters through; `None` if it does not.
-#[inline]
+#[inline(always)]
 fn enter_box(b: &Aabb, x: Vec3, v: Vec3, limit: f32) -> Option<BoxCrossing> {
     let mut near = f32::NEG_INFINITY;
     let mut far = f32::INFINITY;
@@ -331,7 +344,7 @@ fn enter_box(b: &Aabb, x: Vec3, v: Vec3, limit: f32) -> Option<BoxCrossing> {
         if axes & (1 << a) != 0 {
             p[a] = if v[a] > 0.0 { b.min[a] } else { b.max[a] };
         } else {
-            p[a] = (x[a] + v[a] * near).clamp(b.min[a], b.max[a]);
+            p[a] = clamp(x[a] + v[a] * near, b.min[a], b.max[a]);
         }
     }
     Some(BoxCrossing {
@@ -730,7 +743,7 @@ impl MarchObserver for MarchCounts {
 /// (found by a campaign on the teapot scaled by 1e-3, where gravity moves a particle half the
 /// scene per step). Such a start is not "sliding along the solid leaf's face": the march does
 /// not move it out of the leaf again.
-#[inline]
+#[inline(always)]
 fn start_beside_shell(
     view: &ProxyView<'_>,
     leaf: LeafInfo,

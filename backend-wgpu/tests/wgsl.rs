@@ -320,6 +320,7 @@ const HOST_ONLY: &[(&str, &str, &str)] = &[
     ("step.rs", "piece", "the march's observers; WGSL observes nothing"),
     ("step.rs", "branch", "the march's observers; WGSL observes nothing"),
     ("step.rs", "initial_side", "the host seeds particles' sides"),
+    ("step.rs", "clamp", "f32::clamp without its assertion; WGSL's is the builtin clamp"),
     ("query.rs", "key", "LeafInfo::key: the baker's and the tests' leaf identity"),
     ("query.rs", "cell_box", "cell_aabb in SIMD vectors for the settled step; the same floats as WGSL's cell_aabb"),
     ("query.rs", "locate_leaf", "a checked public query; the step uses locate_inside"),

@@ -503,3 +503,41 @@ fn a_particle_pinched_between_facing_surfaces_slides_instead_of_bouncing_to_the_
     let crease = pinch(Vec3::new(0.5, -1.0, 3.0), Vec3::X, Vec3::Y);
     assert_eq!(crease, Vec3::new(0.0, 0.0, 3.0));
 }
+
+#[test]
+fn counted_and_traced_steps_are_the_step() {
+    // The pinch of the test above, stepped three ways: the same bits, and the counted step saw
+    // the pinch and the end on the shared face it slides along (nothing else rare); the traced
+    // one's pieces join up from start to end.
+    let w = facing_leaves();
+    let view = ProxyView::new(&w).unwrap();
+    let params = StepParams {
+        gravity: [0.0; 3],
+        restitution: 0.5,
+        friction: 0.0,
+        ..StepParams::default()
+    };
+    let start = Particle::new([0.2, 0.5, 0.25], [1.0, -3.0, 0.0]);
+    let (mut plain, mut counted, mut traced) = (start, start, start);
+    let outcome = step_particle(&view, &mut plain, &params);
+    let mut counts = MarchCounts::default();
+    assert_eq!(
+        step_particle_counted(&view, &mut counted, &params, &mut counts),
+        outcome
+    );
+    let mut pieces = Vec::new();
+    assert_eq!(
+        step_particle_traced(&view, &mut traced, &params, &mut |a, b| pieces.push((a, b))),
+        outcome
+    );
+    for p in [counted, traced] {
+        assert_eq!(bytemuck::bytes_of(&p), bytemuck::bytes_of(&plain));
+    }
+    for b in MarchBranch::ALL {
+        let expected = u64::from(b == MarchBranch::Pinch || b == MarchBranch::EndOnFace);
+        assert_eq!(counts[b], expected, "{b:?}");
+    }
+    assert_eq!(pieces.first().unwrap().0, Vec3::from_array(start.position));
+    assert_eq!(pieces.last().unwrap().1, Vec3::from_array(plain.position));
+    assert!(pieces.windows(2).all(|w| w[0].1 == w[1].0));
+}

@@ -20,7 +20,7 @@
 //! use octoproxy_cpu::io::{encode_particles, ParticleCloud, PlyEncoding};
 //! use octoproxy_cpu::{bake, BuildParams, CpuBackend, MeshRef};
 //!
-//! // A unit cube, faces wound outward (`mesh::load_mesh` reads a file, gzipped or not).
+//! // A unit cube, faces wound outward (`io::load_mesh` reads a file, gzipped or not).
 //! let obj = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nv 1 0 1\nv 1 1 1\nv 0 1 1\n\
 //!            f 1 4 3 2\nf 5 6 7 8\nf 1 2 6 5\nf 4 8 7 3\nf 1 5 8 4\nf 2 3 7 6\n";
 //! let (mesh, _) = parse_mesh("cube.obj", obj.as_bytes(), Some(MeshFormat::Obj))?;

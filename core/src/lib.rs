@@ -7,7 +7,7 @@
 //!
 //! # Example
 //!
-//! A proxy baked offline (here with `octoproxy-cpu`; `cargo xtask bake` writes the same bytes
+//! A proxy baked offline (here with `octoproxy-cpu`; `octoproxy bake` writes the same bytes
 //! to a file) arrives as little-endian bytes, is validated once, and particles step against
 //! it, each keeping the [`LeafHint`] of its last leaf between steps:
 //!

@@ -1,6 +1,6 @@
 //! octoproxy on the CPU: everything host-side.
 //!
-//! - [`bake`]: baking triangle meshes into an encoded proxy (subdivision, normals,
+//! - [`bake`](mod@bake): baking triangle meshes into an encoded proxy (subdivision, normals,
 //!   view-visible labelling, encoding, lookup table), in parallel with rayon.
 //! - [`io`]: reading OBJ, STL and PLY meshes (each also gzipped), and particle point clouds
 //!   in PLY, in and out.

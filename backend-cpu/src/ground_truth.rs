@@ -102,6 +102,22 @@ pub struct GroundTruth {
     /// first vertex at the end, oriented as in the node's triangles.
     loops: Vec<[u32; 2]>,
     loop_verts: Vec<DVec3>,
+    /// The index, in the triangle list given to [`GroundTruth::new`], of each of `tris`.
+    source: Vec<u32>,
+}
+
+/// One of the triangles nearest a point ([`GroundTruth::nearest_triangles`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NearTriangle {
+    /// Its index in the triangle list given to [`GroundTruth::new`].
+    pub triangle: u32,
+    /// Its closest point to the query point.
+    pub closest: DVec3,
+    /// Its counter-clockwise unit normal.
+    pub normal: DVec3,
+    /// Its angle at the closest point: 2π inside it, π on an edge, its corner angle at a
+    /// vertex: the weights of an angle-weighted pseudo-normal (Bærentzen and Aanæs 2005).
+    pub angle: f64,
 }
 
 fn to_d(p: [f32; 3]) -> DVec3 {
@@ -118,6 +134,7 @@ impl GroundTruth {
             far: Vec::new(),
             loops: Vec::new(),
             loop_verts: Vec::new(),
+            source: Vec::new(),
         };
         // Weld: every vertex gets the id of the first vertex at the same position.
         let key = |i: u32| positions[i as usize].map(|x| if x == 0.0 { 0 } else { x.to_bits() });
@@ -135,7 +152,8 @@ impl GroundTruth {
         }
         let mut tris = Vec::with_capacity(triangles.len());
         let mut ids = Vec::with_capacity(triangles.len());
-        for t in triangles {
+        let mut kept = Vec::with_capacity(triangles.len());
+        for (ti, t) in triangles.iter().enumerate() {
             if t.iter().any(|&i| i as usize >= positions.len()) {
                 continue;
             }
@@ -144,6 +162,7 @@ impl GroundTruth {
             if finite && (v[1] - v[0]).cross(v[2] - v[0]).length_squared() > 0.0 {
                 tris.push(v);
                 ids.push(t.map(|i| canon[i as usize]));
+                kept.push(ti as u32);
             }
         }
         if tris.is_empty() {
@@ -176,6 +195,7 @@ impl GroundTruth {
         gt.loops = b.loops;
         gt.loop_verts = b.loop_verts;
         gt.tris = order.iter().map(|&i| tris[i as usize]).collect();
+        gt.source = order.iter().map(|&i| kept[i as usize]).collect();
         gt
     }
 
@@ -367,6 +387,74 @@ impl GroundTruth {
             best.sqrt().min(cap)
         } else {
             cap
+        }
+    }
+
+    /// The triangles nearest `p`: every triangle whose distance is the least distance (to
+    /// within rounding: a relative 1e-9 of the distance and of `p`'s magnitude), with its
+    /// closest point, normal and angle there, into `out` (cleared first). Returns the least
+    /// distance; infinite, with `out` empty, for a mesh with no triangles. Several triangles
+    /// come back where the nearest point is on an edge or a vertex, or where surfaces are
+    /// equally near.
+    pub fn nearest_triangles(&self, p: [f32; 3], out: &mut Vec<NearTriangle>) -> f64 {
+        out.clear();
+        let d = self.distance(p);
+        if !d.is_finite() {
+            return d;
+        }
+        let q = to_d(p);
+        let tie = (d + q.abs().max_element()) * 1e-9;
+        let reach2 = (d + tie) * (d + tie);
+        let mut stack = [0u32; STACK];
+        let mut top = 1;
+        while top > 0 {
+            top -= 1;
+            let i = stack[top] as usize;
+            let n = &self.nodes[i];
+            let s = n.axis.dot(q);
+            let slab = (n.smin - s).max(s - n.smax).max(0.0);
+            if (q.clamp(n.lo, n.hi) - q).length_squared().max(slab * slab) > reach2 {
+                continue;
+            }
+            if n.right == 0 || top + 2 > STACK {
+                self.near_in_subtree(i, q, reach2, out);
+            } else {
+                stack[top] = n.start;
+                stack[top + 1] = n.right;
+                top += 2;
+            }
+        }
+        d
+    }
+
+    /// [`GroundTruth::nearest_triangles`] within the subtree at `i`, triangle by triangle.
+    fn near_in_subtree(&self, i: usize, q: DVec3, reach2: f64, out: &mut Vec<NearTriangle>) {
+        let n = &self.nodes[i];
+        if n.right != 0 {
+            self.near_in_subtree(n.start as usize, q, reach2, out);
+            self.near_in_subtree(n.right as usize, q, reach2, out);
+            return;
+        }
+        for k in n.start as usize..(n.start + n.count) as usize {
+            let t = &self.tris[k];
+            let (closest, feature) = closest_feature(q, t);
+            if (closest - q).length_squared() > reach2 {
+                continue;
+            }
+            let angle = match feature {
+                Feature::Face => 2.0 * std::f64::consts::PI,
+                Feature::Edge => std::f64::consts::PI,
+                Feature::Vertex(v) => {
+                    let (a, b) = (t[(v + 1) % 3] - t[v], t[(v + 2) % 3] - t[v]);
+                    a.angle_between(b)
+                }
+            };
+            out.push(NearTriangle {
+                triangle: self.source[k],
+                closest,
+                normal: (t[1] - t[0]).cross(t[2] - t[0]).normalize(),
+                angle,
+            });
         }
     }
 
@@ -883,6 +971,22 @@ mod exact {
 
 /// Closest point of a triangle to `p` (Ericson, Real-Time Collision Detection, 5.1.5).
 fn closest_point(p: DVec3, t: &[DVec3; 3]) -> DVec3 {
+    closest_feature(p, t).0
+}
+
+/// Where on a triangle its closest point to a point lies.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Feature {
+    /// At vertex `k`.
+    Vertex(usize),
+    /// On an edge, between its end points.
+    Edge,
+    /// Inside the triangle.
+    Face,
+}
+
+/// [`closest_point`], and the feature it lies on.
+fn closest_feature(p: DVec3, t: &[DVec3; 3]) -> (DVec3, Feature) {
     let (a, b, c) = (t[0], t[1], t[2]);
     let ab = b - a;
     let ac = c - a;
@@ -890,34 +994,37 @@ fn closest_point(p: DVec3, t: &[DVec3; 3]) -> DVec3 {
     let d1 = ab.dot(ap);
     let d2 = ac.dot(ap);
     if d1 <= 0.0 && d2 <= 0.0 {
-        return a;
+        return (a, Feature::Vertex(0));
     }
     let bp = p - b;
     let d3 = ab.dot(bp);
     let d4 = ac.dot(bp);
     if d3 >= 0.0 && d4 <= d3 {
-        return b;
+        return (b, Feature::Vertex(1));
     }
     let vc = d1 * d4 - d3 * d2;
     if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
-        return a + ab * (d1 / (d1 - d3));
+        return (a + ab * (d1 / (d1 - d3)), Feature::Edge);
     }
     let cp = p - c;
     let d5 = ab.dot(cp);
     let d6 = ac.dot(cp);
     if d6 >= 0.0 && d5 <= d6 {
-        return c;
+        return (c, Feature::Vertex(2));
     }
     let vb = d5 * d2 - d1 * d6;
     if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
-        return a + ac * (d2 / (d2 - d6));
+        return (a + ac * (d2 / (d2 - d6)), Feature::Edge);
     }
     let va = d3 * d6 - d5 * d4;
     if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
-        return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
+        return (
+            b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6))),
+            Feature::Edge,
+        );
     }
     let denom = 1.0 / (va + vb + vc);
-    a + ab * (vb * denom) + ac * (vc * denom)
+    (a + ab * (vb * denom) + ac * (vc * denom), Feature::Face)
 }
 
 #[cfg(test)]

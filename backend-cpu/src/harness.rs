@@ -20,7 +20,9 @@ use octoproxy_core::{
 };
 use rayon::prelude::*;
 
+use crate::bake::MeshRef;
 use crate::ground_truth::GroundTruth;
+use crate::sides::Sides;
 
 /// What a run found.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -85,6 +87,71 @@ pub fn random_particles(
         out.push(q);
     }
     out
+}
+
+/// Particles where users start them: near the surface of `meshes`, within `reach` of a
+/// random point of it (triangles picked by area, directions uniform, so on both sides, in the
+/// shell of surface leaves and beside it), with exact starting sides ([`Sides`]), moving in
+/// random directions at speeds drawn from `speeds`.
+pub fn near_surface_particles(
+    meshes: &[MeshRef<'_>],
+    sides: &Sides,
+    n: usize,
+    reach: f32,
+    speeds: &[f32],
+    seed: u64,
+) -> Vec<Particle> {
+    let mut out = emit_surface_points(meshes, n, seed);
+    let mut rng = Rng::new(seed ^ 0x5eed);
+    for (i, p) in out.iter_mut().enumerate() {
+        let x = Vec3::from_array(p.position) + rng.unit_vector() * rng.range(0.0, reach);
+        let speed = speeds[i % speeds.len().max(1)];
+        *p = Particle::new(x.to_array(), (rng.unit_vector() * speed).to_array());
+        p.side = sides.side(p.position);
+    }
+    out
+}
+
+/// `n` points on the surface (offset zero), as particles at rest.
+fn emit_surface_points(meshes: &[MeshRef<'_>], n: usize, seed: u64) -> Vec<Particle> {
+    let mut tris = Vec::new();
+    let mut cumulative = Vec::new();
+    let mut total = 0.0f64;
+    for m in meshes {
+        for t in m.triangles {
+            let Some(v) = t
+                .iter()
+                .map(|&i| m.positions.get(i as usize).map(|p| Vec3::from_array(*p)))
+                .collect::<Option<Vec<_>>>()
+            else {
+                continue;
+            };
+            let area = 0.5 * (v[1] - v[0]).cross(v[2] - v[0]).length() as f64;
+            if area > 0.0 && area.is_finite() {
+                total += area;
+                tris.push([v[0], v[1], v[2]]);
+                cumulative.push(total);
+            }
+        }
+    }
+    if tris.is_empty() {
+        return Vec::new();
+    }
+    let mut rng = Rng::new(seed);
+    (0..n)
+        .map(|_| {
+            let r = rng.f32() as f64 * total;
+            let v = tris[cumulative.partition_point(|&c| c < r).min(tris.len() - 1)];
+            let (mut a, mut b) = (rng.f32(), rng.f32());
+            if a + b > 1.0 {
+                (a, b) = (1.0 - a, 1.0 - b);
+            }
+            Particle::new(
+                (v[0] + (v[1] - v[0]) * a + (v[2] - v[0]) * b).to_array(),
+                [0.0; 3],
+            )
+        })
+        .collect()
 }
 
 /// Particles on the cell planes of random depths (one, two or three coordinates snapped: on
@@ -211,6 +278,30 @@ pub fn run_check(
     params: &StepParams,
     closed: bool,
 ) -> CheckReport {
+    run_check_kicked(
+        view,
+        gt,
+        particles,
+        steps,
+        |_| *params,
+        closed,
+        |_, _, _| {},
+    )
+}
+
+/// [`run_check`] with parameters per step, `params(step)`, and `kick(step, index, particle)`
+/// called before every step of every particle: to settle particles and restart them from the
+/// rested frame with new velocities, say, while the check goes on against the sides they
+/// started the run on.
+pub fn run_check_kicked(
+    view: &ProxyView<'_>,
+    gt: &GroundTruth,
+    particles: &mut [Particle],
+    steps: u32,
+    params: impl Fn(u32) -> StepParams + Sync,
+    closed: bool,
+    kick: impl Fn(u32, usize, &mut Particle) + Sync,
+) -> CheckReport {
     let tol = tolerance(view) as f64;
     struct State {
         start: [f32; 3],
@@ -240,14 +331,18 @@ pub fn run_check(
     particles
         .par_iter_mut()
         .zip(states.par_iter_mut())
-        .for_each(|(p, s)| {
+        .enumerate()
+        .for_each(|(index, (p, s))| {
             let mut pieces = Vec::new();
-            for _ in 0..steps {
+            for step in 0..steps {
                 if s.bad || s.non_finite {
                     break;
                 }
+                kick(step, index, p);
                 pieces.clear();
-                step_particle_traced(view, p, params, &mut |a: Vec3, b: Vec3| pieces.push((a, b)));
+                step_particle_traced(view, p, &params(step), &mut |a: Vec3, b: Vec3| {
+                    pieces.push((a, b))
+                });
                 let jump = jumps_back(&pieces, p.flags);
                 for (i, &(a, b)) in pieces.iter().enumerate() {
                     if a == b {

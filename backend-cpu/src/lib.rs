@@ -5,6 +5,7 @@
 //! - [`io`]: reading OBJ, STL and PLY meshes (each also gzipped), and particle point clouds
 //!   in PLY, in and out.
 //! - [`emit`]: particles in a box or on a mesh's surface.
+//! - [`sides`]: exact starting sides from the mesh ([`starting_sides`], beside [`bake()`]).
 //! - [`ground_truth`], [`harness`], [`scenes`]: checking a scene the way the tests do: exact
 //!   winding numbers and segment crossings, the penetration harness, procedural meshes.
 //! - [`CpuBackend`]: the core step over particles with rayon, behind the core `Backend` trait.
@@ -66,9 +67,11 @@ pub mod ground_truth;
 pub mod harness;
 pub mod io;
 pub mod scenes;
+pub mod sides;
 
 pub use backend::{CpuBackend, CpuError};
 pub use bake::{bake, BuildError, BuildParams, BuildProgress, BuildReport, MeshRef};
+pub use sides::{starting_sides, Sides};
 
 /// The README's examples, compiled and run as doctests.
 #[doc = include_str!("../../README.md")]

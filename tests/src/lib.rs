@@ -6,3 +6,4 @@
 pub mod baselines;
 pub mod fuzz;
 pub mod meshes;
+pub mod starts;

@@ -14,6 +14,7 @@ use octoproxy_cpu::harness::{random_particles, run_check};
 use octoproxy_cpu::io::read_particles;
 use octoproxy_cpu::io::Mesh;
 use octoproxy_cpu::scenes::{self, MeshExt};
+use octoproxy_cpu::{MeshRef, Sides};
 
 use crate::flags::{self, BuildFlags};
 use crate::scene;
@@ -34,7 +35,8 @@ scene:
 {}
 
 particles:
-  --particles FILE  a PLY point cloud (x y z, optional vx vy vz)
+  --particles FILE  a PLY point cloud (x y z, optional vx vy vz, side; without a side,
+                    each takes it from the mesh)
   --emit N          N random particles at least two leaf diagonals from the surface
                     (default 20000), speeds from 0.1 leaf to the whole scene per step
   --seed K          (default 1)
@@ -129,10 +131,19 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
         Some(path) => {
             let cloud = read_particles(path)?;
             let mut ps = cloud.particles;
-            if !cloud.has_side {
-                for q in &mut ps {
-                    q.side = octoproxy_core::initial_side(&view, q.position);
-                }
+            let counts = Sides::new(&[MeshRef::from(&mesh)]).assign(&mut ps, cloud.has_side);
+            if cloud.has_side {
+                eprintln!(
+                    "sides: the file's, kept; {} of {} contradict the mesh",
+                    counts.contradicting,
+                    ps.len()
+                );
+            } else {
+                eprintln!(
+                    "sides: from the mesh (nearest surface and winding numbers): {} behind of {}",
+                    counts.behind,
+                    ps.len()
+                );
             }
             ps
         }

@@ -7,9 +7,9 @@ use std::time::{Duration, Instant};
 
 use anyhow::Result;
 use glam::Vec3;
-use octoproxy_core::{initial_side, Particle, StepParams, SIDE_BACK};
+use octoproxy_core::{Particle, StepParams, SIDE_BACK};
 use octoproxy_cpu::emit::Rng;
-use octoproxy_cpu::BuildParams;
+use octoproxy_cpu::{starting_sides, BuildParams, MeshRef};
 
 use crate::backends::{select_backend, BackendChoice};
 use crate::flags;
@@ -83,9 +83,8 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
             }
         })
         .collect();
-    for p in &mut particles {
-        p.side = initial_side(&view, p.position);
-    }
+    let refs: Vec<MeshRef<'_>> = scene.meshes.iter().map(MeshRef::from).collect();
+    starting_sides(&refs, &mut particles);
 
     let mut backend = select_backend(backend)?;
     backend.upload_proxy(&scene.words)?;

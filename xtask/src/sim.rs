@@ -11,6 +11,7 @@ use octoproxy_core::{
 };
 use octoproxy_cpu::emit::{emit_box, emit_surface};
 use octoproxy_cpu::io::{read_particles, write_particles, ParticleCloud, PlyEncoding};
+use octoproxy_cpu::sides::{count_in_shell, Sides};
 use octoproxy_cpu::MeshRef;
 
 use crate::backends::{select_backend, BackendChoice};
@@ -224,10 +225,16 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
         }
         (None, None) => unreachable!("checked above"),
     };
-    if !cloud.has_side {
-        for p in &mut cloud.particles {
-            p.side = initial_side(&view, p.position);
+    if o.emit_surface {
+        eprintln!(
+            "sides: emitted {} particles in front of the surface, each within one dmax leaf of its face",
+            cloud.particles.len()
+        );
+        if cloud.particles.len() < o.emit.unwrap_or(0) {
+            eprintln!("  (the surface had room for no more)");
         }
+    } else {
+        starting_sides(&scene, &view, &mut cloud)?;
     }
 
     let mut backend = select_backend(o.backend.unwrap_or(BackendChoice::Auto))?;
@@ -300,6 +307,56 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
         eprintln!("frames: {frame} in {}", dir.display());
     }
     println!("wrote {}", out.display());
+    Ok(())
+}
+
+/// The particles' starting sides: from the mesh when there is one (exact; a file's own sides
+/// are kept and checked against it), else from the proxy (the mean plane of a surface leaf,
+/// an approximation within a leaf of the surface), with what was done said.
+fn starting_sides(
+    scene: &scene::Scene,
+    view: &octoproxy_core::ProxyView<'_>,
+    cloud: &mut ParticleCloud,
+) -> Result<()> {
+    let n = cloud.particles.len();
+    if !scene.meshes.is_empty() {
+        let t = Instant::now();
+        let refs: Vec<MeshRef<'_>> = scene.meshes.iter().map(MeshRef::from).collect();
+        let counts = Sides::new(&refs).assign(&mut cloud.particles, cloud.has_side);
+        let ms = t.elapsed().as_secs_f64() * 1e3;
+        if cloud.has_side {
+            eprintln!(
+                "sides: the file's, kept; {} of {n} contradict the mesh (exact: nearest surface and winding numbers, {ms:.0} ms)",
+                counts.contradicting
+            );
+        } else {
+            eprintln!(
+                "sides: from the mesh (exact: nearest surface and winding numbers, {ms:.0} ms): {} in front, {} behind",
+                n - counts.behind - counts.non_finite,
+                counts.behind
+            );
+        }
+        return Ok(());
+    }
+    if !cloud.has_side {
+        for p in &mut cloud.particles {
+            p.side = initial_side(view, p.position);
+        }
+    }
+    let in_shell = count_in_shell(view, &cloud.particles);
+    eprintln!(
+        "sides: {}; {in_shell} of {n} start inside the shell of surface leaves{}",
+        if cloud.has_side {
+            "the file's"
+        } else {
+            "from the proxy (the leaf's label, or a surface leaf's mean plane)"
+        },
+        if in_shell > 0 && !cloud.has_side {
+            ", where the mean plane is an approximation within a leaf of the surface (give --mesh for exact sides)"
+        } else {
+            ""
+        }
+    );
     Ok(())
 }
 

@@ -30,6 +30,7 @@ use rayon::prelude::*;
 
 use super::flat::{Flat, Kind};
 use super::{geom, BuildProgress, Grid, Tri};
+use crate::ground_truth::GroundTruth;
 
 /// Segments cast per (surface leaf, empty leaf) pair.
 pub(crate) const SAMPLES: usize = 3;
@@ -62,6 +63,8 @@ impl Labels {
 #[derive(Clone, Copy)]
 struct Vote {
     empty: u32,
+    /// The empty leaf's centre.
+    centre: DVec3,
     surface: u32,
     front: bool,
     closed: bool,
@@ -73,6 +76,7 @@ pub(crate) fn label(
     tree: &Flat,
     tris: &[Tri],
     grid: &Grid,
+    matter: Option<&GroundTruth>,
     progress: &dyn BuildProgress,
 ) -> Labels {
     progress.begin("label", tree.surface.len() as u64);
@@ -91,18 +95,46 @@ pub(crate) fn label(
         let k = (!v.closed as usize) * 2 + (!v.front as usize);
         counts[v.empty as usize][k] += 1;
     }
+    // Inside other parts: an empty leaf that a closed surface sees from its front, but that
+    // lies inside the closed parts taken together, is in matter (a leaf inside a plate beside
+    // a fin through it), and its label is back. Empty leaves hold no triangles, so the winding
+    // number at the centre holds for the whole leaf.
+    let mut in_matter = vec![false; counts.len()];
+    if let Some(gt) = matter {
+        let mut centres: Vec<(u32, DVec3)> = votes
+            .iter()
+            .filter(|v| v.closed && v.front)
+            .map(|v| (v.empty, v.centre))
+            .collect();
+        centres.sort_unstable_by_key(|c| c.0);
+        centres.dedup_by_key(|c| c.0);
+        let inside: Vec<u32> = centres
+            .par_iter()
+            .filter(|(_, c)| gt.is_inside(c.as_vec3().to_array()))
+            .map(|c| c.0)
+            .collect();
+        for e in inside {
+            in_matter[e as usize] = true;
+        }
+    }
     let mut labelled = 0;
     let mut conflicts = 0;
     let disagree = |c: &[u32; 4]| (c[0] + c[2] > 0) && (c[1] + c[3] > 0);
     let mut conflicted = vec![false; tree.nodes.len()];
     for v in &votes {
-        if v.against || disagree(&counts[v.empty as usize]) {
+        if v.against || in_matter[v.empty as usize] || disagree(&counts[v.empty as usize]) {
             conflicted[v.surface as usize] = true;
         }
     }
     let bits = counts
         .iter()
-        .map(|c| {
+        .zip(&in_matter)
+        .map(|(c, &in_matter)| {
+            if in_matter {
+                labelled += 1;
+                conflicts += 1;
+                return Label::Back.bits() as u8;
+            }
             let (front, back) = if c[0] + c[1] > 0 {
                 (c[0], c[1])
             } else {
@@ -146,6 +178,11 @@ fn leaf_votes(tree: &Flat, leaf: u32, tris: &[Tri], grid: &Grid) -> Vec<Vote> {
             (grid.plane(1, slo.y) + grid.plane(1, shi.y)) * 0.5,
             (grid.plane(2, slo.z) + grid.plane(2, shi.z)) * 0.5,
         );
+        let centre = DVec3::new(
+            (grid.plane(0, elo.x) + grid.plane(0, ehi.x)) * 0.5,
+            (grid.plane(1, elo.y) + grid.plane(1, ehi.y)) * 0.5,
+            (grid.plane(2, elo.z) + grid.plane(2, ehi.z)) * 0.5,
+        );
         // The nearest anchors.
         let mut best: [(f64, usize); SAMPLES] = [(f64::INFINITY, usize::MAX); SAMPLES];
         for (i, (p, _)) in surface.anchors.iter().enumerate() {
@@ -161,6 +198,7 @@ fn leaf_votes(tree: &Flat, leaf: u32, tris: &[Tri], grid: &Grid) -> Vec<Vote> {
                 let against = !surface.two_sided && n.dot(surface.normal) < 0.0;
                 out.push(Vote {
                     empty,
+                    centre,
                     surface: leaf,
                     front,
                     closed,

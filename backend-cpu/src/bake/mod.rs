@@ -37,6 +37,7 @@ use std::collections::HashSet;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
+use crate::ground_truth::GroundTruth;
 use glam::{DVec3, UVec3};
 use octoproxy_core::format::{quantize_root_size, ROOT_SIZE_MANTISSA_BITS};
 use octoproxy_core::{ulp, MAX_DEPTH, MAX_LUT_DEPTH};
@@ -329,6 +330,7 @@ pub fn bake(
     report.timings.push(("gather", t.elapsed()));
 
     let grid = root_grid(&tris, params.dmax)?;
+    let matter = matter_of(&tris);
     report.root_min = grid.root_min;
     report.root_size = grid.root_size;
 
@@ -370,7 +372,7 @@ pub fn bake(
         report.timings.push(("normals", t.elapsed()));
 
         let t = Instant::now();
-        let labels = label::label(&tree, &tris, &grid, progress);
+        let labels = label::label(&tree, &tris, &grid, matter.as_ref(), progress);
         report.timings.push(("label", t.elapsed()));
 
         let big: Vec<(u32, UVec3)> = tree
@@ -397,6 +399,31 @@ pub fn bake(
     let words = encode::encode(&tree, &labels, &grid, params, &mut report);
     report.timings.push(("encode", t.elapsed()));
     Ok((words, report))
+}
+
+/// The closed parts of the scene taken together, for the winding number that says whether an
+/// empty leaf is inside them (in matter: see `label`); `None` with fewer than two closed
+/// parts, where a closed surface is seen from its front only outside it.
+fn matter_of(tris: &[Tri]) -> Option<GroundTruth> {
+    let mut closed: Vec<u32> = tris
+        .iter()
+        .filter(|t| t.closed)
+        .map(|t| t.component)
+        .collect();
+    closed.sort_unstable();
+    closed.dedup();
+    if closed.len() < 2 {
+        return None;
+    }
+    let positions: Vec<[f32; 3]> = tris
+        .iter()
+        .filter(|t| t.closed)
+        .flat_map(|t| t.v.map(|p| p.as_vec3().to_array()))
+        .collect();
+    let triangles: Vec<[u32; 3]> = (0..positions.len() as u32 / 3)
+        .map(|i| [3 * i, 3 * i + 1, 3 * i + 2])
+        .collect();
+    Some(GroundTruth::new(&positions, &triangles))
 }
 
 /// Whether surface leaf `leaf` touches a surface leaf that holds triangles of a connected
@@ -485,7 +512,7 @@ fn gather(meshes: &[MeshRef<'_>], report: &mut BuildReport) -> Result<Vec<Tri>, 
 /// shared edges in which every edge is used exactly once in each direction), and their rim
 /// edges (not used exactly once in each direction; bit `k` for the edge from vertex `k`). Vertices are welded by position first,
 /// so seams of duplicated vertices do not open a mesh.
-fn edge_classes(m: &MeshRef<'_>) -> (Vec<bool>, Vec<u8>, Vec<u32>) {
+pub(crate) fn edge_classes(m: &MeshRef<'_>) -> (Vec<bool>, Vec<u8>, Vec<u32>) {
     let n = m.triangles.len();
     // Weld: canonical vertex id per position bit pattern.
     let mut order: Vec<u32> = (0..m.positions.len() as u32).collect();

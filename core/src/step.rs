@@ -1029,10 +1029,16 @@ fn enter_surface_leaf<O: MarchObserver>(
 
 /// The normal a surface leaf collides with: for a solid (two-sided) leaf, that of the faces the
 /// particle is entering through, found from the box, so a particle resting on one at the
-/// start of a step counts; otherwise the leaf's normal, flipped for the back side.
+/// start of a step counts; otherwise, and for a particle strictly inside a solid leaf (a step
+/// that starts there), the leaf's normal, flipped for the back side. Inside a solid leaf that
+/// an open sheet's rim passes through, a particle free to move would go round the rim to the
+/// other side and back through the sheet within the leaf, and leave it on its own side, with
+/// nothing to stop it (found by a campaign of starts near a sheet's and a dome's rims); held
+/// to its side of the leaf's plane, it cannot.
 #[inline(always)]
 fn collision_normal(st: &MarchState, leaf: &LeafInfo) -> Vec3 {
-    if leaf.two_sided {
+    let inside = (st.x.cmpgt(leaf.aabb.min) & st.x.cmplt(leaf.aabb.max)).all();
+    if leaf.two_sided && !inside {
         face_normal(entry_faces(&leaf.aabb, st.x, st.v), st.v)
     } else if st.side == SIDE_BACK {
         -leaf.normal

@@ -23,6 +23,7 @@ use octoproxy_cpu::io::{parse_mesh, Mesh};
 use octoproxy_cpu::ground_truth::GroundTruth;
 use octoproxy_cpu::harness::{aligned_velocity, deep_on_the_other_side, jumps_back, tolerance};
 use octoproxy_cpu::scenes;
+use octoproxy_cpu::Sides;
 
 // ---------------------------------------------------------------------------------------------
 // Shared input decoding.
@@ -985,6 +986,7 @@ fn penetration_inner(u: &mut Unstructured<'_>) -> Result<()> {
     };
     let view = ProxyView::new(&words).expect("bake gives a valid proxy");
     let gt = GroundTruth::new(&mesh.positions, &mesh.triangles);
+    let sides = Sides::new(&[MeshRef::from(&mesh)]);
     let tol = tolerance(&view) as f64;
     let leaf = view.finest_leaf_size();
     let root = view.root_aabb();
@@ -1018,6 +1020,21 @@ fn penetration_inner(u: &mut Unstructured<'_>) -> Result<()> {
                         .clamp(0.0, cells as f32) as u32;
                     position[a] = view.plane(a, i << (MAX_DEPTH - d));
                 }
+            }
+        }
+        // Where users start: half the particles within 1.5 leaves of the surface, in the shell
+        // of surface leaves and beside it, on both sides.
+        if u.arbitrary()? {
+            let mut near = Vec::new();
+            gt.nearest_triangles(position.to_array(), &mut near);
+            if let Some(t) = near.first() {
+                let dir = Vec3::new(
+                    range(u, -1.0, 1.0)?,
+                    range(u, -1.0, 1.0)?,
+                    range(u, -1.0, 1.0)?,
+                )
+                .normalize_or(Vec3::Y);
+                position = t.closest.as_vec3() + dir * range(u, 0.0, 1.5 * leaf)?;
             }
         }
         let speed = per_step / dt;
@@ -1077,10 +1094,8 @@ fn penetration_inner(u: &mut Unstructured<'_>) -> Result<()> {
             );
             continue;
         }
-        if gt.distance_capped(p.position, 2.0 * tol) <= tol {
-            continue; // starts within the tolerance: no claim
-        }
-        p.side = initial_side(&view, p.position);
+        // The exact starting side, from the mesh.
+        p.side = sides.side(p.position);
         let inside = gt.is_inside(p.position);
         let start = p;
         let steps = u.int_in_range(1u32..=12)?;
@@ -1136,10 +1151,11 @@ fn penetration_inner(u: &mut Unstructured<'_>) -> Result<()> {
 /// leaf, wedges and knife edges, low-poly spheres, tori, star prisms, nested shells, convex
 /// hulls of random points, unions of overlapping parts), baked at dmax 5–7, and particles at
 /// speeds from a fraction of a leaf to two scenes per step (some started on cell planes, some
-/// moving along an axis or an exact diagonal, some at rest under gravity): a particle that starts farther
-/// than one dmax-leaf diagonal from the surface never ends a step on the other side (by exact
-/// winding number) farther than that from the surface, nor passes through the other side
-/// that deep on the way.
+/// moving along an axis or an exact diagonal, some at rest under gravity, half within 1.5
+/// leaves of the surface, inside the shell and beside it, with exact sides from the mesh): a
+/// particle never ends a step on the other side from where it started (by exact winding
+/// number) farther than one dmax-leaf diagonal from the surface, nor passes through the other
+/// side that deep on the way.
 pub fn penetration(data: &[u8]) {
     let _ = penetration_inner(&mut Unstructured::new(data));
 }

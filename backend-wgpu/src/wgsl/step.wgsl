@@ -480,7 +480,9 @@ fn enter_surface_leaf(st: ptr<function, MarchState>, leaf: LeafInfo, params: Ste
 }
 
 fn collision_normal(st: ptr<function, MarchState>, leaf: LeafInfo) -> vec3<f32> {
-    if leaf.two_sided {
+    let x = (*st).x;
+    let inside = all(x > leaf.aabb.min) && all(x < leaf.aabb.max);
+    if leaf.two_sided && !inside {
         return face_normal(entry_faces(leaf.aabb, (*st).x, (*st).v), (*st).v);
     }
     if (*st).side == SIDE_BACK {

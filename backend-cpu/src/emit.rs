@@ -78,8 +78,10 @@ const DRAWS_PER_PARTICLE: usize = 64;
 /// random directions, with side front.
 ///
 /// Each is checked against the mesh ([`Sides`], exactly): it must be in front of its
-/// surface by [the sides rule](crate::sides), so outside every closed part, and the way out
-/// from its face must cross no other surface. Where it is not (parts overlapping at the face,
+/// surface by [the sides rule](crate::sides), so outside every closed part; outside what open
+/// parts enclose too (the scene's generalized winding number there is below ½: not inside a
+/// scan with holes, nor where the parts of an open model pass through each other); and the way
+/// out from its face must cross no other surface. Where it is not (parts overlapping at the face,
 /// a concave corner where the offset along one face lands behind the next, a sheet nearer
 /// than the offset), the offset is halved, up to eight times, and then another point is drawn.
 /// So every particle is within `offset` of its face; pass one `dmax` leaf for the command
@@ -139,7 +141,8 @@ pub fn emit_surface(
             let p = (on + normal * d).as_vec3();
             let from = (on + normal * (d / 1024.0)).as_vec3();
             let clear = sides.crossings(from.to_array(), p.to_array()) == 0;
-            if clear && sides.side(p.to_array()) == SIDE_FRONT {
+            let outside = sides.winding_number(p.to_array()) < 0.5;
+            if clear && outside && sides.side(p.to_array()) == SIDE_FRONT {
                 let mut q = Particle::new(p.to_array(), velocity);
                 q.side = SIDE_FRONT;
                 out.push(q);

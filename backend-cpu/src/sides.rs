@@ -277,6 +277,13 @@ impl Sides {
             .is_some_and(|m| self.truths[m].winding_number(p) >= 0.5)
     }
 
+    /// The generalized winding number of the whole scene at `p`, open parts included: about 1
+    /// inside what a nearly closed open mesh encloses (a scan with holes, parts of an open
+    /// model through each other), fractional near the holes.
+    pub fn winding_number(&self, p: [f32; 3]) -> f64 {
+        self.truths[0].winding_number(p)
+    }
+
     /// How many triangles of the scene the segment `a → b` crosses
     /// ([`GroundTruth::segment_crossings`]).
     pub fn crossings(&self, a: [f32; 3], b: [f32; 3]) -> u32 {

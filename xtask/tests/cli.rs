@@ -533,3 +533,79 @@ fn bench_writes_json_table_and_plots_with_every_method() {
         "out of range",
     );
 }
+
+#[test]
+fn sim_takes_sides_from_the_mesh_and_says_what_it_did() {
+    let dir = scratch("sides");
+    std::fs::write(dir.join("box.obj"), BOX_OBJ).unwrap();
+    // Two particles inside the box (one a hair inside a face, in the shell), one outside.
+    let header = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n";
+    let points = "0 0 0\n0.999 0.2 0.1\n0 1.5 0\n";
+    std::fs::write(
+        dir.join("plain.ply"),
+        format!("{header}end_header\n{points}"),
+    )
+    .unwrap();
+    let sided: Vec<String> = points.lines().map(|l| format!("{l} 0")).collect();
+    std::fs::write(
+        dir.join("sided.ply"),
+        format!(
+            "{header}property int side\nend_header\n{}\n",
+            sided.join("\n")
+        ),
+    )
+    .unwrap();
+    let sim = |args: &[&str]| {
+        let mut all = vec![
+            "sim", "--steps", "2", "--dmax", "5", "-o", "out.ply", "--ascii",
+        ];
+        all.extend_from_slice(args);
+        let out = octoproxy(&all, &dir);
+        let err = String::from_utf8_lossy(&out.stderr).to_string();
+        assert!(out.status.success(), "{err}");
+        err
+    };
+    let err = sim(&["--mesh", "box.obj", "--particles", "plain.ply"]);
+    assert!(err.contains("sides: from the mesh"), "{err}");
+    assert!(err.contains("1 in front, 2 behind"), "{err}");
+    // All three say front: the two inside contradict the mesh, and keep their side.
+    let err = sim(&["--mesh", "box.obj", "--particles", "sided.ply"]);
+    assert!(err.contains("2 of 3 contradict the mesh"), "{err}");
+    let out = std::fs::read_to_string(dir.join("out.ply")).unwrap();
+    assert!(
+        out.contains("property int side") || out.contains("side"),
+        "{out}"
+    );
+    // With only a proxy: the mean plane, and how many start in the shell.
+    let out = octoproxy(
+        &[
+            "bake",
+            "--mesh",
+            "box.obj",
+            "-o",
+            "box.octoproxy",
+            "--dmax",
+            "5",
+        ],
+        &dir,
+    );
+    assert!(out.status.success());
+    let out = octoproxy(
+        &[
+            "sim",
+            "--proxy",
+            "box.octoproxy",
+            "--particles",
+            "plain.ply",
+            "-o",
+            "p.ply",
+            "--steps",
+            "1",
+        ],
+        &dir,
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains("1 of 3 start inside the shell"), "{err}");
+    assert!(err.contains("give --mesh for exact sides"), "{err}");
+}

@@ -179,8 +179,8 @@ impl NodeRecord {
     }
 
     /// Surface leaf: the offset `d` of the surface's mean plane `n · (x - c) = d`, with `n`
-    /// the normal and `c` the leaf's centre. Only used to tell which side a particle that
-    /// starts inside the leaf is on; the step never reads it.
+    /// the normal and `c` the leaf's centre: where a particle colliding in the leaf makes
+    /// contact, and which side of it a particle that starts inside the leaf is on.
     #[inline]
     pub fn plane_offset(self) -> f32 {
         f32::from_bits(self.b)

@@ -5,15 +5,18 @@
 //!
 //! - an empty leaf with a label stamps the particle's side;
 //! - a surface leaf collides when the velocity opposes its normal (flipped for back-side
-//!   particles; a two-sided leaf is solid and uses the face the particle enters through), responding at the
-//!   entry point with restitution and Coulomb friction, and the march goes on with the new
-//!   velocity and the time left;
+//!   particles; a two-sided leaf is solid and uses the face the particle enters through),
+//!   with restitution and Coulomb friction, and the march goes on with the new velocity and
+//!   the time left. A one-sided leaf collides where the path meets its stored plane
+//!   (`reach_plane`: contact where the surface is, within about a leaf of it), a solid leaf at
+//!   the entry point;
 //! - **shell rule:** a particle that went into the shell of surface leaves from its own side
 //!   may come out only into an empty leaf of that side. Coming out into a leaf labelled with
 //!   the other side means it crossed the surface; it is put back where it entered the shell,
 //!   its velocity reflected off the face it tried to cross, and the step ends;
-//! - **pinch rule:** a collision at the very point of the previous one whose response still
-//!   points into the previous surface (facing surfaces across a narrow gap, a sharp crease)
+//! - **pinch rule:** a collision at the very point of the previous one, or against a surface
+//!   facing the previous one within a leaf's diagonal of it, whose response still points into
+//!   the previous surface (facing surfaces across a narrow gap, a sharp crease)
 //!   keeps only the velocity along both surfaces ([`pinch`]); a second such collision at that
 //!   point stops the particle there. Without it the particle reflected off each surface in
 //!   turn, halving its speed across them each time, until the leaf bound stopped the step.
@@ -32,7 +35,7 @@
 //! root, `enter_root`), step off a solid leaf's face it slides along
 //! (`slide_off_solid_face`), then, in an empty leaf, stamp its side or be blocked by the shell
 //! rule (`enter_empty_leaf`, `block_at_shell`), in a surface leaf, collide (`enter_surface_leaf`,
-//! `collision_normal`, `collide`), and last end the step in the leaf or cross to its exit
+//! `collision_normal`, `reach_plane`, `collide`), and last end the step in the leaf or cross to its exit
 //! (`travel_through_leaf`); `stop_at_leaf_bound` and `finish_march` close it. WGSL's
 //! `step.wgsl` has each of these functions under the same name, taking
 //! `ptr<function, MarchState>`. The march reports to an observer, which is nothing for the
@@ -1020,10 +1023,46 @@ fn enter_surface_leaf<O: MarchObserver>(
     if !(st.v.dot(n) < 0.0) {
         return false;
     }
+    if !reach_plane(st, leaf, obs) {
+        return false;
+    }
     if leaf.two_sided {
         obs.branch(MarchBranch::SolidCollision);
     }
     collide(st, leaf, n, params, obs);
+    true
+}
+
+/// Contact where the surface is: in a one-sided surface leaf a particle moving against the
+/// normal collides on the leaf's plane (its stored normal and offset), not at the face it
+/// entered by. `true` when it collides now: it was on or behind the plane already, or its path
+/// meets the plane within the leaf and the time left, and it has moved there. `false` when the
+/// path leaves the leaf or the step ends first: it travels on, on its side of the plane. A leaf
+/// stops early only where its triangles lie within half a `dmax` leaf of that plane, and a
+/// `dmax` leaf is one leaf across, so particles rest, and hit, within about a leaf of the true
+/// surface however coarse the leaf, and pass it by at most that before they collide (at the
+/// entry face of a coarse leaf over a flat floor they rested up to 8 `dmax` leaves above it).
+/// Solid (two-sided) leaves collide at their faces (`true`): they are `dmax` leaves, and a
+/// particle must not go into one.
+#[inline(always)]
+fn reach_plane<O: MarchObserver>(st: &mut MarchState, leaf: &LeafInfo, obs: &mut O) -> bool {
+    if leaf.two_sided {
+        return true;
+    }
+    let centre = (leaf.aabb.min + leaf.aabb.max) * 0.5;
+    let above = leaf.normal.dot(st.x - centre) - leaf.plane_offset;
+    let t = -above / leaf.normal.dot(st.v);
+    if !(t > 0.0) {
+        return true;
+    }
+    let hit = st.x + st.v * t;
+    let in_leaf = (hit.cmpge(leaf.aabb.min) & hit.cmple(leaf.aabb.max)).bitmask() == 0b111;
+    if !(t < st.remaining) || !in_leaf {
+        return false;
+    }
+    obs.piece(st.x, hit);
+    st.x = hit;
+    st.remaining -= t;
     true
 }
 
@@ -1047,8 +1086,9 @@ fn collision_normal(st: &MarchState, leaf: &LeafInfo) -> Vec3 {
     }
 }
 
-/// A collision with normal `n` in `leaf`: the response, and the pinch rule when it is at the
-/// point of the last collision and still points into that surface.
+/// A collision with normal `n` in `leaf`: the response, and the pinch rule when it is caught
+/// (at the point of the last collision, or against a surface facing the last one within the
+/// leaf's diagonal of it) and the response still points into the last surface.
 #[inline(always)]
 fn collide<O: MarchObserver>(
     st: &mut MarchState,
@@ -1058,7 +1098,12 @@ fn collide<O: MarchObserver>(
     obs: &mut O,
 ) {
     st.v = respond(st.v, n, params.restitution, params.friction);
-    if st.collisions > 0 && st.x == st.hit_x && st.v.dot(st.hit_n) < 0.0 {
+    // Caught: at the point of the last collision, or against a surface facing the last one
+    // within this leaf's diagonal of it (contact is on the leaves' planes, so two facing
+    // surfaces a gap apart are hit at two points).
+    let (gap, diagonal) = (st.x - st.hit_x, leaf.aabb.max - leaf.aabb.min);
+    let facing = n.dot(st.hit_n) < 0.0 && gap.dot(gap) <= diagonal.dot(diagonal);
+    if st.collisions > 0 && (st.x == st.hit_x || facing) && st.v.dot(st.hit_n) < 0.0 {
         // Pinched; pinched again at the same point (rounding left the velocity a hair into a
         // surface), it stops there.
         obs.branch(if st.pinched {

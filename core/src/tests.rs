@@ -360,7 +360,8 @@ fn leaf_hints_change_nothing_but_the_work() {
     }
     // A hint is believed once it passes those checks: one made up by hand that calls the
     // surface leaf's cell empty hides the surface (so the test above did use the good hint).
-    let falling = Particle::new([0.25, 0.3, 0.25], [0.0, -1.0, 0.0]);
+    // A hair above the leaf's plane (`y = 0.25`), so it reaches it within the step.
+    let falling = Particle::new([0.25, 0.26, 0.25], [0.0, -1.0, 0.0]);
     let mut plain = falling;
     step_particle(&view, &mut plain, &params);
     assert_eq!(plain.collisions(), 1);
@@ -462,8 +463,9 @@ fn facing_leaves() -> [u32; HEADER_WORDS + 6] {
     w[header::NODE_COUNT] = 3;
     w[header::LUT_OFFSET] = (HEADER_WORDS + 6) as u32;
     let root = NodeRecord::internal(1, 0b101, 0, 0);
-    let below = NodeRecord::surface(encode_normal(Vec3::Y), false, 0.0);
-    let above = NodeRecord::surface(encode_normal(-Vec3::Y), false, 0.0);
+    // Both planes on the shared face (`y = 0.5`: a quarter along each normal from the centre).
+    let below = NodeRecord::surface(encode_normal(Vec3::Y), false, 0.25);
+    let above = NodeRecord::surface(encode_normal(-Vec3::Y), false, 0.25);
     w[HEADER_WORDS..].copy_from_slice(&[root.a, root.b, below.a, below.b, above.a, above.b]);
     crate::format::seal(&mut w);
     w

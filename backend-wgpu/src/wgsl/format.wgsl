@@ -71,6 +71,10 @@ fn is_two_sided(r: NodeRecord) -> bool {
     return (r.a & TWO_SIDED_BIT) != 0u;
 }
 
+fn plane_offset(r: NodeRecord) -> f32 {
+    return bitcast<f32>(r.b);
+}
+
 fn normal(r: NodeRecord) -> vec3<f32> {
     return decode_normal(r.a & OCT_MASK);
 }

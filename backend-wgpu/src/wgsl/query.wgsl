@@ -7,13 +7,14 @@ struct Aabb {
     max: vec3<f32>,
 }
 
-// core's `LeafInfo`, less `plane_offset` (the step never reads it). `kind` is LEAF_EMPTY or
-// LEAF_SURFACE, `label` is LABEL_NONE, LABEL_FRONT or LABEL_BACK.
+// core's `LeafInfo`. `kind` is LEAF_EMPTY or LEAF_SURFACE, `label` is LABEL_NONE,
+// LABEL_FRONT or LABEL_BACK.
 struct LeafInfo {
     aabb: Aabb,
     kind: u32,
     normal: vec3<f32>,
     two_sided: bool,
+    plane_offset: f32,
     label: u32,
     node: u32,
     depth: u32,
@@ -55,7 +56,7 @@ fn root_contains(p: vec3<f32>, dir: vec3<f32>) -> bool {
 }
 
 fn empty_leaf(cell: vec3<u32>, depth: u32, parent: u32, label: u32) -> LeafInfo {
-    return LeafInfo(cell_aabb(cell, depth), LEAF_EMPTY, vec3<f32>(0.0), false, label, parent, depth, cell);
+    return LeafInfo(cell_aabb(cell, depth), LEAF_EMPTY, vec3<f32>(0.0), false, 0.0, label, parent, depth, cell);
 }
 
 fn cell_at_depth(p: vec3<f32>, dir: vec3<f32>, depth: u32) -> vec3<u32> {
@@ -140,7 +141,7 @@ fn descend(start: u32, start_depth: u32, start_cell: vec3<u32>, known_cell: vec3
     for (var guard = 0u; guard <= MAX_DEPTH; guard++) {
         let rec = node_record(index);
         if is_leaf(rec) {
-            return LeafInfo(cell_aabb(cell, depth), LEAF_SURFACE, normal(rec), is_two_sided(rec), LABEL_NONE, index, depth, cell);
+            return LeafInfo(cell_aabb(cell, depth), LEAF_SURFACE, normal(rec), is_two_sided(rec), plane_offset(rec), LABEL_NONE, index, depth, cell);
         }
         if depth >= MAX_DEPTH {
             // A validated proxy has no internal node this deep; stay total anyway.

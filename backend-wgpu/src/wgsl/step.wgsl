@@ -475,7 +475,30 @@ fn enter_surface_leaf(st: ptr<function, MarchState>, leaf: LeafInfo, params: Ste
     if !(dot3((*st).v, n) < 0.0) {
         return false;
     }
+    if !reach_plane(st, leaf) {
+        return false;
+    }
     collide(st, leaf, n, params);
+    return true;
+}
+
+fn reach_plane(st: ptr<function, MarchState>, leaf: LeafInfo) -> bool {
+    if leaf.two_sided {
+        return true;
+    }
+    let centre = (leaf.aabb.min + leaf.aabb.max) * 0.5;
+    let above = dot3(leaf.normal, (*st).x - centre) - leaf.plane_offset;
+    let t = -above / dot3(leaf.normal, (*st).v);
+    if !(t > 0.0) {
+        return true;
+    }
+    let hit = (*st).x + (*st).v * t;
+    let in_leaf = all(hit >= leaf.aabb.min) && all(hit <= leaf.aabb.max);
+    if !(t < (*st).remaining) || !in_leaf {
+        return false;
+    }
+    (*st).x = hit;
+    (*st).remaining -= t;
     return true;
 }
 
@@ -493,7 +516,10 @@ fn collision_normal(st: ptr<function, MarchState>, leaf: LeafInfo) -> vec3<f32> 
 
 fn collide(st: ptr<function, MarchState>, leaf: LeafInfo, n: vec3<f32>, params: StepParams) {
     (*st).v = respond((*st).v, n, params.restitution, params.friction);
-    if (*st).collisions > 0u && all((*st).x == (*st).hit_x) && dot3((*st).v, (*st).hit_n) < 0.0 {
+    let gap = (*st).x - (*st).hit_x;
+    let diagonal = leaf.aabb.max - leaf.aabb.min;
+    let facing = dot3(n, (*st).hit_n) < 0.0 && dot3(gap, gap) <= dot3(diagonal, diagonal);
+    if (*st).collisions > 0u && (all((*st).x == (*st).hit_x) || facing) && dot3((*st).v, (*st).hit_n) < 0.0 {
         // Pinched; pinched again at the same point, it stops there.
         if (*st).pinched {
             (*st).v = vec3<f32>(0.0);

@@ -32,7 +32,8 @@ particles:
   --particles FILE  a PLY point cloud: x y z, optional vx vy vz, side, flags, and any others
   --emit N          emit N particles instead
   --emit-box X0,Y0,Z0,X1,Y1,Z1   where to emit (default: the scene's box grown by 10 %)
-  --emit-surface    emit just in front of the meshes' surface (needs --mesh)
+  --emit-surface    emit in front of the meshes' surface, outside every other part, within
+                    one dmax leaf of the face (needs --mesh)
   --emit-speed S    speed of emitted particles in random directions (default 0)
   --seed K          emitter seed (default 1)
 

@@ -1,6 +1,7 @@
 //! Campaigns that start particles where users start them: in the shell of surface leaves on
 //! both sides (exact sides from the mesh), emitted from the surface, restarted from a rested
-//! frame with new velocities, and in scenes of overlapping closed parts. The penetration
+//! frame with new velocities, a fraction of a leaf inside a solid at its sharpest vertices,
+//! and in scenes of overlapping closed parts. The penetration
 //! tests run small ones; `cargo run --release -p octoproxy-tests --example starts` the sweep.
 
 use octoproxy_core::{ProxyView, StepParams};
@@ -20,10 +21,18 @@ pub enum Start {
     Emitted,
     /// Emitted, settled under gravity for 300 steps, then given new random velocities.
     Restarted,
+    /// A fraction of a leaf from the mesh's vertices (knife edges, star tips, corners), inside
+    /// the solid for a closed scene, either side for an open one.
+    Corners,
 }
 
 impl Start {
-    pub const ALL: [Start; 3] = [Start::Shell, Start::Emitted, Start::Restarted];
+    pub const ALL: [Start; 4] = [
+        Start::Shell,
+        Start::Emitted,
+        Start::Restarted,
+        Start::Corners,
+    ];
 }
 
 /// The sweep's parameter sets: elastic without gravity, inelastic with full friction,
@@ -145,6 +154,29 @@ pub fn run(
         let seed = seed.wrapping_mul(31).wrapping_add(i as u64);
         let mut ps = match start {
             Start::Shell => near_surface_particles(&refs, &sides, n, 1.5 * leaf, &speeds, seed),
+            Start::Corners => {
+                let mut rng = Rng::new(seed);
+                let mut ps = Vec::with_capacity(n);
+                for _ in 0..n * 50 {
+                    if ps.len() == n || all.positions.is_empty() {
+                        break;
+                    }
+                    let v = all.positions[(rng.next_u64() % all.positions.len() as u64) as usize];
+                    let x =
+                        glam::Vec3::from_array(v) + rng.unit_vector() * rng.range(0.05, 0.9) * leaf;
+                    if closed && !gt.is_inside(x.to_array()) {
+                        continue;
+                    }
+                    let speed = speeds[ps.len() % speeds.len()];
+                    let mut p = octoproxy_core::Particle::new(
+                        x.to_array(),
+                        (rng.unit_vector() * speed).to_array(),
+                    );
+                    p.side = sides.side(p.position);
+                    ps.push(p);
+                }
+                ps
+            }
             Start::Emitted | Start::Restarted => {
                 let mut ps = emit_surface(n, &refs, leaf, 0.0, seed);
                 let mut rng = Rng::new(seed);

@@ -67,6 +67,66 @@ pub fn emit_box(n: usize, min: Vec3, max: Vec3, speed: f32, seed: u64) -> Vec<Pa
         .collect()
 }
 
+/// Uniform random points on the surface of meshes: triangles picked by area, points uniform
+/// in them. Triangles with a bad index, a non-finite vertex or no area are left out.
+pub struct SurfaceSampler {
+    /// Each triangle's vertices and unit normal.
+    tris: Vec<([DVec3; 3], DVec3)>,
+    /// The running sum of their areas.
+    cumulative: Vec<f64>,
+}
+
+impl SurfaceSampler {
+    /// The triangles of `meshes` with an area.
+    pub fn new(meshes: &[MeshRef<'_>]) -> Self {
+        let mut tris = Vec::new();
+        let mut cumulative = Vec::new();
+        let mut total = 0.0f64;
+        for m in meshes {
+            for t in m.triangles {
+                let Some(v) = t
+                    .iter()
+                    .map(|&i| m.positions.get(i as usize))
+                    .collect::<Option<Vec<_>>>()
+                else {
+                    continue;
+                };
+                let v: [DVec3; 3] = [0, 1, 2].map(|k| DVec3::from_array(v[k].map(f64::from)));
+                let c = (v[1] - v[0]).cross(v[2] - v[0]);
+                let area = c.length() * 0.5;
+                if area > 0.0 && area.is_finite() && v.iter().all(|p| p.is_finite()) {
+                    total += area;
+                    tris.push((v, c.normalize()));
+                    cumulative.push(total);
+                }
+            }
+        }
+        SurfaceSampler { tris, cumulative }
+    }
+
+    /// Whether there is no area to sample.
+    pub fn is_empty(&self) -> bool {
+        self.tris.is_empty()
+    }
+
+    /// A random point of the surface and its triangle's normal. Panics if [`Self::is_empty`].
+    pub fn sample(&self, rng: &mut Rng) -> (DVec3, DVec3) {
+        let total = self.cumulative[self.cumulative.len() - 1];
+        let r = rng.f32() as f64 * total;
+        let i = self
+            .cumulative
+            .partition_point(|&c| c < r)
+            .min(self.tris.len() - 1);
+        let (v, normal) = self.tris[i];
+        let (mut a, mut b) = (rng.f32() as f64, rng.f32() as f64);
+        if a + b > 1.0 {
+            a = 1.0 - a;
+            b = 1.0 - b;
+        }
+        (v[0] + (v[1] - v[0]) * a + (v[2] - v[0]) * b, normal)
+    }
+}
+
 /// Halvings of the offset tried at one surface point before another point is drawn.
 const OFFSET_HALVINGS: u32 = 8;
 
@@ -94,29 +154,8 @@ pub fn emit_surface(
     speed: f32,
     seed: u64,
 ) -> Vec<Particle> {
-    let mut tris = Vec::new();
-    let mut cumulative = Vec::new();
-    let mut total = 0.0f64;
-    for m in meshes {
-        for t in m.triangles {
-            let Some(v) = t
-                .iter()
-                .map(|&i| m.positions.get(i as usize))
-                .collect::<Option<Vec<_>>>()
-            else {
-                continue;
-            };
-            let v: [DVec3; 3] = [0, 1, 2].map(|k| DVec3::from_array(v[k].map(f64::from)));
-            let c = (v[1] - v[0]).cross(v[2] - v[0]);
-            let area = c.length() * 0.5;
-            if area > 0.0 && area.is_finite() && v.iter().all(|p| p.is_finite()) {
-                total += area;
-                tris.push((v, c.normalize()));
-                cumulative.push(total);
-            }
-        }
-    }
-    if tris.is_empty() || !(offset > 0.0) || !offset.is_finite() {
+    let surface = SurfaceSampler::new(meshes);
+    if surface.is_empty() || !(offset > 0.0) || !offset.is_finite() {
         return Vec::new();
     }
     let sides = Sides::new(meshes);
@@ -126,15 +165,7 @@ pub fn emit_surface(
         if out.len() == n {
             break;
         }
-        let r = rng.f32() as f64 * total;
-        let i = cumulative.partition_point(|&c| c < r).min(tris.len() - 1);
-        let (v, normal) = tris[i];
-        let (mut a, mut b) = (rng.f32() as f64, rng.f32() as f64);
-        if a + b > 1.0 {
-            a = 1.0 - a;
-            b = 1.0 - b;
-        }
-        let on = v[0] + (v[1] - v[0]) * a + (v[2] - v[0]) * b;
+        let (on, normal) = surface.sample(&mut rng);
         let velocity = (rng.unit_vector() * speed).to_array();
         let mut d = offset as f64;
         for _ in 0..=OFFSET_HALVINGS {
@@ -214,7 +245,7 @@ mod tests {
             let refs: Vec<MeshRef<'_>> = meshes.iter().map(MeshRef::from).collect();
             let all = scenes::merge(meshes);
             let gt = GroundTruth::new(&all.positions, &all.triangles);
-            let closed = all.triangles.len() > 2 && scenes::is_closed(&all);
+            let closed = scenes::is_closed(&all);
             let p = emit_surface(3000, &refs, offset, 1.0, 5);
             assert_eq!(p.len(), 3000);
             let sides = Sides::new(&refs);

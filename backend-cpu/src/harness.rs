@@ -12,7 +12,7 @@
 //! shared edges and vertices counted once per passage (see `GroundTruth::segment_crossings`).
 //! Passing through a hole crosses no triangle, so open meshes may be passed only through holes.
 
-use crate::emit::Rng;
+use crate::emit::{Rng, SurfaceSampler};
 use glam::Vec3;
 use octoproxy_core::{
     initial_side, step_particle_traced, Particle, ProxyView, StepParams, FLAG_BLOCKED,
@@ -101,55 +101,19 @@ pub fn near_surface_particles(
     speeds: &[f32],
     seed: u64,
 ) -> Vec<Particle> {
-    let mut out = emit_surface_points(meshes, n, seed);
-    let mut rng = Rng::new(seed ^ 0x5eed);
-    for (i, p) in out.iter_mut().enumerate() {
-        let x = Vec3::from_array(p.position) + rng.unit_vector() * rng.range(0.0, reach);
-        let speed = speeds[i % speeds.len().max(1)];
-        *p = Particle::new(x.to_array(), (rng.unit_vector() * speed).to_array());
-        p.side = sides.side(p.position);
-    }
-    out
-}
-
-/// `n` points on the surface (offset zero), as particles at rest.
-fn emit_surface_points(meshes: &[MeshRef<'_>], n: usize, seed: u64) -> Vec<Particle> {
-    let mut tris = Vec::new();
-    let mut cumulative = Vec::new();
-    let mut total = 0.0f64;
-    for m in meshes {
-        for t in m.triangles {
-            let Some(v) = t
-                .iter()
-                .map(|&i| m.positions.get(i as usize).map(|p| Vec3::from_array(*p)))
-                .collect::<Option<Vec<_>>>()
-            else {
-                continue;
-            };
-            let area = 0.5 * (v[1] - v[0]).cross(v[2] - v[0]).length() as f64;
-            if area > 0.0 && area.is_finite() {
-                total += area;
-                tris.push([v[0], v[1], v[2]]);
-                cumulative.push(total);
-            }
-        }
-    }
-    if tris.is_empty() {
+    let surface = SurfaceSampler::new(meshes);
+    if surface.is_empty() {
         return Vec::new();
     }
     let mut rng = Rng::new(seed);
     (0..n)
-        .map(|_| {
-            let r = rng.f32() as f64 * total;
-            let v = tris[cumulative.partition_point(|&c| c < r).min(tris.len() - 1)];
-            let (mut a, mut b) = (rng.f32(), rng.f32());
-            if a + b > 1.0 {
-                (a, b) = (1.0 - a, 1.0 - b);
-            }
-            Particle::new(
-                (v[0] + (v[1] - v[0]) * a + (v[2] - v[0]) * b).to_array(),
-                [0.0; 3],
-            )
+        .map(|i| {
+            let on = surface.sample(&mut rng).0.as_vec3();
+            let x = on + rng.unit_vector() * rng.range(0.0, reach);
+            let speed = speeds[i % speeds.len().max(1)];
+            let mut p = Particle::new(x.to_array(), (rng.unit_vector() * speed).to_array());
+            p.side = sides.side(p.position);
+            p
         })
         .collect()
 }

@@ -7,6 +7,7 @@ use octoproxy_core::*;
 use octoproxy_cpu::{bake, BuildParams, MeshRef};
 use octoproxy_cpu::{ground_truth::GroundTruth, harness::*, scenes};
 use octoproxy_tests::meshes;
+use octoproxy_tests::starts::parameter_sets;
 fn main() {
     let dt = 1.0 / 60.0;
     let mut cases: Vec<(String, scenes::Mesh, bool)> = vec![
@@ -69,36 +70,7 @@ fn main() {
             let mut pen = 0;
             let mut steps = 0;
             let mut ex = vec![];
-            for (i, params) in [
-                StepParams {
-                    gravity: [0.0; 3],
-                    dt,
-                    restitution: 1.0,
-                    friction: 0.0,
-                    _pad: [0; 2],
-                },
-                StepParams {
-                    gravity: [0.0, -9.81, 0.0],
-                    dt,
-                    restitution: 0.0,
-                    friction: 1.0,
-                    _pad: [0; 2],
-                },
-                StepParams {
-                    gravity: [0.0, -9.81, 0.0],
-                    dt,
-                    restitution: 1.0,
-                    friction: 0.0,
-                    _pad: [0; 2],
-                },
-                StepParams {
-                    dt,
-                    ..StepParams::default()
-                },
-            ]
-            .iter()
-            .enumerate()
-            {
+            for (i, params) in parameter_sets(dt).iter().enumerate() {
                 let mut ps = random_particles(&view, &g, 3000, &speeds, 100 + i as u64);
                 let r = run_check(&view, &g, &mut ps, 60, params, *closed);
                 pen += r.penetrations;

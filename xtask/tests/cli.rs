@@ -565,17 +565,42 @@ fn sim_takes_sides_from_the_mesh_and_says_what_it_did() {
         assert!(out.status.success(), "{err}");
         err
     };
+    // The sides written after no steps: column 6 of the output (x y z vx vy vz side flags).
+    let written_sides = || -> Vec<String> {
+        let out = std::fs::read_to_string(dir.join("out.ply")).unwrap();
+        assert!(
+            out.contains("property float vz\nproperty uint side\n"),
+            "{out}"
+        );
+        let body = out.split("end_header\n").nth(1).unwrap();
+        body.lines()
+            .map(|l| l.split_whitespace().nth(6).unwrap().to_string())
+            .collect()
+    };
     let err = sim(&["--mesh", "box.obj", "--particles", "plain.ply"]);
     assert!(err.contains("sides: from the mesh"), "{err}");
     assert!(err.contains("1 in front, 2 behind"), "{err}");
+    sim(&[
+        "--mesh",
+        "box.obj",
+        "--particles",
+        "plain.ply",
+        "--steps",
+        "0",
+    ]);
+    assert_eq!(written_sides(), ["1", "1", "0"]);
     // All three say front: the two inside contradict the mesh, and keep their side.
     let err = sim(&["--mesh", "box.obj", "--particles", "sided.ply"]);
     assert!(err.contains("2 of 3 contradict the mesh"), "{err}");
-    let out = std::fs::read_to_string(dir.join("out.ply")).unwrap();
-    assert!(
-        out.contains("property int side") || out.contains("side"),
-        "{out}"
-    );
+    sim(&[
+        "--mesh",
+        "box.obj",
+        "--particles",
+        "sided.ply",
+        "--steps",
+        "0",
+    ]);
+    assert_eq!(written_sides(), ["0", "0", "0"]);
     // With only a proxy: the mean plane, and how many start in the shell.
     let out = octoproxy(
         &[

@@ -11,6 +11,9 @@
 //! the particle's real path (from `step_particle_traced`), counted exactly, with paths through
 //! shared edges and vertices counted once per passage (see `GroundTruth::segment_crossings`).
 //! Passing through a hole crosses no triangle, so open meshes may be passed only through holes.
+//! A particle the shell rule or the leaf bound puts back where it entered the shell is back at
+//! a point of its path, with the crossings it had there: the jump is not counted as a path
+//! (its chord would count a passage round a rim that no piece of the path made).
 
 use crate::emit::{Rng, SurfaceSampler};
 use glam::Vec3;
@@ -204,8 +207,9 @@ pub fn tolerance(view: &ProxyView<'_>) -> f32 {
 /// Whether the last of a step's traced `pieces` is the jump back to where the particle
 /// entered the shell, which the shell rule and the leaf bound end a step with (`flags` says
 /// which stopped it): a piece that ends where an earlier one began. The particle is put there,
-/// it does not travel the jump, so it counts for the parity of crossings (an open mesh's side
-/// along the path) but is not a path through the mesh.
+/// it does not travel the jump: it is back where it was earlier in the step, with the
+/// crossings it had there (an open mesh's side along the path, see [`run_check`]), and the jump
+/// is not a path through the mesh.
 pub fn jumps_back(pieces: &[(Vec3, Vec3)], flags: u32) -> bool {
     let Some((&(_, to), earlier)) = pieces.split_last() else {
         return false;
@@ -308,14 +312,23 @@ pub fn run_check_kicked(
                     pieces.push((a, b))
                 });
                 let jump = jumps_back(&pieces, p.flags);
+                // Crossings of each piece; the jump back is put, not travelled: it takes the
+                // particle back to a point of this step's path, with the crossings it had there.
+                let mut counts = Vec::with_capacity(pieces.len());
                 for (i, &(a, b)) in pieces.iter().enumerate() {
-                    if a == b {
-                        continue;
-                    }
-                    let k = gt.segment_crossings(a.to_array(), b.to_array());
+                    let is_jump = jump && i + 1 == pieces.len();
+                    let k = if a == b {
+                        0
+                    } else if is_jump && !closed {
+                        let back = pieces.iter().position(|&(from, _)| from == b).unwrap_or(i);
+                        counts[back..i].iter().sum()
+                    } else {
+                        gt.segment_crossings(a.to_array(), b.to_array())
+                    };
+                    counts.push(k);
                     if !closed {
                         s.crossings += k as u64;
-                    } else if k > 0 && !s.tunnelled && !(jump && i + 1 == pieces.len()) {
+                    } else if k > 0 && !s.tunnelled && !is_jump {
                         s.tunnelled = deep_on_the_other_side(gt, a, b, s.inside, tol).is_some();
                     }
                 }

@@ -71,7 +71,7 @@ pub mod sides;
 
 pub use backend::{CpuBackend, CpuError};
 pub use bake::{bake, BuildError, BuildParams, BuildProgress, BuildReport, MeshRef};
-pub use sides::{starting_sides, Sides};
+pub use sides::{starting_sides, CageCounts, Sides, StartCounts};
 
 /// The README's examples, compiled and run as doctests.
 #[doc = include_str!("../../README.md")]

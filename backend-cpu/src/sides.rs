@@ -35,7 +35,10 @@
 //! counts those that contradict the mesh.
 
 use glam::DVec3;
-use octoproxy_core::{LeafKind, Particle, ProxyView, SIDE_BACK, SIDE_FRONT};
+use glam::Vec3;
+use octoproxy_core::{
+    side_exit, LeafKind, Particle, ProxyView, SIDE_BACK, SIDE_CAGED, SIDE_FRONT, SIDE_MASK,
+};
 use rayon::prelude::*;
 
 use crate::bake::{edge_classes, MeshRef};
@@ -82,6 +85,22 @@ pub struct SideCounts {
     pub non_finite: usize,
 }
 
+/// What [`Sides::cages`] did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct CageCounts {
+    /// Particles that start strictly inside a solid leaf, now caged there.
+    pub caged: usize,
+    /// Of those, particles that can reach no face of their cage into an empty leaf without
+    /// crossing the surface: they stay in it.
+    pub without_exit: usize,
+    /// Particles that kept the cage their file gave them.
+    pub kept: usize,
+}
+
+/// Points per side of the grid of points on a face of a cage that [`Sides::cage`] tries to
+/// reach: `CAGE_SAMPLES²` segments per face at most.
+pub const CAGE_SAMPLES: usize = 4;
+
 /// One connected part of the scene (triangles joined by shared edges).
 struct Part {
     /// Every edge is used exactly once in each direction.
@@ -104,6 +123,9 @@ pub struct Sides {
     /// All closed triangles together (an index into `truths`).
     matter: Option<usize>,
     closed_parts: usize,
+    /// The scene's rims for the parity of crossings: edges used by an odd number of
+    /// triangles (a hole's rim, a sheet's edge, a non-manifold edge of three).
+    rims: Rims,
 }
 
 impl Sides {
@@ -183,12 +205,14 @@ impl Sides {
             truths.push(GroundTruth::new(&positions, &tris));
             matter = Some(truths.len() - 1);
         }
+        let rims = Rims::new(&positions, &triangles);
         Sides {
             truths,
             part_of,
             parts,
             matter,
             closed_parts,
+            rims,
         }
     }
 
@@ -290,6 +314,101 @@ impl Sides {
         self.truths[0].segment_crossings(a, b)
     }
 
+    /// The cage bits of a particle at `p` in `view`'s proxy ([`SIDE_CAGED`] and its exits), or
+    /// 0 when it does not start strictly inside a solid (two-sided) leaf. There one side bit
+    /// cannot say which of the surfaces in the leaf it is behind (parts crossing, a fold, a
+    /// rim), so the step holds it in the leaf, and lets it out only through the faces it can
+    /// reach from `p` without crossing the surface: a face into a single empty leaf (no
+    /// triangle touches it) that a straight segment from `p` reaches, on a grid of
+    /// [`CAGE_SAMPLES`]² points of the face, crossing no triangle (exactly,
+    /// [`GroundTruth::segment_crossings`]). An empty leaf holds no surface, so all of it is
+    /// where that segment ends: on the particle's side of every surface in the cage.
+    pub fn cage(&self, view: &ProxyView<'_>, p: [f32; 3]) -> u32 {
+        let x = Vec3::from_array(p);
+        if !x.is_finite() {
+            return 0;
+        }
+        let Some(leaf) = view.locate_leaf(x) else {
+            return 0;
+        };
+        let b = leaf.aabb;
+        let inside = x.cmpgt(b.min).all() && x.cmplt(b.max).all();
+        if leaf.kind != LeafKind::Surface || !leaf.two_sided || !inside {
+            return 0;
+        }
+        let mut bits = SIDE_CAGED;
+        // Round a rim, a path may cross the surface once and come back to where a straight
+        // segment reaches without crossing: no exit is sure there.
+        if self.rims.touch(b.min.as_dvec3(), b.max.as_dvec3()) {
+            return bits;
+        }
+        for axis in 0..3 {
+            let (u, w) = ((axis + 1) % 3, (axis + 2) % 3);
+            for upper in [false, true] {
+                let mut centre = (b.min + b.max) * 0.5;
+                centre[axis] = if upper { b.max[axis] } else { b.min[axis] };
+                let mut dir = Vec3::ZERO;
+                dir[axis] = if upper { 1.0 } else { -1.0 };
+                let across = view
+                    .locate_leaf_toward(centre, dir)
+                    .filter(|n| n.kind == LeafKind::Empty);
+                let Some(n) = across else {
+                    continue;
+                };
+                let holds_face = [u, w]
+                    .iter()
+                    .all(|&a| n.aabb.min[a] <= b.min[a] && n.aabb.max[a] >= b.max[a]);
+                if !holds_face {
+                    continue;
+                }
+                let reachable = (0..CAGE_SAMPLES * CAGE_SAMPLES).any(|k| {
+                    let f = |i: usize| (i as f32 + 0.5) / CAGE_SAMPLES as f32;
+                    let mut q = centre;
+                    q[u] = b.min[u] + (b.max[u] - b.min[u]) * f(k % CAGE_SAMPLES);
+                    q[w] = b.min[w] + (b.max[w] - b.min[w]) * f(k / CAGE_SAMPLES);
+                    self.truths[0].segment_crossings(p, q.to_array()) == 0
+                });
+                if reachable {
+                    bits |= side_exit(axis as u32, upper);
+                }
+            }
+        }
+        bits
+    }
+
+    /// Cages every particle of `particles` that starts strictly inside a solid leaf of
+    /// `view`'s proxy ([`Sides::cage`]), in parallel, keeping its side; with `keep_given`, a
+    /// particle already caged (a frame written mid-run) keeps its cage. Cage bits belong to the
+    /// proxy they were made with: make them again for another.
+    pub fn cages(
+        &self,
+        view: &ProxyView<'_>,
+        particles: &mut [Particle],
+        keep_given: bool,
+    ) -> CageCounts {
+        particles
+            .par_iter_mut()
+            .map(|p| {
+                let mut c = CageCounts::default();
+                if keep_given && p.is_caged() {
+                    c.kept = 1;
+                    return c;
+                }
+                let bits = self.cage(view, p.position);
+                p.side = (p.side & SIDE_MASK) | bits;
+                if bits != 0 {
+                    c.caged = 1;
+                    c.without_exit = (bits == SIDE_CAGED) as usize;
+                }
+                c
+            })
+            .reduce(CageCounts::default, |a, b| CageCounts {
+                caged: a.caged + b.caged,
+                without_exit: a.without_exit + b.without_exit,
+                kept: a.kept + b.kept,
+            })
+    }
+
     /// Gives every particle of `particles` its side by [the rule](self), in parallel; or, with
     /// `keep_given`, leaves each its own and counts those that contradict the mesh.
     pub fn assign(&self, particles: &mut [Particle], keep_given: bool) -> SideCounts {
@@ -304,17 +423,12 @@ impl Sides {
                 let side = self.verdict_with(p.position, near).side;
                 if keep_given {
                     c.kept = 1;
-                    let own = if p.side == SIDE_BACK {
-                        SIDE_BACK
-                    } else {
-                        SIDE_FRONT
-                    };
-                    c.contradicting = (own != side) as usize;
+                    c.contradicting = (p.side & SIDE_MASK != side) as usize;
                 } else {
                     c.assigned = 1;
                     p.side = side;
                 }
-                c.behind = (p.side == SIDE_BACK) as usize;
+                c.behind = (p.side & SIDE_MASK == SIDE_BACK) as usize;
                 c
             })
             .reduce(SideCounts::default, |a, b| SideCounts {
@@ -324,6 +438,106 @@ impl Sides {
                 behind: a.behind + b.behind,
                 non_finite: a.non_finite + b.non_finite,
             })
+    }
+}
+
+/// Segments (a scene's rim edges) in a bounding-volume hierarchy, for "does any touch this
+/// box".
+struct Rims {
+    /// Segments, in the hierarchy's leaf order.
+    segments: Vec<[DVec3; 2]>,
+    /// Nodes: box, then the first segment and count for a leaf (`count > 0`), or the right
+    /// child for an inner node (its left child follows it).
+    nodes: Vec<(DVec3, DVec3, u32, u32)>,
+}
+
+impl Rims {
+    /// The edges of `triangles` used by an odd number of them, vertices welded by position
+    /// (triangles with an out-of-range index are left out).
+    fn new(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Rims {
+        let key = |i: u32| positions[i as usize].map(|x| if x == 0.0 { 0 } else { x.to_bits() });
+        let mut edges: Vec<([u32; 3], [u32; 3])> = Vec::new();
+        for t in triangles {
+            if t.iter().any(|&i| i as usize >= positions.len()) {
+                continue;
+            }
+            for k in 0..3 {
+                let (a, b) = (key(t[k]), key(t[(k + 1) % 3]));
+                if a != b {
+                    edges.push(if a < b { (a, b) } else { (b, a) });
+                }
+            }
+        }
+        edges.par_sort_unstable();
+        let mut segments = Vec::new();
+        let mut i = 0;
+        while i < edges.len() {
+            let j = i + edges[i..].iter().take_while(|e| **e == edges[i]).count();
+            if (j - i) % 2 == 1 {
+                let p = |k: [u32; 3]| DVec3::from_array(k.map(|b| f32::from_bits(b) as f64));
+                segments.push([p(edges[i].0), p(edges[i].1)]);
+            }
+            i = j;
+        }
+        let mut rims = Rims {
+            segments,
+            nodes: Vec::new(),
+        };
+        let n = rims.segments.len();
+        if n > 0 {
+            rims.build(0, n);
+        }
+        rims
+    }
+
+    fn build(&mut self, start: usize, end: usize) -> usize {
+        let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+        for s in &self.segments[start..end] {
+            lo = lo.min(s[0]).min(s[1]);
+            hi = hi.max(s[0]).max(s[1]);
+        }
+        let id = self.nodes.len();
+        if end - start <= 4 {
+            self.nodes
+                .push((lo, hi, start as u32, (end - start) as u32));
+            return id;
+        }
+        self.nodes.push((lo, hi, 0, 0));
+        let axis = (hi - lo).max_position();
+        let mid = (start + end) / 2;
+        self.segments[start..end].select_nth_unstable_by(mid - start, |a, b| {
+            (a[0][axis] + a[1][axis]).total_cmp(&(b[0][axis] + b[1][axis]))
+        });
+        self.build(start, mid);
+        let right = self.build(mid, end);
+        self.nodes[id].2 = right as u32;
+        id
+    }
+
+    /// Whether a segment touches the closed box `lo..hi` (or may, within rounding).
+    fn touch(&self, lo: DVec3, hi: DVec3) -> bool {
+        let mut stack = vec![0usize];
+        while let Some(id) = stack.pop() {
+            let Some(&(nlo, nhi, first, count)) = self.nodes.get(id) else {
+                continue;
+            };
+            if nlo.cmpgt(hi).any() || nhi.cmplt(lo).any() {
+                continue;
+            }
+            if count > 0 {
+                let range = first as usize..(first + count) as usize;
+                if self.segments[range]
+                    .iter()
+                    .any(|s| crate::bake::geom::segment_may_touch_box(s[0], s[1], lo, hi))
+                {
+                    return true;
+                }
+            } else {
+                stack.push(id + 1);
+                stack.push(first as usize);
+            }
+        }
+        false
     }
 }
 
@@ -364,11 +578,47 @@ pub fn count_in_shell(view: &ProxyView<'_>, particles: &[Particle]) -> usize {
         .count()
 }
 
-/// Gives every particle its starting side from `meshes` by [the rule](self): the function
+/// What [`starting_sides`] did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct StartCounts {
+    /// The sides ([`Sides::assign`]).
+    pub sides: SideCounts,
+    /// The cages ([`Sides::cages`]).
+    pub cages: CageCounts,
+}
+
+/// How many of `particles` start strictly inside a solid (two-sided) leaf of `view`, where
+/// only the mesh can cage them ([`Sides::cage`]).
+pub fn count_in_solid(view: &ProxyView<'_>, particles: &[Particle]) -> usize {
+    particles
+        .par_iter()
+        .filter(|p| {
+            let x = Vec3::from_array(p.position);
+            x.is_finite()
+                && view.locate_leaf(x).is_some_and(|l| {
+                    l.kind == LeafKind::Surface
+                        && l.two_sided
+                        && x.cmpgt(l.aabb.min).all()
+                        && x.cmplt(l.aabb.max).all()
+                })
+        })
+        .count()
+}
+
+/// Gives every particle its starting side from `meshes` by [the rule](self), and cages those
+/// that start strictly inside a solid leaf of `view`'s proxy ([`Sides::cage`]): the function
 /// beside [`crate::bake()`] for particles of your own. Build a [`Sides`] once instead to ask
 /// it again, or to keep the sides particles carry and count those that contradict the mesh.
-pub fn starting_sides(meshes: &[MeshRef<'_>], particles: &mut [Particle]) -> SideCounts {
-    Sides::new(meshes).assign(particles, false)
+pub fn starting_sides(
+    meshes: &[MeshRef<'_>],
+    view: &ProxyView<'_>,
+    particles: &mut [Particle],
+) -> StartCounts {
+    let sides = Sides::new(meshes);
+    StartCounts {
+        sides: sides.assign(particles, false),
+        cages: sides.cages(view, particles, false),
+    }
 }
 
 #[cfg(test)]
@@ -544,12 +794,133 @@ mod tests {
             Particle::new([0.5, 1.001, 0.5], [0.0; 3]),
             Particle::new([f32::NAN, 0.0, 0.0], [0.0; 3]),
         ];
-        let c = starting_sides(&refs, &mut ps);
-        assert_eq!((c.assigned, c.behind, c.non_finite), (2, 1, 1));
+        let (words, _) = crate::bake(&refs, &crate::BuildParams::default(), &()).unwrap();
+        let view = ProxyView::new(&words).unwrap();
+        let c = starting_sides(&refs, &view, &mut ps);
+        assert_eq!(
+            (c.sides.assigned, c.sides.behind, c.sides.non_finite),
+            (2, 1, 1)
+        );
         assert_eq!((ps[0].side, ps[1].side), (SIDE_BACK, SIDE_FRONT));
         ps[0].side = SIDE_FRONT;
         let c = Sides::new(&refs).assign(&mut ps, true);
         assert_eq!((c.kept, c.contradicting), (2, 1));
         assert_eq!(ps[0].side, SIDE_FRONT, "a given side is kept");
+    }
+
+    /// Two open sheets crossing along the z axis (an X seen along z), 60° apart.
+    fn crossing_sheets() -> Vec<Mesh> {
+        let a = scenes::flat_sheet([0.0; 3], 2.0, 4);
+        let b = scenes::rotated(&a, 60.0, 0.0);
+        vec![a, b]
+    }
+
+    #[test]
+    fn particles_caged_where_sheets_cross_leave_only_without_crossing_them() {
+        use crate::harness::run_check;
+        use octoproxy_core::{StepParams, SIDE_EXITS_MASK};
+        let parts = crossing_sheets();
+        let refs: Vec<MeshRef<'_>> = parts.iter().map(MeshRef::from).collect();
+        let params = crate::BuildParams {
+            dmax: 6,
+            ..crate::BuildParams::default()
+        };
+        let (words, _) = crate::bake(&refs, &params, &()).unwrap();
+        let view = ProxyView::new(&words).unwrap();
+        let sides = Sides::new(&refs);
+        let all = scenes::merge(&parts);
+        let gt = GroundTruth::new(&all.positions, &all.triangles);
+        let leaf = view.finest_leaf_size();
+        // Within a leaf of the crossing line, away from the sheets' rims.
+        let mut rng = Rng::new(11);
+        let mut ps = Vec::new();
+        for _ in 0..100_000 {
+            if ps.len() == 600 {
+                break;
+            }
+            let x = [
+                rng.range(-leaf, leaf),
+                rng.range(-leaf, leaf),
+                rng.range(-0.6, 0.6),
+            ];
+            let bits = sides.cage(&view, x);
+            if bits == 0 {
+                continue;
+            }
+            let v = rng.unit_vector() * leaf * rng.range(1.0, 40.0) * 60.0;
+            let mut p = Particle::new(x, v.to_array());
+            p.side = sides.side(x) | bits;
+            ps.push(p);
+        }
+        assert_eq!(
+            ps.len(),
+            600,
+            "too few particles in solid leaves by the crossing"
+        );
+        let with_exits = ps.iter().filter(|p| p.side & SIDE_EXITS_MASK != 0).count();
+        assert!(
+            with_exits > 300,
+            "only {with_exits} of 600 cages have an exit"
+        );
+        for params in [
+            StepParams {
+                gravity: [0.0; 3],
+                restitution: 1.0,
+                friction: 0.0,
+                ..StepParams::default()
+            },
+            StepParams::default(),
+        ] {
+            let mut run = ps.clone();
+            let r = run_check(&view, &gt, &mut run, 60, &params, false);
+            assert_eq!(r.penetrations, 0, "{:?}", r.examples);
+            let left = run.iter().filter(|p| !p.is_caged()).count();
+            assert!(left > 200, "only {left} of 600 left their cages");
+        }
+        // Counted as `cages` counts them.
+        let mut again: Vec<Particle> = ps
+            .iter()
+            .map(|p| Particle::new(p.position, [0.0; 3]))
+            .collect();
+        let c = sides.cages(&view, &mut again, false);
+        assert_eq!((c.caged, c.kept), (600, 0));
+        assert_eq!(c.without_exit, 600 - with_exits);
+        assert!(again
+            .iter()
+            .zip(&ps)
+            .all(|(a, b)| a.side & !SIDE_MASK == b.side & !SIDE_MASK));
+    }
+
+    #[test]
+    fn a_cage_a_rim_passes_through_has_no_exit() {
+        // Round a sheet's rim a path can cross the sheet and come back to where a straight
+        // segment reaches without crossing: no face of the cage is a sure exit.
+        let sheet = scenes::flat_sheet([0.0; 3], 2.0, 4);
+        let refs = [MeshRef::from(&sheet)];
+        let (words, _) = crate::bake(&refs, &crate::BuildParams::default(), &()).unwrap();
+        let view = ProxyView::new(&words).unwrap();
+        let sides = Sides::new(&refs);
+        let leaf = view.finest_leaf_size();
+        let mut found = 0;
+        let mut rng = Rng::new(5);
+        for _ in 0..2000 {
+            let x = [
+                1.0 + rng.range(-leaf, leaf),
+                rng.range(-leaf, leaf),
+                rng.range(-0.9, 0.9),
+            ];
+            let bits = sides.cage(&view, x);
+            if bits != 0 {
+                found += 1;
+                assert_eq!(bits, SIDE_CAGED, "at {x:?}");
+            }
+        }
+        assert!(
+            found > 100,
+            "only {found} particles in the rim's solid leaves"
+        );
+        // Not in a solid leaf: no cage; nor at a non-finite position.
+        assert_eq!(sides.cage(&view, [0.3, 0.5, 0.3]), 0);
+        assert_eq!(sides.cage(&view, [f32::NAN, 0.0, 0.0]), 0);
     }
 }

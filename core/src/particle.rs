@@ -6,6 +6,30 @@ use bytemuck::{Pod, Zeroable};
 pub const SIDE_FRONT: u32 = 0;
 /// Side value: the particle is behind the surface.
 pub const SIDE_BACK: u32 = 1;
+/// The bit of [`Particle::side`] that holds the side, [`SIDE_FRONT`] or [`SIDE_BACK`].
+pub const SIDE_MASK: u32 = 1;
+/// Set in [`Particle::side`] while the particle is **caged**: it started strictly inside a
+/// solid (two-sided) surface leaf, where one side bit cannot say which of the surfaces in the
+/// leaf it is behind, and it may leave that leaf only through the faces its exit bits name
+/// ([`SIDE_EXITS_MASK`]); the others hold it like walls. The host sets it from the mesh
+/// (`octoproxy_cpu::Sides::cages`); a step clears it when the particle leaves through an exit,
+/// or when it is not strictly inside a solid leaf at the start of a step (a proxy of its own
+/// is needed: reset it with the hints when the proxy changes).
+pub const SIDE_CAGED: u32 = 1 << 7;
+/// Shift of a caged particle's six exit bits in [`Particle::side`]: bit `SIDE_EXITS_SHIFT + 2
+/// * axis + upper` lets it leave its cage through the face across `axis` (0 = x, 1 = y, 2 =
+/// z) on the cage's upper (`upper` = 1) or lower side ([`side_exit`]).
+pub const SIDE_EXITS_SHIFT: u32 = 1;
+/// Mask of the six exit bits in [`Particle::side`], in place.
+pub const SIDE_EXITS_MASK: u32 = 0x3f << SIDE_EXITS_SHIFT;
+/// Mask of the cage in [`Particle::side`]: [`SIDE_CAGED`] and the exit bits.
+pub const SIDE_CAGE_MASK: u32 = SIDE_CAGED | SIDE_EXITS_MASK;
+
+/// The exit bit of [`Particle::side`] for a cage's face across `axis` (0 = x, 1 = y, 2 = z)
+/// on its upper (`upper`) or lower side.
+pub const fn side_exit(axis: u32, upper: bool) -> u32 {
+    1 << (SIDE_EXITS_SHIFT + 2 * axis + upper as u32)
+}
 
 /// Flag: the particle's position or velocity was NaN or infinite; it is left unchanged.
 pub const FLAG_INVALID: u32 = 1 << 0;
@@ -30,7 +54,10 @@ pub const MAX_COLLISIONS: u32 = (1 << (32 - COLLISION_SHIFT)) - 1;
 pub struct Particle {
     /// World-space position.
     pub position: [f32; 3],
-    /// [`SIDE_FRONT`] or [`SIDE_BACK`]: the label of the last labelled empty leaf it crossed.
+    /// Bit 0 ([`SIDE_MASK`]): [`SIDE_FRONT`] or [`SIDE_BACK`], the label of the last
+    /// labelled empty leaf it crossed. Bits 1–7: zero, or the cage of a particle that started
+    /// inside a solid leaf ([`SIDE_CAGED`], [`SIDE_EXITS_MASK`]). A step ignores the bits
+    /// above and leaves them zero.
     pub side: u32,
     /// Velocity in units per second.
     pub velocity: [f32; 3],
@@ -54,5 +81,15 @@ impl Particle {
     /// Number of collisions this particle has had (saturates at [`MAX_COLLISIONS`]).
     pub const fn collisions(&self) -> u32 {
         self.flags >> COLLISION_SHIFT
+    }
+
+    /// Its side, [`SIDE_FRONT`] or [`SIDE_BACK`], without the cage bits.
+    pub const fn side_only(&self) -> u32 {
+        self.side & SIDE_MASK
+    }
+
+    /// Whether it is caged in the solid leaf it started in ([`SIDE_CAGED`]).
+    pub const fn is_caged(&self) -> bool {
+        self.side & SIDE_CAGED != 0
     }
 }

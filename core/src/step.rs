@@ -21,6 +21,11 @@
 //!   point stops the particle there. Without it the particle reflected off each surface in
 //!   turn, halving its speed across them each time, until the leaf bound stopped the step.
 //!
+//! - **cages:** a particle that starts strictly inside a solid leaf, caged there by the host
+//!   from the mesh ([`SIDE_CAGED`]), moves freely in it and leaves it only through its exit
+//!   faces; the others are walls (`keep_in_cage`). One side bit cannot say which of the
+//!   surfaces in a solid leaf a particle is behind; the host can, and says where it may go.
+//!
 //! The number of leaves a step visits is bounded by [`max_leaves_per_step`]; when the bound
 //! is hit the particle is left at its last safe point.
 //!
@@ -502,7 +507,7 @@ fn settle_leaving_root(view: &ProxyView<'_>, p: &mut Particle, params: &StepPara
     }
     p.position = end.to_array();
     p.velocity = v.to_array();
-    p.side = (p.side == SIDE_BACK) as u32;
+    p.side &= SIDE_MASK;
     p.flags &= !FLAG_STEP_STATUS;
     true
 }
@@ -552,11 +557,12 @@ fn settle_in_hinted_leaf(
     }
     p.position = end.to_array();
     p.velocity = v.to_array();
-    // An unlabelled leaf keeps the side (normalised as the march does); a labelled one stamps
-    // it: label bits 1 (front) and 2 (back) are sides 0 and 1.
+    // An unlabelled leaf keeps the side (normalised as the march does: no cage, for an empty
+    // leaf is none); a labelled one stamps it: label bits 1 (front) and 2 (back) are sides 0
+    // and 1.
     const _: () =
         assert!(SIDE_FRONT == Label::Front.bits() - 1 && SIDE_BACK == Label::Back.bits() - 1);
-    let kept = (p.side == SIDE_BACK) as u32;
+    let kept = p.side & SIDE_MASK;
     p.side = if label_bits == 0 {
         kept
     } else {
@@ -644,6 +650,17 @@ pub enum MarchBranch {
     LeafBound,
     /// ... inside the shell, so the particle went back to where it entered it.
     LeafBoundInShell,
+    /// A caged particle ([`SIDE_CAGED`]) was not strictly inside a solid leaf at the start of
+    /// its step, and lost its cage (`enter_cage`).
+    CageLost,
+    /// A caged particle reached a face of its cage that is not one of its exits, and bounced
+    /// off it as off a wall (`keep_in_cage`).
+    CageWall,
+    /// A caged particle left its cage through one of its exits (`keep_in_cage`).
+    CageExit,
+    /// A caged particle ended its step on its cage's boundary and was moved strictly inside
+    /// (`finish_march`).
+    CageNudge,
     /// A non-finite position or velocity on input.
     InvalidStart,
     /// A non-finite position or velocity at the end of the march.
@@ -652,7 +669,7 @@ pub enum MarchBranch {
 
 impl MarchBranch {
     /// Every branch, in the order of the variants.
-    pub const ALL: [MarchBranch; 13] = [
+    pub const ALL: [MarchBranch; 17] = [
         MarchBranch::RootEntry,
         MarchBranch::RootMiss,
         MarchBranch::StartBesideShell,
@@ -664,6 +681,10 @@ impl MarchBranch {
         MarchBranch::EndOnFace,
         MarchBranch::LeafBound,
         MarchBranch::LeafBoundInShell,
+        MarchBranch::CageLost,
+        MarchBranch::CageWall,
+        MarchBranch::CageExit,
+        MarchBranch::CageNudge,
         MarchBranch::InvalidStart,
         MarchBranch::InvalidEnd,
     ];
@@ -806,6 +827,11 @@ struct MarchState {
     last_leaf: Option<LeafInfo>,
     /// The hinted leaf, until the first leaf takes it (the particle has not moved yet).
     hinted: Option<LeafInfo>,
+    /// A caged particle's cage: the solid leaf it started in, which it leaves only through its
+    /// exits ([`SIDE_CAGED`]); every leaf of its march is this one until it does.
+    cage: Option<LeafInfo>,
+    /// Its cage bits ([`SIDE_CAGE_MASK`] of the particle's side word), zero when not caged.
+    exits: u32,
     /// Leaves visited, against [`ProxyView::max_leaves_per_step`].
     visited: u32,
     /// How the step ends, unless the particle turns out invalid.
@@ -833,11 +859,7 @@ fn start_march(
     MarchState {
         x: x0,
         v: v0 + Vec3::from_array(params.gravity) * params.dt,
-        side: if p.side == SIDE_BACK {
-            SIDE_BACK
-        } else {
-            SIDE_FRONT
-        },
+        side: p.side & SIDE_MASK,
         remaining: params.dt,
         collisions: 0,
         in_shell: false,
@@ -850,6 +872,12 @@ fn start_march(
         cross_signs: Vec3::ZERO,
         last_leaf: None,
         hinted: start_hint.leaf(view, x0),
+        cage: None,
+        exits: if p.side & SIDE_CAGED != 0 {
+            p.side & SIDE_CAGE_MASK
+        } else {
+            0
+        },
         visited: 0,
         outcome: StepOutcome::Done,
     }
@@ -879,6 +907,12 @@ fn find_next_leaf<O: MarchObserver>(
     st: &mut MarchState,
     obs: &mut O,
 ) -> Option<NextLeaf> {
+    if let Some(cage) = st.cage {
+        return Some(NextLeaf {
+            leaf: cage,
+            beside_shell: false,
+        });
+    }
     let leaf = if let Some(leaf) = st.hinted.take() {
         leaf
     } else if let Some(leaf) = st
@@ -949,7 +983,11 @@ fn slide_off_solid_face<O: MarchObserver>(
 ) -> LeafInfo {
     let (x, v) = (st.x, st.v);
     let mut leaf = next.leaf;
-    if leaf.two_sided && !next.beside_shell && entry_faces(&leaf.aabb, x, v) == 0 {
+    if leaf.two_sided
+        && !next.beside_shell
+        && st.cage.is_none()
+        && entry_faces(&leaf.aabb, x, v) == 0
+    {
         let mut dir = v;
         for a in 0..3 {
             if v[a] == 0.0 && x[a] == leaf.aabb.min[a] {
@@ -1016,7 +1054,8 @@ fn enter_surface_leaf<O: MarchObserver>(
         st.in_shell = true;
         st.shell_entry = st.x;
     }
-    if leaf.node == st.last_collided {
+    // In its cage a particle moves freely: only the cage's walls hold it (`keep_in_cage`).
+    if leaf.node == st.last_collided || st.cage.is_some() {
         return false;
     }
     let n = collision_normal(st, leaf);
@@ -1125,6 +1164,88 @@ fn collide<O: MarchObserver>(
     st.last_collided = leaf.node;
 }
 
+/// The first leaf of a caged particle's step: its cage, if the particle is strictly inside a
+/// solid leaf there; otherwise (moved by hand, or stepped against another proxy) it is caged
+/// no more, and the step goes on as for any particle.
+#[inline(always)]
+fn enter_cage<O: MarchObserver>(st: &mut MarchState, leaf: &LeafInfo, obs: &mut O) {
+    let inside = (st.x.cmpgt(leaf.aabb.min) & st.x.cmplt(leaf.aabb.max)).all();
+    if leaf.kind == LeafKind::Surface && leaf.two_sided && inside {
+        st.cage = Some(*leaf);
+    } else {
+        obs.branch(MarchBranch::CageLost);
+        st.exits = 0;
+    }
+}
+
+/// A caged particle on its way out of its cage: through one of its exits it leaves the cage
+/// and the shell (`false`: it travels on into the empty leaf beyond, which stamps its side);
+/// any other face, or an edge or corner, holds it like a wall (`true`: it bounced off, and the
+/// march goes on in the cage). Its exits are the faces it could reach from where it started
+/// without crossing the surface (the host decides, from the mesh); the cage is where one side
+/// bit cannot say which of the surfaces in a leaf a particle is behind (two parts crossing, a
+/// fold, a rim), and a particle free to leave it anywhere left it beyond the surface it had
+/// not been stamped for (found by the starts campaign on open models whose parts pass through
+/// each other: the teapot's spout, Suzanne's eyes, the ogre).
+#[inline(always)]
+fn keep_in_cage<O: MarchObserver>(st: &mut MarchState, params: &StepParams, obs: &mut O) -> bool {
+    let Some(cage) = st.cage else {
+        return false;
+    };
+    let end = st.x + st.v * st.remaining;
+    if (end.cmpgt(cage.aabb.min) & end.cmplt(cage.aabb.max)).all() {
+        return false;
+    }
+    let exit = exit_box(&cage.aabb, st.x, st.v);
+    if exit.t >= st.remaining {
+        return false;
+    }
+    let axis = exit.axes.trailing_zeros().min(2);
+    let upper = st.v[axis as usize] > 0.0;
+    if exit.axes.count_ones() == 1 && st.exits & side_exit(axis, upper) != 0 {
+        obs.branch(MarchBranch::CageExit);
+        st.cage = None;
+        st.exits = 0;
+        st.in_shell = false;
+        return false;
+    }
+    obs.branch(MarchBranch::CageWall);
+    obs.piece(st.x, exit.point);
+    st.x = exit.point;
+    st.remaining -= exit.t;
+    collide(st, &cage, face_normal(exit.axes, st.v), params, obs);
+    true
+}
+
+/// The next float from `x` up (`up`) or down, never a subnormal (a GPU may flush those to
+/// zero): from zero, the smallest normal float.
+#[inline(always)]
+fn next_float(x: f32, up: bool) -> f32 {
+    if x == 0.0 {
+        return if up {
+            f32::MIN_POSITIVE
+        } else {
+            -f32::MIN_POSITIVE
+        };
+    }
+    let bits = x.to_bits();
+    f32::from_bits(if (x > 0.0) == up { bits + 1 } else { bits - 1 })
+}
+
+/// `x` moved strictly inside the box `b` where it lies on a face: the next float inward.
+#[inline(always)]
+fn strictly_inside(x: Vec3, b: &Aabb) -> Vec3 {
+    let mut y = x;
+    for a in 0..3 {
+        if !(x[a] > b.min[a]) {
+            y[a] = next_float(b.min[a], true);
+        } else if !(x[a] < b.max[a]) {
+            y[a] = next_float(b.max[a], false);
+        }
+    }
+    y
+}
+
 /// Through the leaf: the step ends in it (`true`, leaving it in `hint`), or the particle moves
 /// to where it leaves it (`false`, the march goes on from the exit point).
 #[inline(always)]
@@ -1171,9 +1292,21 @@ fn finish_march<O: MarchObserver>(p: &mut Particle, st: &MarchState, obs: &mut O
         p.flags |= FLAG_INVALID;
         return StepOutcome::Invalid;
     }
-    p.position = st.x.to_array();
+    let mut x = st.x;
+    if let Some(cage) = st.cage {
+        // Still caged: strictly inside the cage, so that the next step finds it there.
+        let inside = strictly_inside(x, &cage.aabb);
+        if inside != x {
+            obs.branch(MarchBranch::CageNudge);
+            obs.piece(x, inside);
+            x = inside;
+        }
+    }
+    p.position = x.to_array();
     p.velocity = st.v.to_array();
-    p.side = st.side;
+    // A cage holds only while the march found the particle in it (outside the root it has
+    // none).
+    p.side = st.side | if st.cage.is_some() { st.exits } else { 0 };
     let count = (p.collisions() + st.collisions).min(MAX_COLLISIONS);
     let mut status = p.flags & FLAG_STATUS_MASK & !FLAG_STEP_STATUS;
     match st.outcome {
@@ -1215,6 +1348,9 @@ fn march<O: MarchObserver>(
             }
             break;
         };
+        if st.visited == 1 && st.exits != 0 {
+            enter_cage(&mut st, &next.leaf, obs);
+        }
         let leaf = slide_off_solid_face(view, &st, next, obs);
         st.last_leaf = Some(leaf);
         match leaf.kind {
@@ -1227,6 +1363,10 @@ fn march<O: MarchObserver>(
             LeafKind::Surface => {
                 let collided = enter_surface_leaf(&mut st, &leaf, params, obs);
                 if collided {
+                    continue;
+                }
+                let bounced = keep_in_cage(&mut st, params, obs);
+                if bounced {
                     continue;
                 }
             }

@@ -543,3 +543,106 @@ fn counted_and_traced_steps_are_the_step() {
     assert_eq!(pieces.last().unwrap().1, Vec3::from_array(plain.position));
     assert!(pieces.windows(2).all(|w| w[0].1 == w[1].0));
 }
+
+/// A root of depth 1 whose octant 0 (`[0, 0.5]³`) is a solid leaf, the others empty leaves
+/// labelled front: a cage and the leaves around it.
+fn solid_corner() -> [u32; HEADER_WORDS + 4] {
+    let mut w = tiny();
+    let labels = (1..8).fold(0u16, |l, o| l | (Label::Front.bits() as u16) << (2 * o));
+    let root = NodeRecord::internal(1, 1, 0, labels);
+    let leaf = NodeRecord::surface(encode_normal(Vec3::Y), true, 0.0);
+    w[HEADER_WORDS..].copy_from_slice(&[root.a, root.b, leaf.a, leaf.b]);
+    crate::format::seal(&mut w);
+    w
+}
+
+#[test]
+fn a_caged_particle_leaves_its_cage_only_through_its_exits() {
+    let w = solid_corner();
+    let view = ProxyView::new(&w).unwrap();
+    let cage = view.locate_leaf(Vec3::splat(0.25)).unwrap();
+    assert!(cage.two_sided && cage.aabb.max == Vec3::splat(0.5));
+    let elastic = StepParams {
+        gravity: [0.0; 3],
+        restitution: 1.0,
+        friction: 0.0,
+        ..StepParams::default()
+    };
+    let strictly_in = |p: &Particle| {
+        let x = Vec3::from_array(p.position);
+        x.cmpgt(cage.aabb.min).all() && x.cmplt(cage.aabb.max).all()
+    };
+
+    // No exit: it bounces off every face, and ends every step strictly inside, still caged.
+    let mut p = Particle::new([0.25, 0.2, 0.1], [3.0, 2.0, 1.0]);
+    p.side = SIDE_BACK | SIDE_CAGED;
+    let mut counts = MarchCounts::default();
+    for _ in 0..200 {
+        let mut pieces = Vec::new();
+        step_particle_traced(&view, &mut p, &elastic, &mut |a, b| pieces.push((a, b)));
+        let mut again = p;
+        step_particle_counted(&view, &mut again, &elastic, &mut counts);
+        for (_, b) in pieces {
+            assert!(
+                b.cmpge(cage.aabb.min).all() && b.cmple(cage.aabb.max).all(),
+                "left at {b}"
+            );
+        }
+        assert!(strictly_in(&p), "{p:?}");
+        assert_eq!(p.side, SIDE_BACK | SIDE_CAGED);
+    }
+    assert!(counts[MarchBranch::CageWall] > 20);
+    assert_eq!(counts[MarchBranch::CageExit], 0);
+    assert!(p.collisions() > 20);
+
+    // One exit, the +x face: it leaves through it, into octant 1, and the label stamps it.
+    let mut p = Particle::new([0.25, 0.2, 0.1], [1.0, 3.0, 0.5]);
+    p.side = SIDE_BACK | SIDE_CAGED | side_exit(0, true);
+    let mut left_at = None;
+    for step in 0..200 {
+        let mut pieces = Vec::new();
+        step_particle_traced(&view, &mut p, &elastic, &mut |a, b| pieces.push((a, b)));
+        if left_at.is_none() && !p.is_caged() {
+            left_at = Some(step);
+            let out = pieces
+                .iter()
+                .map(|&(_, b)| b)
+                .find(|b| b.x == 0.5)
+                .expect("left through x = 0.5");
+            assert!(out.y > 0.0 && out.y < 0.5 && out.z > 0.0 && out.z < 0.5);
+            assert_eq!(p.side, SIDE_FRONT, "stamped by the empty leaf");
+        }
+        if left_at.is_none() {
+            assert!(strictly_in(&p));
+        }
+    }
+    assert!(left_at.is_some(), "never left by its exit");
+
+    // At rest under gravity on the cage's floor (the root's face): on the face, moved to the
+    // next float inside, so that the next step finds the cage.
+    let mut p = Particle::new([0.25, 0.001, 0.1], [0.0; 3]);
+    p.side = SIDE_FRONT | SIDE_CAGED;
+    let resting = StepParams {
+        restitution: 0.0,
+        ..StepParams::default()
+    };
+    let mut counts = MarchCounts::default();
+    for _ in 0..30 {
+        step_particle_counted(&view, &mut p, &resting, &mut counts);
+        assert!(strictly_in(&p) && p.is_caged(), "{p:?}");
+    }
+    assert_eq!(p.position[1], f32::MIN_POSITIVE);
+    assert!(counts[MarchBranch::CageNudge] > 0);
+
+    // Cage bits on a particle that is not in a solid leaf: dropped, the step as for any other.
+    let mut p = Particle::new([0.75, 0.25, 0.25], [1.0, 0.0, 0.0]);
+    p.side = SIDE_BACK | SIDE_CAGED | SIDE_EXITS_MASK;
+    let mut plain = p;
+    plain.side = SIDE_BACK;
+    let mut counts = MarchCounts::default();
+    step_particle_counted(&view, &mut p, &elastic, &mut counts);
+    step_particle(&view, &mut plain, &elastic);
+    assert_eq!(counts[MarchBranch::CageLost], 1);
+    assert_eq!(bytemuck::bytes_of(&p), bytemuck::bytes_of(&plain));
+    assert_eq!(p.side, SIDE_FRONT);
+}

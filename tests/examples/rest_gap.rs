@@ -55,7 +55,7 @@ fn main() {
                     )
                 })
                 .collect();
-            starting_sides(&refs, &mut ps);
+            starting_sides(&refs, &view, &mut ps);
             let params = StepParams {
                 restitution: 0.0,
                 friction: 0.8,

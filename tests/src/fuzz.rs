@@ -14,7 +14,8 @@ use glam::Vec3;
 use octoproxy_core::format::{HEADER_WORDS, MAX_DEPTH, MAX_LUT_DEPTH};
 use octoproxy_core::{
     initial_side, step_particle, step_particle_hinted, step_particle_traced, LeafHint, Particle,
-    ProxyView, StepOutcome, StepParams, FLAG_INVALID, SIDE_BACK, SIDE_FRONT,
+    ProxyView, StepOutcome, StepParams, FLAG_INVALID, SIDE_BACK, SIDE_CAGE_MASK, SIDE_FRONT,
+    SIDE_MASK,
 };
 use octoproxy_cpu::bake::{self as baker, BuildError, BuildParams, MeshRef};
 use octoproxy_cpu::io::{encode_particles, parse_particles, PlyEncoding};
@@ -453,10 +454,23 @@ fn exercise_view(view: &ProxyView<'_>, u: &mut Unstructured<'_>) -> Result<()> {
                 finite(particle.position) && finite(particle.velocity),
                 "step of {before:?} with {params:?} gave a non-finite particle {particle:?} without reporting it invalid"
             );
+            // A side, and the cage bits only for a particle still caged: strictly inside a
+            // solid leaf.
+            let caged_in_solid = || {
+                let x = Vec3::from_array(particle.position);
+                view.locate_leaf(x).is_some_and(|l| {
+                    l.two_sided && x.cmpgt(l.aabb.min).all() && x.cmplt(l.aabb.max).all()
+                })
+            };
             assert!(
-                particle.side == SIDE_FRONT || particle.side == SIDE_BACK,
-                "step left side {}",
-                particle.side
+                particle.side == SIDE_FRONT
+                    || particle.side == SIDE_BACK
+                    || (particle.side & !(SIDE_MASK | SIDE_CAGE_MASK) == 0
+                        && particle.is_caged()
+                        && caged_in_solid()),
+                "step left side {:#x} at {:?}",
+                particle.side,
+                particle.position
             );
         }
     }
@@ -1094,8 +1108,9 @@ fn penetration_inner(u: &mut Unstructured<'_>) -> Result<()> {
             );
             continue;
         }
-        // The exact starting side, from the mesh.
-        p.side = sides.side(p.position);
+        // The exact starting side, from the mesh, and the cage of a particle that starts
+        // strictly inside a solid leaf.
+        p.side = sides.side(p.position) | sides.cage(&view, p.position);
         let inside = gt.is_inside(p.position);
         let start = p;
         let steps = u.int_in_range(1u32..=12)?;

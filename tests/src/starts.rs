@@ -191,6 +191,7 @@ pub fn run(
                 ps
             }
         };
+        sides.cages(&view, &mut ps, false);
         let r = if start == Start::Restarted {
             // Settle under gravity with no bounce, then kick: the rested frame is the
             // restart's start, checked against the sides the particles first had.

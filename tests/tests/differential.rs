@@ -22,13 +22,13 @@
 use glam::Vec3;
 use octoproxy_core::{
     step_particle, step_particle_counted, Backend, MarchBranch, MarchCounts, Particle, ProxyView,
-    StepParams, FLAG_INVALID, MAX_DEPTH,
+    StepParams, FLAG_INVALID, MAX_DEPTH, SIDE_CAGED, SIDE_EXITS_MASK,
 };
 use octoproxy_cpu::emit::Rng;
 use octoproxy_cpu::ground_truth::GroundTruth;
-use octoproxy_cpu::harness::random_particles;
+use octoproxy_cpu::harness::{near_surface_particles, random_particles};
 use octoproxy_cpu::scenes::{self, Mesh};
-use octoproxy_cpu::{bake, BuildParams, CpuBackend, MeshRef};
+use octoproxy_cpu::{bake, BuildParams, CpuBackend, MeshRef, Sides};
 use octoproxy_tests::meshes;
 use octoproxy_wgpu::WgpuBackend;
 
@@ -151,6 +151,11 @@ fn hand_placed(view: &ProxyView<'_>, n: usize, seed: u64) -> Vec<Particle> {
         };
         let mut q = Particle::new(p.to_array(), v.to_array());
         q.side = octoproxy_core::initial_side(view, q.position);
+        // Some carry cage bits of their own: where they are not in a solid leaf, the step
+        // drops them; where they are, they are held as those bits say.
+        if k % 7 == 3 {
+            q.side |= SIDE_CAGED | (rng.next_u64() as u32 & SIDE_EXITS_MASK);
+        }
         out.push(q);
     }
     for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
@@ -188,6 +193,7 @@ const EVERY_SCENE: &[MarchBranch] = &[
     MarchBranch::InvalidStart,
     MarchBranch::InvalidEnd,
     MarchBranch::EndOnFace,
+    MarchBranch::CageLost,
 ];
 
 const REACHES: &[Reach] = {
@@ -221,7 +227,14 @@ const REACHES: &[Reach] = {
         Reach {
             scene: "thin plates",
             needs_meshes: false,
-            branches: &[SolidCollision, SlideOffSolid, Pinch],
+            branches: &[
+                SolidCollision,
+                SlideOffSolid,
+                Pinch,
+                CageWall,
+                CageExit,
+                CageNudge,
+            ],
         },
         Reach {
             scene: "wedge + star",
@@ -242,7 +255,15 @@ const REACHES: &[Reach] = {
         Reach {
             scene: "nested shells, chunked",
             needs_meshes: false,
-            branches: &[ShellBlock, SolidCollision, Pinch, PinchStop],
+            branches: &[
+                ShellBlock,
+                SolidCollision,
+                Pinch,
+                PinchStop,
+                CageWall,
+                CageExit,
+                CageNudge,
+            ],
         },
         Reach {
             scene: "faces on cell planes",
@@ -292,6 +313,13 @@ fn differential(name: &str, mesh: &Mesh, build: &BuildParams, steps: u32, chunk:
     // And some far faster than anything in a scene: eight scenes per step, so that one
     // bouncing between surfaces two or more leaves apart meets the leaf bound.
     particles.extend(random_particles(&view, &gt, 300, &[8.0 * scene / DT], 7));
+    // And some where users start them: near the surface, with exact sides, caged where they
+    // start inside a solid leaf.
+    let refs = [MeshRef::from(mesh)];
+    let sides = Sides::new(&refs);
+    let mut near = near_surface_particles(&refs, &sides, 600, 1.5 * leaf, &speeds, 8);
+    sides.cages(&view, &mut near, false);
+    particles.extend(near);
     if let (Some(gpu), Some(n)) = (gpu.as_mut(), chunk) {
         gpu.upload_particles(&particles).unwrap();
         assert_eq!(

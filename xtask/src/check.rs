@@ -131,7 +131,8 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
         Some(path) => {
             let cloud = read_particles(path)?;
             let mut ps = cloud.particles;
-            let counts = Sides::new(&[MeshRef::from(&mesh)]).assign(&mut ps, cloud.has_side);
+            let sides = Sides::new(&[MeshRef::from(&mesh)]);
+            let counts = sides.assign(&mut ps, cloud.has_side);
             if cloud.has_side {
                 eprintln!(
                     "sides: the file's, kept; {} of {} contradict the mesh",
@@ -145,6 +146,8 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
                     ps.len()
                 );
             }
+            let cages = sides.cages(&view, &mut ps, cloud.has_side);
+            crate::sim::report_cages(&cages, ps.len());
             ps
         }
         None => {

@@ -84,7 +84,7 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
         })
         .collect();
     let refs: Vec<MeshRef<'_>> = scene.meshes.iter().map(MeshRef::from).collect();
-    starting_sides(&refs, &mut particles);
+    starting_sides(&refs, &scene.view()?, &mut particles);
 
     let mut backend = select_backend(backend)?;
     backend.upload_proxy(&scene.words)?;
@@ -113,7 +113,11 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
         if s % 2 == 0 {
             backend.download_particles(&mut particles)?;
             for p in &particles[..trail] {
-                let c = if p.side == SIDE_BACK { BACK } else { FRONT };
+                let c = if p.side_only() == SIDE_BACK {
+                    BACK
+                } else {
+                    FRONT
+                };
                 canvas.splat(&cam, Vec3::from_array(p.position), 0.8, c, 0.12);
             }
         }
@@ -122,12 +126,19 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     bar.finish_and_clear();
     backend.download_particles(&mut particles)?;
     for p in &particles {
-        let c = if p.side == SIDE_BACK { BACK } else { FRONT };
+        let c = if p.side_only() == SIDE_BACK {
+            BACK
+        } else {
+            FRONT
+        };
         canvas.splat(&cam, Vec3::from_array(p.position), 1.4, c, 0.9);
     }
     canvas.save_png(&out)?;
 
-    let back = particles.iter().filter(|p| p.side == SIDE_BACK).count();
+    let back = particles
+        .iter()
+        .filter(|p| p.side_only() == SIDE_BACK)
+        .count();
     let collisions: u64 = particles.iter().map(|p| p.collisions() as u64).sum();
     println!("octoproxy demo: an open dome, particles on both of its sides");
     println!("  triangles:     {}", scene.triangles);

@@ -11,7 +11,7 @@ use octoproxy_core::{
 };
 use octoproxy_cpu::emit::{emit_box, emit_surface};
 use octoproxy_cpu::io::{read_particles, write_particles, ParticleCloud, PlyEncoding};
-use octoproxy_cpu::sides::{count_in_shell, Sides};
+use octoproxy_cpu::sides::{count_in_shell, count_in_solid, CageCounts, Sides};
 use octoproxy_cpu::MeshRef;
 
 use crate::backends::{select_backend, BackendChoice};
@@ -234,6 +234,9 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
         if cloud.particles.len() < o.emit.unwrap_or(0) {
             eprintln!("  (the surface had room for no more)");
         }
+        let refs: Vec<MeshRef<'_>> = scene.meshes.iter().map(MeshRef::from).collect();
+        let cages = Sides::new(&refs).cages(&view, &mut cloud.particles, false);
+        report_cages(&cages, cloud.particles.len());
     } else {
         starting_sides(&scene, &view, &mut cloud)?;
     }
@@ -288,7 +291,7 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     let back = cloud
         .particles
         .iter()
-        .filter(|p| p.side == SIDE_BACK)
+        .filter(|p| p.side_only() == SIDE_BACK)
         .count();
     let collisions: u64 = cloud.particles.iter().map(|p| p.collisions() as u64).sum();
     eprintln!("particles: {n} ({} in front, {back} behind)", n - back);
@@ -323,7 +326,8 @@ fn starting_sides(
     if !scene.meshes.is_empty() {
         let t = Instant::now();
         let refs: Vec<MeshRef<'_>> = scene.meshes.iter().map(MeshRef::from).collect();
-        let counts = Sides::new(&refs).assign(&mut cloud.particles, cloud.has_side);
+        let sides = Sides::new(&refs);
+        let counts = sides.assign(&mut cloud.particles, cloud.has_side);
         let ms = t.elapsed().as_secs_f64() * 1e3;
         if cloud.has_side {
             eprintln!(
@@ -337,6 +341,8 @@ fn starting_sides(
                 counts.behind
             );
         }
+        let cages = sides.cages(view, &mut cloud.particles, cloud.has_side);
+        report_cages(&cages, n);
         return Ok(());
     }
     if !cloud.has_side {
@@ -345,6 +351,14 @@ fn starting_sides(
         }
     }
     let in_shell = count_in_shell(view, &cloud.particles);
+    let in_solid = count_in_solid(view, &cloud.particles);
+    let caged = cloud.particles.iter().filter(|p| p.is_caged()).count();
+    if in_solid > caged {
+        eprintln!(
+            "cages: {} of {n} particles start strictly inside solid leaves, where surfaces cross, fold or end within a leaf and one side bit cannot be right for each; only --mesh can cage them there",
+            in_solid - caged
+        );
+    }
     eprintln!(
         "sides: {}; {in_shell} of {n} start inside the shell of surface leaves{}",
         if cloud.has_side {
@@ -401,4 +415,23 @@ fn prepare_frames_dir(dir: &Path, force: bool) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// Says what [`Sides::cages`] did, when it caged any.
+pub(crate) fn report_cages(cages: &CageCounts, n: usize) {
+    if cages.kept > 0 {
+        eprintln!("cages: the file's, kept, for {} particles", cages.kept);
+    }
+    if cages.caged == 0 {
+        return;
+    }
+    eprintln!(
+        "cages: {} of {n} particles start strictly inside solid leaves (where surfaces cross, fold or end within a leaf); each leaves its leaf only through a face it can reach without crossing the surface{}",
+        cages.caged,
+        if cages.without_exit > 0 {
+            format!(", and {} that can reach none stay in it", cages.without_exit)
+        } else {
+            String::new()
+        }
+    );
 }

@@ -16,6 +16,7 @@ use super::{BuildParams, BuildReport, Grid};
 pub(crate) fn encode(
     tree: &Flat,
     labels: &Labels,
+    crowded: &[bool],
     grid: &Grid,
     params: &BuildParams,
     report: &mut BuildReport,
@@ -63,7 +64,7 @@ pub(crate) fn encode(
             }
             Kind::Surface(s) => {
                 tree_depth = tree_depth.max(node.depth);
-                let two_sided = s.two_sided || labels.conflicted(id);
+                let two_sided = s.two_sided || labels.conflicted(id) || crowded[id as usize];
                 report.surface_leaves += 1;
                 report.two_sided_leaves += two_sided as usize;
                 let n = Vec3::new(s.normal.x as f32, s.normal.y as f32, s.normal.z as f32);

@@ -28,6 +28,7 @@
 //!    tie goes to back. See the private `label` module.
 //! 6. **Encode** breadth first, then fill the lookup table.
 
+mod crowd;
 mod encode;
 mod flat;
 pub mod geom;
@@ -265,6 +266,8 @@ pub(crate) struct Tri {
     pub rim: u8,
     /// Connected component (triangles joined by shared edges), unique across the scene.
     pub component: u32,
+    /// Its vertices, welded by position across the scene: equal ids are equal positions.
+    pub vid: [u32; 3],
 }
 
 impl Tri {
@@ -291,6 +294,11 @@ impl Grid {
     /// Plane `i` of the finest grid along `axis`, as `f32` (same formula as core) in f64.
     pub fn plane(&self, axis: usize, i: u32) -> f64 {
         octoproxy_core::format::grid_plane(self.root_min[axis], self.unit, i) as f64
+    }
+
+    /// The point at finest-grid plane indices `i`.
+    pub fn point(&self, i: UVec3) -> DVec3 {
+        DVec3::new(self.plane(0, i.x), self.plane(1, i.y), self.plane(2, i.z))
     }
 
     /// The box of `cell` at `depth`.
@@ -342,7 +350,7 @@ pub fn bake(
     // remains is left solid and reported.
     let mut force = Forced::default();
     let mut pass = 0;
-    let (tree, labels) = loop {
+    let (tree, labels, crowded) = loop {
         pass += 1;
         let t = Instant::now();
         let all: Vec<u32> = (0..tris.len() as u32).collect();
@@ -375,12 +383,17 @@ pub fn bake(
         let labels = label::label(&tree, &tris, &grid, matter.as_ref(), progress);
         report.timings.push(("label", t.elapsed()));
 
+        let t = Instant::now();
+        let crowded = crowd::crowded(&tree, &tris, &grid, params.dmax);
+        report.timings.push(("crowded", t.elapsed()));
+
         let big: Vec<(u32, UVec3)> = tree
             .surface
             .par_iter()
             .filter_map(|&i| {
                 let n = &tree.nodes[i as usize];
                 let solid = labels.conflicted(i)
+                    || crowded[i as usize]
                     || matches!(&n.kind, flat::Kind::Surface(s) if s.two_sided);
                 (n.depth < params.dmax && (solid || touches_other_parts(&tree, i, &tris)))
                     .then_some((n.depth, n.cell))
@@ -388,7 +401,7 @@ pub fn bake(
             .collect();
         if big.is_empty() || pass >= MAX_PASSES {
             report.passes = pass;
-            break (tree, labels);
+            break (tree, labels, crowded);
         }
         for (depth, cell) in big {
             force.add(depth, cell);
@@ -396,7 +409,7 @@ pub fn bake(
     };
 
     let t = Instant::now();
-    let words = encode::encode(&tree, &labels, &grid, params, &mut report);
+    let words = encode::encode(&tree, &labels, &crowded, &grid, params, &mut report);
     report.timings.push(("encode", t.elapsed()));
     Ok((words, report))
 }
@@ -456,6 +469,7 @@ fn touches_other_parts(tree: &flat::Flat, leaf: u32, tris: &[Tri]) -> bool {
 
 fn gather(meshes: &[MeshRef<'_>], report: &mut BuildReport) -> Result<Vec<Tri>, BuildError> {
     let mut tris = Vec::new();
+    let mut weld = Weld::default();
     for (mi, m) in meshes.iter().enumerate() {
         if let Some(vertex) = m
             .positions
@@ -497,6 +511,7 @@ fn gather(meshes: &[MeshRef<'_>], report: &mut BuildReport) -> Result<Vec<Tri>, 
                 closed: closed[ti],
                 rim: rim[ti],
                 component: base + component[ti],
+                vid: t.map(|i| weld.id(m.positions[i as usize])),
             });
         }
     }
@@ -506,6 +521,19 @@ fn gather(meshes: &[MeshRef<'_>], report: &mut BuildReport) -> Result<Vec<Tri>, 
         });
     }
     Ok(tris)
+}
+
+/// Vertex ids by position, across every mesh of a scene.
+#[derive(Default)]
+struct Weld(std::collections::HashMap<[u32; 3], u32>);
+
+impl Weld {
+    /// The id of the position `p` (`-0.0` and `0.0` are one position).
+    fn id(&mut self, p: [f32; 3]) -> u32 {
+        let key = p.map(|x| if x == 0.0 { 0 } else { x.to_bits() });
+        let next = self.0.len() as u32;
+        *self.0.entry(key).or_insert(next)
+    }
 }
 
 /// Classifies triangles by their edges: those of closed components (components joined by

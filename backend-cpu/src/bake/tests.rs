@@ -753,3 +753,47 @@ fn forced_cells_overlap_exactly_the_cells_that_nest_with_them() {
     }
     assert!(hits > 1000 && hits < 3000, "{hits} of 3600 probes overlap");
 }
+
+/// Whether the leaf of `view` that holds `p` is a solid surface leaf.
+fn solid_at(view: &ProxyView<'_>, p: [f32; 3]) -> bool {
+    view.locate_leaf(Vec3::from_array(p))
+        .is_some_and(|l| l.kind == LeafKind::Surface && l.two_sided)
+}
+
+#[test]
+fn leaves_near_two_sheets_are_solid_and_near_one_are_not() {
+    use crate::scenes;
+    let params = BuildParams {
+        dmax: 6,
+        ..BuildParams::default()
+    };
+    let one = scenes::flat_sheet([0.0; 3], 2.0, 4);
+    let bake_parts = |parts: &[scenes::Mesh]| {
+        let refs: Vec<MeshRef<'_>> = parts.iter().map(MeshRef::from).collect();
+        bake(&refs, &params, &()).unwrap().0
+    };
+    // One sheet: solid only along its rim.
+    let words = bake_parts(std::slice::from_ref(&one));
+    let view = ProxyView::new(&words).unwrap();
+    let leaf = view.finest_leaf_size();
+    assert!(!solid_at(&view, [0.3, 0.0, 0.2]));
+    assert!(solid_at(&view, [1.0, 0.0, 0.2]));
+    // A second sheet above it, closer than a leaf: in front of the one and behind the other
+    // between them, so their leaves are solid; farther than two leaves, they are not.
+    for (gap, solid) in [(0.6 * leaf, true), (1.5 * leaf, true), (3.5 * leaf, false)] {
+        let above = scenes::flat_sheet([0.05, gap, 0.05], 1.6, 4);
+        let words = bake_parts(&[one.clone(), above]);
+        let view = ProxyView::new(&words).unwrap();
+        assert_eq!(solid_at(&view, [0.3, 0.0, 0.2]), solid, "gap {gap}");
+        assert_eq!(solid_at(&view, [0.3, gap, 0.2]), solid, "gap {gap}");
+    }
+    // Two sheets through one line, sharing its vertices (an edge of four triangles): two
+    // sheets, solid along the line.
+    let crossing = scenes::rotated(&one, 60.0, 0.0);
+    let words = bake_parts(&[one.clone(), crossing]);
+    let view = ProxyView::new(&words).unwrap();
+    for z in [-0.7, -0.2, 0.4] {
+        assert!(solid_at(&view, [0.2 * leaf, 0.3 * leaf, z]));
+        assert!(solid_at(&view, [-0.4 * leaf, -0.2 * leaf, z]));
+    }
+}

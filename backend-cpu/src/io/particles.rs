@@ -3,7 +3,9 @@
 //! A particle file is a PLY file (ascii or binary, either endianness, optionally gzipped)
 //! with one element, `vertex`, whose properties are `x y z` (required), `vx vy vz`
 //! (velocity in units per second; all three or none), `side` and `flags` (optional, any
-//! integer type), and any other scalar properties, which are carried through unchanged:
+//! integer type; `side` is 0 (front) or 1 (back), plus 128 and exit bits for a particle still
+//! caged in the solid leaf it started in, as `Particle::side` holds it: 128–255), and any
+//! other scalar properties, which are carried through unchanged:
 //! same names, types, values and order. Files are written with `x y z vx vy vz side flags`
 //! (float ×6, uint ×2) first, then the other properties.
 //!
@@ -12,7 +14,7 @@
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
-use octoproxy_core::{Particle, SIDE_BACK, SIDE_FRONT};
+use octoproxy_core::{Particle, SIDE_CAGED, SIDE_CAGE_MASK, SIDE_MASK};
 
 use super::gzip::{gunzip, MAX_DECOMPRESSED_BYTES};
 use crate::io::ply::{self, Element, Encoding, PlyError, Property, PropertyKind, Scalar};
@@ -63,8 +65,9 @@ impl ExtraProperties {
 pub struct ParticleCloud {
     /// The particles, in file order.
     pub particles: Vec<Particle>,
-    /// Whether the file carried `side`; when it did not, every side is [`SIDE_FRONT`] and
-    /// the caller initialises them (from the proxy).
+    /// Whether the file carried `side`; when it did not, every side is
+    /// [`SIDE_FRONT`](octoproxy_core::SIDE_FRONT) and the caller initialises them (from the
+    /// mesh, or the proxy).
     pub has_side: bool,
     /// The other vertex properties, carried through unchanged.
     pub extra: ExtraProperties,
@@ -276,16 +279,19 @@ pub fn parse_particles(name: &str, bytes: &[u8]) -> Result<ParticleCloud, Partic
                     }
                 }
                 Role::Side => {
-                    p.side = if v == f64::from(SIDE_FRONT) {
-                        SIDE_FRONT
-                    } else if v == f64::from(SIDE_BACK) {
-                        SIDE_BACK
-                    } else {
+                    // 0 or 1, or a caged particle's side: the cage bit and any exits.
+                    let word = v as u32;
+                    let valid = f64::from(word) == v
+                        && (word <= SIDE_MASK
+                            || (word & SIDE_CAGED != 0
+                                && word & !(SIDE_CAGE_MASK | SIDE_MASK) == 0));
+                    if !valid {
                         return Err(parse_err(
                             line,
-                            format!("vertex {i} (0-based): side is {v}; it must be 0 (front) or 1 (back)"),
+                            format!("vertex {i} (0-based): side is {v}; it must be 0 (front) or 1 (back), or 128-255 for a particle caged in the solid leaf it started in"),
                         ));
-                    };
+                    }
+                    p.side = word;
                 }
                 Role::Flags => {
                     if !(0.0..=f64::from(u32::MAX)).contains(&v) {
@@ -429,7 +435,7 @@ pub fn write_particles(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use octoproxy_core::FLAG_INVALID;
+    use octoproxy_core::{FLAG_INVALID, SIDE_BACK, SIDE_FRONT};
 
     /// Particles and extras that exercise every type and awkward values.
     fn cloud() -> ParticleCloud {
@@ -698,6 +704,8 @@ mod tests {
             ),
             ("property float x\nproperty float y\nproperty float z\nproperty float side\nend_header\n0 0 0 0\n", "`side` must have an integer type"),
             ("property float x\nproperty float y\nproperty float z\nproperty int side\nend_header\n0 0 0 2\n", "line 9: vertex 0 (0-based): side is 2"),
+            ("property float x\nproperty float y\nproperty float z\nproperty int side\nend_header\n0 0 0 256\n", "side is 256; it must be 0 (front) or 1 (back), or 128-255"),
+            ("property float x\nproperty float y\nproperty float z\nproperty int side\nend_header\n0 0 0 -1\n", "side is -1"),
             ("property float x\nproperty float y\nproperty float z\nproperty int flags\nend_header\n0 0 0 -1\n", "flags -1 is not a 32-bit unsigned value"),
             ("property float x\nproperty float y\nproperty float z\nend_header\n0 0 zero\n", "line 8: vertex 0 (0-based): `zero` is not a number"),
             ("property float x\nproperty float y\nproperty float z\nend_header\n0 0          \n", "unexpected end of data"),
@@ -773,5 +781,19 @@ mod tests {
             }
         }
         assert!(ok > 100, "{ok}");
+    }
+
+    #[test]
+    fn a_caged_particle_keeps_its_cage_through_a_file() {
+        use octoproxy_core::{side_exit, SIDE_CAGED};
+        let mut p = Particle::new([0.5, 0.25, 0.0], [1.0, 0.0, 0.0]);
+        p.side = SIDE_BACK | SIDE_CAGED | side_exit(1, true) | side_exit(2, false);
+        for enc in [PlyEncoding::Ascii, PlyEncoding::BinaryLittleEndian] {
+            let bytes = encode_particles(&ParticleCloud::from_particles(vec![p]), enc);
+            let back = parse_particles("caged.ply", &bytes).expect("a caged side reads back");
+            assert_eq!(back.particles[0].side, p.side, "{enc:?}");
+            assert!(back.particles[0].is_caged());
+            assert_eq!(back.particles[0].side_only(), SIDE_BACK);
+        }
     }
 }

@@ -254,7 +254,7 @@ fn settle_leaving_root(p: ptr<function, Particle>, params: StepParams) -> bool {
     }
     (*p).position = end;
     (*p).velocity = v;
-    (*p).side = select(SIDE_FRONT, SIDE_BACK, (*p).side == SIDE_BACK);
+    (*p).side = (*p).side & SIDE_MASK;
     (*p).flags &= ~FLAG_STEP_STATUS;
     return true;
 }
@@ -282,9 +282,9 @@ fn settle_in_hinted_leaf(p: ptr<function, Particle>, params: StepParams, hint: v
     }
     (*p).position = end;
     (*p).velocity = v;
-    // An unlabelled leaf keeps the side (normalised); a labelled one stamps it: label bits 1
-    // (front) and 2 (back) are sides 0 and 1.
-    let kept = select(SIDE_FRONT, SIDE_BACK, (*p).side == SIDE_BACK);
+    // An unlabelled leaf keeps the side (normalised: no cage); a labelled one stamps it: label
+    // bits 1 (front) and 2 (back) are sides 0 and 1.
+    let kept = (*p).side & SIDE_MASK;
     (*p).side = select(label_bits - 1u, kept, label_bits == 0u);
     (*p).flags &= ~FLAG_STEP_STATUS;
     return true;
@@ -331,6 +331,8 @@ struct MarchState {
     cross_signs: vec3<f32>,
     last_leaf: LeafOption,
     hinted: LeafOption,
+    cage: LeafOption,
+    exits: u32,
     visited: u32,
     outcome: u32,
 }
@@ -354,7 +356,7 @@ fn start_march(p: Particle, params: StepParams, start_hint: vec2<u32>) -> MarchS
     var st: MarchState;
     st.x = x0;
     st.v = v0 + params.gravity * params.dt;
-    st.side = select(SIDE_FRONT, SIDE_BACK, p.side == SIDE_BACK);
+    st.side = p.side & SIDE_MASK;
     st.remaining = params.dt;
     st.collisions = 0u;
     st.in_shell = false;
@@ -367,6 +369,8 @@ fn start_march(p: Particle, params: StepParams, start_hint: vec2<u32>) -> MarchS
     st.cross_signs = vec3<f32>(0.0);
     st.last_leaf.some = false;
     st.hinted = leaf_hint_leaf(start_hint, x0);
+    st.cage.some = false;
+    st.exits = select(0u, p.side & SIDE_CAGE_MASK, (p.side & SIDE_CAGED) != 0u);
     st.visited = 0u;
     st.outcome = STEP_DONE;
     return st;
@@ -380,6 +384,9 @@ fn stop_at_leaf_bound(st: ptr<function, MarchState>) {
 }
 
 fn find_next_leaf(st: ptr<function, MarchState>) -> NextLeafOption {
+    if (*st).cage.some {
+        return NextLeafOption(NextLeaf((*st).cage.value, false), true);
+    }
     var leaf: LeafInfo;
     if (*st).hinted.some {
         leaf = (*st).hinted.value;
@@ -427,7 +434,7 @@ fn slide_off_solid_face(st: ptr<function, MarchState>, next: NextLeaf) -> LeafIn
     let x = (*st).x;
     let v = (*st).v;
     var leaf = next.leaf;
-    if leaf.two_sided && !next.beside_shell && entry_faces(leaf.aabb, x, v) == 0u {
+    if leaf.two_sided && !next.beside_shell && !(*st).cage.some && entry_faces(leaf.aabb, x, v) == 0u {
         var dir = v;
         for (var a = 0u; a < 3u; a++) {
             if v[a] == 0.0 && x[a] == leaf.aabb.min[a] {
@@ -468,7 +475,8 @@ fn enter_surface_leaf(st: ptr<function, MarchState>, leaf: LeafInfo, params: Ste
         (*st).in_shell = true;
         (*st).shell_entry = (*st).x;
     }
-    if leaf.node == (*st).last_collided {
+    // In its cage a particle moves freely: only the cage's walls hold it (`keep_in_cage`).
+    if leaf.node == (*st).last_collided || (*st).cage.some {
         return false;
     }
     let n = collision_normal(st, leaf);
@@ -536,6 +544,75 @@ fn collide(st: ptr<function, MarchState>, leaf: LeafInfo, n: vec3<f32>, params: 
     (*st).last_collided = leaf.node;
 }
 
+// core's `enter_cage`: the first leaf of a caged particle's step is its cage, if it is
+// strictly inside a solid leaf there; otherwise it is caged no more.
+fn enter_cage(st: ptr<function, MarchState>, leaf: LeafInfo) {
+    let x = (*st).x;
+    let inside = all(x > leaf.aabb.min) && all(x < leaf.aabb.max);
+    if leaf.kind == LEAF_SURFACE && leaf.two_sided && inside {
+        (*st).cage = LeafOption(leaf, true);
+    } else {
+        (*st).exits = 0u;
+    }
+}
+
+// core's `keep_in_cage`: through one of its exits a caged particle leaves its cage and the
+// shell (false); any other face, edge or corner holds it like a wall (true: it bounced off).
+fn keep_in_cage(st: ptr<function, MarchState>, params: StepParams) -> bool {
+    if !(*st).cage.some {
+        return false;
+    }
+    let cage = (*st).cage.value;
+    let end = (*st).x + (*st).v * (*st).remaining;
+    if all(end > cage.aabb.min) && all(end < cage.aabb.max) {
+        return false;
+    }
+    let exit = exit_box(cage.aabb, (*st).x, (*st).v);
+    if exit.t >= (*st).remaining {
+        return false;
+    }
+    let axis = min(firstTrailingBit(exit.axes), 2u);
+    let upper = (*st).v[axis] > 0.0;
+    if countOneBits(exit.axes) == 1u && ((*st).exits & side_exit(axis, upper)) != 0u {
+        (*st).cage.some = false;
+        (*st).exits = 0u;
+        (*st).in_shell = false;
+        return false;
+    }
+    (*st).x = exit.point;
+    (*st).remaining -= exit.t;
+    collide(st, cage, face_normal(exit.axes, (*st).v), params);
+    return true;
+}
+
+// particle.rs's `side_exit`: the exit bit of a cage's face across `axis` on its upper or
+// lower side.
+fn side_exit(axis: u32, upper: bool) -> u32 {
+    return 1u << (SIDE_EXITS_SHIFT + 2u * axis + select(0u, 1u, upper));
+}
+
+// core's `next_float`: the next float up or down, never a subnormal.
+fn next_float(x: f32, up: bool) -> f32 {
+    if x == 0.0 {
+        return select(-F32_MIN_POSITIVE, F32_MIN_POSITIVE, up);
+    }
+    let bits = bitcast<u32>(x);
+    return bitcast<f32>(select(bits - 1u, bits + 1u, (x > 0.0) == up));
+}
+
+// core's `strictly_inside`: `x` moved strictly inside the box where it lies on a face.
+fn strictly_inside(x: vec3<f32>, b: Aabb) -> vec3<f32> {
+    var y = x;
+    for (var a = 0u; a < 3u; a++) {
+        if !(x[a] > b.min[a]) {
+            y[a] = next_float(b.min[a], true);
+        } else if !(x[a] < b.max[a]) {
+            y[a] = next_float(b.max[a], false);
+        }
+    }
+    return y;
+}
+
 fn travel_through_leaf(st: ptr<function, MarchState>, leaf: LeafInfo, hint: ptr<function, vec2<u32>>) -> bool {
     let end = (*st).x + (*st).v * (*st).remaining;
     if all(end > leaf.aabb.min) && all(end < leaf.aabb.max) {
@@ -562,9 +639,14 @@ fn finish_march(p: ptr<function, Particle>, st: ptr<function, MarchState>) -> u3
         (*p).flags |= FLAG_INVALID;
         return STEP_INVALID;
     }
-    (*p).position = (*st).x;
+    var x = (*st).x;
+    if (*st).cage.some {
+        // Still caged: strictly inside the cage, so that the next step finds it there.
+        x = strictly_inside(x, (*st).cage.value.aabb);
+    }
+    (*p).position = x;
     (*p).velocity = (*st).v;
-    (*p).side = (*st).side;
+    (*p).side = (*st).side | select(0u, (*st).exits, (*st).cage.some);
     let count = min(collisions(*p) + (*st).collisions, MAX_COLLISIONS);
     var status = (*p).flags & FLAG_STATUS_MASK & ~FLAG_STEP_STATUS;
     if (*st).outcome == STEP_BLOCKED {
@@ -600,6 +682,9 @@ fn march(p: ptr<function, Particle>, params: StepParams, hint: ptr<function, vec
             }
             break;
         }
+        if st.visited == 1u && st.exits != 0u {
+            enter_cage(&st, next.value.leaf);
+        }
         let leaf = slide_off_solid_face(&st, next.value);
         st.last_leaf = LeafOption(leaf, true);
         if leaf.kind == LEAF_EMPTY {
@@ -610,6 +695,10 @@ fn march(p: ptr<function, Particle>, params: StepParams, hint: ptr<function, vec
         } else {
             let collided = enter_surface_leaf(&st, leaf, params);
             if collided {
+                continue;
+            }
+            let bounced = keep_in_cage(&st, params);
+            if bounced {
                 continue;
             }
         }

@@ -827,10 +827,8 @@ struct MarchState {
     last_leaf: Option<LeafInfo>,
     /// The hinted leaf, until the first leaf takes it (the particle has not moved yet).
     hinted: Option<LeafInfo>,
-    /// A caged particle's cage: the solid leaf it started in, which it leaves only through its
-    /// exits ([`SIDE_CAGED`]); every leaf of its march is this one until it does.
-    cage: Option<LeafInfo>,
-    /// Its cage bits ([`SIDE_CAGE_MASK`] of the particle's side word), zero when not caged.
+    /// A caged particle's cage bits ([`SIDE_CAGE_MASK`] of its side word), zero when it is not
+    /// caged, or no more.
     exits: u32,
     /// Leaves visited, against [`ProxyView::max_leaves_per_step`].
     visited: u32,
@@ -872,7 +870,6 @@ fn start_march(
         cross_signs: Vec3::ZERO,
         last_leaf: None,
         hinted: start_hint.leaf(view, x0),
-        cage: None,
         exits: if p.side & SIDE_CAGED != 0 {
             p.side & SIDE_CAGE_MASK
         } else {
@@ -907,12 +904,6 @@ fn find_next_leaf<O: MarchObserver>(
     st: &mut MarchState,
     obs: &mut O,
 ) -> Option<NextLeaf> {
-    if let Some(cage) = st.cage {
-        return Some(NextLeaf {
-            leaf: cage,
-            beside_shell: false,
-        });
-    }
     let leaf = if let Some(leaf) = st.hinted.take() {
         leaf
     } else if let Some(leaf) = st
@@ -983,11 +974,7 @@ fn slide_off_solid_face<O: MarchObserver>(
 ) -> LeafInfo {
     let (x, v) = (st.x, st.v);
     let mut leaf = next.leaf;
-    if leaf.two_sided
-        && !next.beside_shell
-        && st.cage.is_none()
-        && entry_faces(&leaf.aabb, x, v) == 0
-    {
+    if leaf.two_sided && !next.beside_shell && entry_faces(&leaf.aabb, x, v) == 0 {
         let mut dir = v;
         for a in 0..3 {
             if v[a] == 0.0 && x[a] == leaf.aabb.min[a] {
@@ -1054,8 +1041,7 @@ fn enter_surface_leaf<O: MarchObserver>(
         st.in_shell = true;
         st.shell_entry = st.x;
     }
-    // In its cage a particle moves freely: only the cage's walls hold it (`keep_in_cage`).
-    if leaf.node == st.last_collided || st.cage.is_some() {
+    if leaf.node == st.last_collided {
         return false;
     }
     let n = collision_normal(st, leaf);
@@ -1164,57 +1150,85 @@ fn collide<O: MarchObserver>(
     st.last_collided = leaf.node;
 }
 
-/// The first leaf of a caged particle's step: its cage, if the particle is strictly inside a
-/// solid leaf there; otherwise (moved by hand, or stepped against another proxy) it is caged
-/// no more, and the step goes on as for any particle.
-#[inline(always)]
-fn enter_cage<O: MarchObserver>(st: &mut MarchState, leaf: &LeafInfo, obs: &mut O) {
-    let inside = (st.x.cmpgt(leaf.aabb.min) & st.x.cmplt(leaf.aabb.max)).all();
-    if leaf.kind == LeafKind::Surface && leaf.two_sided && inside {
-        st.cage = Some(*leaf);
+/// A caged particle's step, before the march: in its cage ([`SIDE_CAGED`]: the solid leaf it
+/// started in) it moves freely, bounces off every face that is not one of its exits as off a
+/// wall (`collide`, with the pinch rule), and leaves through an exit out of the shell, into the
+/// empty leaf beyond, whose label the march then stamps. `Some(cage)` when the step ended in
+/// the cage (its time used up, or the leaf bound hit: back where it started); `None` when the
+/// march goes on: from the exit point, or, for a particle not strictly inside a solid leaf
+/// (moved by hand, or stepped against another proxy), from where it is, caged no more.
+///
+/// Its exits are the faces it could reach from where it started without crossing the surface
+/// (the host decides, from the mesh). The cage is where one side bit cannot say which of the
+/// surfaces in a leaf a particle is behind (two parts crossing, a fold, a rim), and a particle
+/// free to leave it anywhere left it beyond the surface it had not been stamped for (found by
+/// the starts campaign on open models whose parts pass through each other: the teapot's spout,
+/// Suzanne's eyes, the ogre). A prologue out of line, not a turn of the march's loop, so the
+/// march pays nothing for it but one test.
+#[inline(never)]
+fn walk_in_cage<O: MarchObserver>(
+    view: &ProxyView<'_>,
+    st: &mut MarchState,
+    params: &StepParams,
+    obs: &mut O,
+) -> Option<LeafInfo> {
+    let found = if view.root_contains(st.x, st.v) {
+        Some(view.locate_inside(st.x, st.v))
     } else {
+        None
+    };
+    let Some(cage) = found.filter(|l| {
+        let inside = (st.x.cmpgt(l.aabb.min) & st.x.cmplt(l.aabb.max)).all();
+        l.kind == LeafKind::Surface && l.two_sided && inside
+    }) else {
         obs.branch(MarchBranch::CageLost);
         st.exits = 0;
-    }
-}
-
-/// A caged particle on its way out of its cage: through one of its exits it leaves the cage
-/// and the shell (`false`: it travels on into the empty leaf beyond, which stamps its side);
-/// any other face, or an edge or corner, holds it like a wall (`true`: it bounced off, and the
-/// march goes on in the cage). Its exits are the faces it could reach from where it started
-/// without crossing the surface (the host decides, from the mesh); the cage is where one side
-/// bit cannot say which of the surfaces in a leaf a particle is behind (two parts crossing, a
-/// fold, a rim), and a particle free to leave it anywhere left it beyond the surface it had
-/// not been stamped for (found by the starts campaign on open models whose parts pass through
-/// each other: the teapot's spout, Suzanne's eyes, the ogre).
-#[inline(always)]
-fn keep_in_cage<O: MarchObserver>(st: &mut MarchState, params: &StepParams, obs: &mut O) -> bool {
-    let Some(cage) = st.cage else {
-        return false;
+        return None;
     };
-    let end = st.x + st.v * st.remaining;
-    if (end.cmpgt(cage.aabb.min) & end.cmplt(cage.aabb.max)).all() {
-        return false;
+    st.in_shell = true;
+    st.shell_entry = st.x;
+    // The particle moves now: a hint is for its first leaf only.
+    st.hinted = None;
+    let budget = view.max_leaves_per_step();
+    while st.remaining > 0.0 {
+        if st.visited >= budget {
+            stop_at_leaf_bound(st, obs);
+            return Some(cage);
+        }
+        st.visited += 1;
+        let end = st.x + st.v * st.remaining;
+        if (end.cmpgt(cage.aabb.min) & end.cmplt(cage.aabb.max)).all() {
+            obs.piece(st.x, end);
+            st.x = end;
+            return Some(cage);
+        }
+        let exit = exit_box(&cage.aabb, st.x, st.v);
+        if exit.t >= st.remaining {
+            obs.branch(MarchBranch::EndOnFace);
+            let end = (st.x + st.v * st.remaining).clamp(cage.aabb.min, cage.aabb.max);
+            obs.piece(st.x, end);
+            st.x = end;
+            return Some(cage);
+        }
+        obs.piece(st.x, exit.point);
+        st.x = exit.point;
+        st.remaining -= exit.t;
+        let axis = exit.axes.trailing_zeros().min(2);
+        let upper = st.v[axis as usize] > 0.0;
+        if exit.axes.count_ones() == 1 && st.exits & side_exit(axis, upper) != 0 {
+            // Out by an exit, and out of the shell: the leaf beyond is empty, and stamps it.
+            obs.branch(MarchBranch::CageExit);
+            st.exits = 0;
+            st.in_shell = false;
+            st.cross_axes = exit.axes;
+            st.cross_signs = st.v;
+            st.last_leaf = Some(cage);
+            return None;
+        }
+        obs.branch(MarchBranch::CageWall);
+        collide(st, &cage, face_normal(exit.axes, st.v), params, obs);
     }
-    let exit = exit_box(&cage.aabb, st.x, st.v);
-    if exit.t >= st.remaining {
-        return false;
-    }
-    let axis = exit.axes.trailing_zeros().min(2);
-    let upper = st.v[axis as usize] > 0.0;
-    if exit.axes.count_ones() == 1 && st.exits & side_exit(axis, upper) != 0 {
-        obs.branch(MarchBranch::CageExit);
-        st.cage = None;
-        st.exits = 0;
-        st.in_shell = false;
-        return false;
-    }
-    obs.branch(MarchBranch::CageWall);
-    obs.piece(st.x, exit.point);
-    st.x = exit.point;
-    st.remaining -= exit.t;
-    collide(st, &cage, face_normal(exit.axes, st.v), params, obs);
-    true
+    Some(cage)
 }
 
 /// The next float from `x` up (`up`) or down, never a subnormal (a GPU may flush those to
@@ -1233,7 +1247,8 @@ fn next_float(x: f32, up: bool) -> f32 {
 }
 
 /// `x` moved strictly inside the box `b` where it lies on a face: the next float inward.
-#[inline(always)]
+/// Out of line: only a caged particle needs it.
+#[inline(never)]
 fn strictly_inside(x: Vec3, b: &Aabb) -> Vec3 {
     let mut y = x;
     for a in 0..3 {
@@ -1283,17 +1298,34 @@ fn travel_through_leaf<O: MarchObserver>(
     false
 }
 
+/// [`finish_march`] for a particle whose step ended in its cage, out of line: the common
+/// march carries none of it.
+#[inline(never)]
+fn finish_caged<O: MarchObserver>(
+    p: &mut Particle,
+    st: &MarchState,
+    cage: Option<LeafInfo>,
+    obs: &mut O,
+) -> StepOutcome {
+    finish_march(p, st, cage, obs)
+}
+
 /// The particle as the march leaves it: position, velocity and side, the collision count and
 /// the step's status flags; or flagged invalid when the march made it non-finite.
 #[inline(always)]
-fn finish_march<O: MarchObserver>(p: &mut Particle, st: &MarchState, obs: &mut O) -> StepOutcome {
+fn finish_march<O: MarchObserver>(
+    p: &mut Particle,
+    st: &MarchState,
+    cage: Option<LeafInfo>,
+    obs: &mut O,
+) -> StepOutcome {
     if !st.x.is_finite() || !st.v.is_finite() {
         obs.branch(MarchBranch::InvalidEnd);
         p.flags |= FLAG_INVALID;
         return StepOutcome::Invalid;
     }
     let mut x = st.x;
-    if let Some(cage) = st.cage {
+    if let Some(cage) = cage {
         // Still caged: strictly inside the cage, so that the next step finds it there.
         let inside = strictly_inside(x, &cage.aabb);
         if inside != x {
@@ -1304,9 +1336,7 @@ fn finish_march<O: MarchObserver>(p: &mut Particle, st: &MarchState, obs: &mut O
     }
     p.position = x.to_array();
     p.velocity = st.v.to_array();
-    // A cage holds only while the march found the particle in it (outside the root it has
-    // none).
-    p.side = st.side | if st.cage.is_some() { st.exits } else { 0 };
+    p.side = st.side | if cage.is_some() { st.exits } else { 0 };
     let count = (p.collisions() + st.collisions).min(MAX_COLLISIONS);
     let mut status = p.flags & FLAG_STATUS_MASK & !FLAG_STEP_STATUS;
     match st.outcome {
@@ -1335,6 +1365,12 @@ fn march<O: MarchObserver>(
         return StepOutcome::Invalid;
     }
     let mut st = start_march(view, p, params, start_hint);
+    if st.exits != 0 {
+        let cage = walk_in_cage(view, &mut st, params, obs);
+        if cage.is_some() {
+            return finish_caged(p, &st, cage, obs);
+        }
+    }
     let budget = view.max_leaves_per_step();
     while st.remaining > 0.0 {
         if st.visited >= budget {
@@ -1348,9 +1384,6 @@ fn march<O: MarchObserver>(
             }
             break;
         };
-        if st.visited == 1 && st.exits != 0 {
-            enter_cage(&mut st, &next.leaf, obs);
-        }
         let leaf = slide_off_solid_face(view, &st, next, obs);
         st.last_leaf = Some(leaf);
         match leaf.kind {
@@ -1365,10 +1398,6 @@ fn march<O: MarchObserver>(
                 if collided {
                     continue;
                 }
-                let bounced = keep_in_cage(&mut st, params, obs);
-                if bounced {
-                    continue;
-                }
             }
         }
         let ended = travel_through_leaf(&mut st, &leaf, hint, obs);
@@ -1376,7 +1405,7 @@ fn march<O: MarchObserver>(
             break;
         }
     }
-    finish_march(p, &st, obs)
+    finish_march(p, &st, None, obs)
 }
 
 /// Initial side of a particle that has none: in an empty leaf, the leaf's label (front when

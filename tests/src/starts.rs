@@ -5,7 +5,7 @@
 //! tests run small ones; `cargo run --release -p octoproxy-tests --example starts` the sweep.
 
 use octoproxy_core::{ProxyView, StepParams};
-use octoproxy_cpu::emit::{emit_surface, Rng};
+use octoproxy_cpu::emit::{emit_surface_for, Rng};
 use octoproxy_cpu::ground_truth::GroundTruth;
 use octoproxy_cpu::harness::{near_surface_particles, run_check, run_check_kicked, CheckReport};
 use octoproxy_cpu::io::Mesh;
@@ -17,7 +17,8 @@ use octoproxy_cpu::{bake, BuildParams, MeshRef, Sides};
 pub enum Start {
     /// Within 1.5 `dmax` leaves of the surface, both sides.
     Shell,
-    /// Emitted by `emit_surface`, one `dmax` leaf in front of their faces.
+    /// Emitted by `emit_surface_for` (the command line's emitter), one `dmax` leaf in front
+    /// of their faces, outside solid leaves.
     Emitted,
     /// Emitted, settled under gravity for 300 steps, then given new random velocities.
     Restarted,
@@ -178,7 +179,7 @@ pub fn run(
                 ps
             }
             Start::Emitted | Start::Restarted => {
-                let mut ps = emit_surface(n, &refs, leaf, 0.0, seed);
+                let mut ps = emit_surface_for(&view, n, &refs, 0.0, seed);
                 let mut rng = Rng::new(seed);
                 for (k, p) in ps.iter_mut().enumerate() {
                     let s = if start == Start::Restarted {

@@ -9,7 +9,7 @@ use glam::Vec3;
 use octoproxy_core::{
     initial_side, StepParams, FLAG_BLOCKED, FLAG_BOUND_HIT, FLAG_INVALID, SIDE_BACK,
 };
-use octoproxy_cpu::emit::{emit_box, emit_surface};
+use octoproxy_cpu::emit::{emit_box, emit_surface_for};
 use octoproxy_cpu::io::{read_particles, write_particles, ParticleCloud, PlyEncoding};
 use octoproxy_cpu::sides::{count_in_shell, count_in_solid, CageCounts, Sides};
 use octoproxy_cpu::MeshRef;
@@ -214,7 +214,7 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
             let seed = o.seed.unwrap_or(1);
             let particles = if o.emit_surface {
                 let refs: Vec<MeshRef<'_>> = scene.meshes.iter().map(MeshRef::from).collect();
-                emit_surface(n, &refs, view.finest_leaf_size(), speed, seed)
+                emit_surface_for(&view, n, &refs, speed, seed)
             } else {
                 let (min, max) = match o.emit_box {
                     Some(b) => (Vec3::new(b[0], b[1], b[2]), Vec3::new(b[3], b[4], b[5])),

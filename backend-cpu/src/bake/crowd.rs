@@ -43,30 +43,40 @@ pub(crate) fn crowded(tree: &Flat, tris: &[Tri], grid: &Grid, dmax: u32) -> Vec<
     }
     let grow = UVec3::splat(1 << (MAX_DEPTH - dmax));
     let end = UVec3::splat(1 << MAX_DEPTH);
-    let flags: Vec<(u32, bool)> = tree
-        .surface
-        .par_iter()
-        .map_init(Vec::new, |set, &leaf| {
-            let (lo, hi) = tree.nodes[leaf as usize].range();
-            let (qlo, qhi) = (lo.saturating_sub(grow), (hi + grow).min(end));
-            let (wlo, whi) = (grid.point(qlo), grid.point(qhi));
-            set.clear();
-            let mut near_crossing = false;
-            tree.for_each_touching_surface(qlo, qhi, |n| {
-                near_crossing |= crossing[n as usize];
-                if let Kind::Surface(s) = &tree.nodes[n as usize].kind {
-                    set.extend_from_slice(&s.tris);
+    let flags: Vec<(u32, bool)> =
+        tree.surface
+            .par_iter()
+            .map_init(Vec::new, |set, &leaf| {
+                let (lo, hi) = tree.nodes[leaf as usize].range();
+                let (qlo, qhi) = (lo.saturating_sub(grow), (hi + grow).min(end));
+                let (wlo, whi) = (grid.point(qlo), grid.point(qhi));
+                set.clear();
+                let mut near_crossing = false;
+                tree.for_each_touching_surface(qlo, qhi, |n| {
+                    near_crossing |= crossing[n as usize];
+                    let node = &tree.nodes[n as usize];
+                    let Kind::Surface(s) = &node.kind else {
+                        return;
+                    };
+                    // A leaf inside the grown box brings all its triangles (each meets it); one
+                    // across its boundary, those that meet the box; one beside it, none.
+                    let (nlo, nhi) = node.range();
+                    if nlo.cmpge(qlo).all() && nhi.cmple(qhi).all() {
+                        set.extend_from_slice(&s.tris);
+                    } else if nlo.cmplt(qhi).all() && nhi.cmpgt(qlo).all() {
+                        set.extend(s.tris.iter().copied().filter(|&t| {
+                            geom::triangle_overlaps_box(&tris[t as usize].v, wlo, whi)
+                        }));
+                    }
+                });
+                if near_crossing {
+                    return (leaf, true);
                 }
-            });
-            if near_crossing {
-                return (leaf, true);
-            }
-            set.sort_unstable();
-            set.dedup();
-            set.retain(|&t| geom::triangle_overlaps_box(&tris[t as usize].v, wlo, whi));
-            (leaf, sheets(set, tris, &joins) > 1)
-        })
-        .collect();
+                set.sort_unstable();
+                set.dedup();
+                (leaf, sheets(set, &joins) > 1)
+            })
+            .collect();
     let mut out = vec![false; tree.nodes.len()];
     for (leaf, c) in flags {
         out[leaf as usize] = c;
@@ -75,14 +85,19 @@ pub(crate) fn crowded(tree: &Flat, tris: &[Tri], grid: &Grid, dmax: u32) -> Vec<
 }
 
 /// An edge's key: its two vertex ids, the smaller first.
+#[inline]
 fn edge_key(a: u32, b: u32) -> u64 {
     let (a, b) = if a < b { (a, b) } else { (b, a) };
     (a as u64) << 32 | b as u64
 }
 
-/// Per triangle, bit `k` set when its edge from vertex `k` is manifold across the whole
-/// scene: used by exactly two triangles, once in each direction.
-fn manifold_edges(tris: &[Tri]) -> Vec<u8> {
+/// No neighbour across an edge.
+const NONE: u32 = u32::MAX;
+
+/// Per triangle, its neighbour across each edge (from vertex `k`) where that edge is manifold
+/// across the whole scene: used by exactly two triangles, once in each direction; [`NONE`]
+/// elsewhere.
+fn manifold_edges(tris: &[Tri]) -> Vec<[u32; 3]> {
     let mut edges: Vec<(u64, bool, u32, u8)> = tris
         .par_iter()
         .enumerate()
@@ -95,34 +110,21 @@ fn manifold_edges(tris: &[Tri]) -> Vec<u8> {
         })
         .collect();
     edges.par_sort_unstable();
-    let mut joins = vec![0u8; tris.len()];
+    let mut joins = vec![[NONE; 3]; tris.len()];
     for group in edges.chunk_by(|x, y| x.0 == y.0) {
         if let [a, b] = group {
             if a.1 != b.1 {
-                joins[a.2 as usize] |= 1 << a.3;
-                joins[b.2 as usize] |= 1 << b.3;
+                joins[a.2 as usize][a.3 as usize] = b.2;
+                joins[b.2 as usize][b.3 as usize] = a.2;
             }
         }
     }
     joins
 }
 
-/// How many sheets (sets joined by manifold edges, `joins`) the triangles `set` make.
-fn sheets(set: &[u32], tris: &[Tri], joins: &[u8]) -> usize {
-    if set.len() <= 1 {
-        return set.len();
-    }
-    // Every joining edge with its triangle's place in `set`, sorted by edge: equal edges join.
-    let mut edges: Vec<(u64, u32)> = Vec::with_capacity(3 * set.len());
-    for (i, &t) in set.iter().enumerate() {
-        let v = tris[t as usize].vid;
-        for k in 0..3 {
-            if joins[t as usize] & (1 << k) != 0 {
-                edges.push((edge_key(v[k], v[(k + 1) % 3]), i as u32));
-            }
-        }
-    }
-    edges.sort_unstable();
+/// How many sheets (sets joined by manifold edges, `joins`) the triangles `set` (sorted, no
+/// repeats) make.
+fn sheets(set: &[u32], joins: &[[u32; 3]]) -> usize {
     let mut parent: Vec<u32> = (0..set.len() as u32).collect();
     fn find(p: &mut [u32], mut x: u32) -> u32 {
         while p[x as usize] != x {
@@ -132,12 +134,18 @@ fn sheets(set: &[u32], tris: &[Tri], joins: &[u8]) -> usize {
         x
     }
     let mut roots = set.len();
-    for w in edges.windows(2) {
-        if w[0].0 == w[1].0 {
-            let (a, b) = (find(&mut parent, w[0].1), find(&mut parent, w[1].1));
-            if a != b {
-                parent[a as usize] = b;
-                roots -= 1;
+    for (i, &t) in set.iter().enumerate() {
+        for &n in &joins[t as usize] {
+            // Each joined pair once: from its smaller triangle.
+            if n == NONE || n < t {
+                continue;
+            }
+            if let Ok(j) = set.binary_search(&n) {
+                let (a, b) = (find(&mut parent, i as u32), find(&mut parent, j as u32));
+                if a != b {
+                    parent[a as usize] = b;
+                    roots -= 1;
+                }
             }
         }
     }
@@ -231,10 +239,10 @@ mod tests {
         let t = tris(&quad, &[[0, 2, 1], [0, 3, 2]]);
         assert!(!crosses_itself(&[0, 1], &t));
         let joins = manifold_edges(&t);
-        assert_eq!(sheets(&[0, 1], &t, &joins), 1);
+        assert_eq!(sheets(&[0, 1], &joins), 1);
         // Wound the same way across the shared edge: not joined there, two sheets.
         let t = tris(&quad, &[[0, 2, 1], [0, 2, 3]]);
         let joins = manifold_edges(&t);
-        assert_eq!(sheets(&[0, 1], &t, &joins), 2);
+        assert_eq!(sheets(&[0, 1], &joins), 2);
     }
 }

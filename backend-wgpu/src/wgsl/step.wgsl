@@ -331,7 +331,6 @@ struct MarchState {
     cross_signs: vec3<f32>,
     last_leaf: LeafOption,
     hinted: LeafOption,
-    cage: LeafOption,
     exits: u32,
     visited: u32,
     outcome: u32,
@@ -369,7 +368,6 @@ fn start_march(p: Particle, params: StepParams, start_hint: vec2<u32>) -> MarchS
     st.cross_signs = vec3<f32>(0.0);
     st.last_leaf.some = false;
     st.hinted = leaf_hint_leaf(start_hint, x0);
-    st.cage.some = false;
     st.exits = select(0u, p.side & SIDE_CAGE_MASK, (p.side & SIDE_CAGED) != 0u);
     st.visited = 0u;
     st.outcome = STEP_DONE;
@@ -384,9 +382,6 @@ fn stop_at_leaf_bound(st: ptr<function, MarchState>) {
 }
 
 fn find_next_leaf(st: ptr<function, MarchState>) -> NextLeafOption {
-    if (*st).cage.some {
-        return NextLeafOption(NextLeaf((*st).cage.value, false), true);
-    }
     var leaf: LeafInfo;
     if (*st).hinted.some {
         leaf = (*st).hinted.value;
@@ -434,7 +429,7 @@ fn slide_off_solid_face(st: ptr<function, MarchState>, next: NextLeaf) -> LeafIn
     let x = (*st).x;
     let v = (*st).v;
     var leaf = next.leaf;
-    if leaf.two_sided && !next.beside_shell && !(*st).cage.some && entry_faces(leaf.aabb, x, v) == 0u {
+    if leaf.two_sided && !next.beside_shell && entry_faces(leaf.aabb, x, v) == 0u {
         var dir = v;
         for (var a = 0u; a < 3u; a++) {
             if v[a] == 0.0 && x[a] == leaf.aabb.min[a] {
@@ -475,8 +470,7 @@ fn enter_surface_leaf(st: ptr<function, MarchState>, leaf: LeafInfo, params: Ste
         (*st).in_shell = true;
         (*st).shell_entry = (*st).x;
     }
-    // In its cage a particle moves freely: only the cage's walls hold it (`keep_in_cage`).
-    if leaf.node == (*st).last_collided || (*st).cage.some {
+    if leaf.node == (*st).last_collided {
         return false;
     }
     let n = collision_normal(st, leaf);
@@ -544,45 +538,60 @@ fn collide(st: ptr<function, MarchState>, leaf: LeafInfo, n: vec3<f32>, params: 
     (*st).last_collided = leaf.node;
 }
 
-// core's `enter_cage`: the first leaf of a caged particle's step is its cage, if it is
-// strictly inside a solid leaf there; otherwise it is caged no more.
-fn enter_cage(st: ptr<function, MarchState>, leaf: LeafInfo) {
-    let x = (*st).x;
-    let inside = all(x > leaf.aabb.min) && all(x < leaf.aabb.max);
-    if leaf.kind == LEAF_SURFACE && leaf.two_sided && inside {
-        (*st).cage = LeafOption(leaf, true);
-    } else {
+// core's `walk_in_cage`: a caged particle's step before the march. In its cage it moves
+// freely, bounces off every face that is not an exit, and leaves through an exit out of the
+// shell. Some(cage) when the step ended in the cage; none when the march goes on (from the
+// exit point, or, not strictly inside a solid leaf, from where it is, caged no more).
+fn walk_in_cage(st: ptr<function, MarchState>, params: StepParams) -> LeafOption {
+    var none: LeafOption;
+    none.some = false;
+    var found = false;
+    var cage: LeafInfo;
+    if root_contains((*st).x, (*st).v) {
+        cage = locate_inside((*st).x, (*st).v);
+        let inside = all((*st).x > cage.aabb.min) && all((*st).x < cage.aabb.max);
+        found = cage.kind == LEAF_SURFACE && cage.two_sided && inside;
+    }
+    if !found {
         (*st).exits = 0u;
+        return none;
     }
-}
-
-// core's `keep_in_cage`: through one of its exits a caged particle leaves its cage and the
-// shell (false); any other face, edge or corner holds it like a wall (true: it bounced off).
-fn keep_in_cage(st: ptr<function, MarchState>, params: StepParams) -> bool {
-    if !(*st).cage.some {
-        return false;
+    (*st).in_shell = true;
+    (*st).shell_entry = (*st).x;
+    (*st).hinted.some = false;
+    let budget = max_leaves_per_step(header.tree_depth);
+    while (*st).remaining > 0.0 {
+        if (*st).visited >= budget {
+            stop_at_leaf_bound(st);
+            return LeafOption(cage, true);
+        }
+        (*st).visited += 1u;
+        let end = (*st).x + (*st).v * (*st).remaining;
+        if all(end > cage.aabb.min) && all(end < cage.aabb.max) {
+            (*st).x = end;
+            return LeafOption(cage, true);
+        }
+        let exit = exit_box(cage.aabb, (*st).x, (*st).v);
+        if exit.t >= (*st).remaining {
+            (*st).x = clamp((*st).x + (*st).v * (*st).remaining, cage.aabb.min, cage.aabb.max);
+            return LeafOption(cage, true);
+        }
+        (*st).x = exit.point;
+        (*st).remaining -= exit.t;
+        let axis = min(firstTrailingBit(exit.axes), 2u);
+        let upper = (*st).v[axis] > 0.0;
+        if countOneBits(exit.axes) == 1u && ((*st).exits & side_exit(axis, upper)) != 0u {
+            // Out by an exit, and out of the shell: the leaf beyond is empty, and stamps it.
+            (*st).exits = 0u;
+            (*st).in_shell = false;
+            (*st).cross_axes = exit.axes;
+            (*st).cross_signs = (*st).v;
+            (*st).last_leaf = LeafOption(cage, true);
+            return none;
+        }
+        collide(st, cage, face_normal(exit.axes, (*st).v), params);
     }
-    let cage = (*st).cage.value;
-    let end = (*st).x + (*st).v * (*st).remaining;
-    if all(end > cage.aabb.min) && all(end < cage.aabb.max) {
-        return false;
-    }
-    let exit = exit_box(cage.aabb, (*st).x, (*st).v);
-    if exit.t >= (*st).remaining {
-        return false;
-    }
-    let axis = min(firstTrailingBit(exit.axes), 2u);
-    let upper = (*st).v[axis] > 0.0;
-    if countOneBits(exit.axes) == 1u && ((*st).exits & side_exit(axis, upper)) != 0u {
-        (*st).cage.some = false;
-        (*st).exits = 0u;
-        (*st).in_shell = false;
-        return false;
-    }
-    (*st).x = exit.point;
-    (*st).remaining -= exit.t;
-    collide(st, cage, face_normal(exit.axes, (*st).v), params);
-    return true;
+    return LeafOption(cage, true);
 }
 
 // particle.rs's `side_exit`: the exit bit of a cage's face across `axis` on its upper or
@@ -634,19 +643,19 @@ fn travel_through_leaf(st: ptr<function, MarchState>, leaf: LeafInfo, hint: ptr<
     return false;
 }
 
-fn finish_march(p: ptr<function, Particle>, st: ptr<function, MarchState>) -> u32 {
+fn finish_march(p: ptr<function, Particle>, st: ptr<function, MarchState>, cage: LeafOption) -> u32 {
     if !is_finite3((*st).x) || !is_finite3((*st).v) {
         (*p).flags |= FLAG_INVALID;
         return STEP_INVALID;
     }
     var x = (*st).x;
-    if (*st).cage.some {
+    if cage.some {
         // Still caged: strictly inside the cage, so that the next step finds it there.
-        x = strictly_inside(x, (*st).cage.value.aabb);
+        x = strictly_inside(x, cage.value.aabb);
     }
     (*p).position = x;
     (*p).velocity = (*st).v;
-    (*p).side = (*st).side | select(0u, (*st).exits, (*st).cage.some);
+    (*p).side = (*st).side | select(0u, (*st).exits, cage.some);
     let count = min(collisions(*p) + (*st).collisions, MAX_COLLISIONS);
     var status = (*p).flags & FLAG_STATUS_MASK & ~FLAG_STEP_STATUS;
     if (*st).outcome == STEP_BLOCKED {
@@ -668,6 +677,12 @@ fn march(p: ptr<function, Particle>, params: StepParams, hint: ptr<function, vec
         return STEP_INVALID;
     }
     var st = start_march(*p, params, start_hint);
+    if st.exits != 0u {
+        let cage = walk_in_cage(&st, params);
+        if cage.some {
+            return finish_march(p, &st, cage);
+        }
+    }
     let budget = max_leaves_per_step(header.tree_depth);
     while st.remaining > 0.0 {
         if st.visited >= budget {
@@ -682,9 +697,6 @@ fn march(p: ptr<function, Particle>, params: StepParams, hint: ptr<function, vec
             }
             break;
         }
-        if st.visited == 1u && st.exits != 0u {
-            enter_cage(&st, next.value.leaf);
-        }
         let leaf = slide_off_solid_face(&st, next.value);
         st.last_leaf = LeafOption(leaf, true);
         if leaf.kind == LEAF_EMPTY {
@@ -697,15 +709,13 @@ fn march(p: ptr<function, Particle>, params: StepParams, hint: ptr<function, vec
             if collided {
                 continue;
             }
-            let bounced = keep_in_cage(&st, params);
-            if bounced {
-                continue;
-            }
         }
         let ended = travel_through_leaf(&st, leaf, hint);
         if ended {
             break;
         }
     }
-    return finish_march(p, &st);
+    var none: LeafOption;
+    none.some = false;
+    return finish_march(p, &st, none);
 }

@@ -15,7 +15,7 @@
 //! a point of its path, with the crossings it had there: the jump is not counted as a path
 //! (its chord would count a passage round a rim that no piece of the path made).
 
-use crate::emit::{Rng, SurfaceSampler};
+use crate::emit::{emit_surface_for, Rng, SurfaceSampler};
 use glam::Vec3;
 use octoproxy_core::{
     initial_side, step_particle_traced, Particle, ProxyView, StepParams, FLAG_BLOCKED,
@@ -119,6 +119,112 @@ pub fn near_surface_particles(
             p
         })
         .collect()
+}
+
+/// Where [`Starter::particles`] starts particles: where users start them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Start {
+    /// At least two `dmax`-leaf diagonals from the surface ([`random_particles`]), sides from
+    /// the proxy: outside the shell of surface leaves.
+    Outside,
+    /// Within 1.5 `dmax` leaves of the surface, both sides, in the shell and beside it
+    /// ([`near_surface_particles`]).
+    Shell,
+    /// Emitted from the surface by the command line's emitter ([`emit_surface_for`]): one
+    /// `dmax` leaf in front of their faces.
+    Emitted,
+    /// A fraction of a leaf (0.05–0.9) from the mesh's vertices, where knife edges, star tips
+    /// and the creases of overlapping parts are: inside the solid for a closed scene, either
+    /// side for an open one.
+    Corners,
+}
+
+impl Start {
+    /// Every kind, in the order of the variants.
+    pub const ALL: [Start; 4] = [Start::Outside, Start::Shell, Start::Emitted, Start::Corners];
+
+    /// The kind a command line names (`outside`, `shell`, `emitted`, `corners`).
+    pub fn from_name(name: &str) -> Option<Start> {
+        Start::ALL.into_iter().find(|s| s.name() == name)
+    }
+
+    /// Its name on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Start::Outside => "outside",
+            Start::Shell => "shell",
+            Start::Emitted => "emitted",
+            Start::Corners => "corners",
+        }
+    }
+}
+
+/// A scene prepared for starting particles where users start them ([`Start`]): the proxy, the
+/// meshes, their exact sides and ground truth, and whether every part is closed.
+pub struct Starter<'a> {
+    /// The scene's proxy.
+    pub view: &'a ProxyView<'a>,
+    /// The meshes it was baked from.
+    pub meshes: &'a [MeshRef<'a>],
+    /// Exact sides (and cages) from the meshes.
+    pub sides: &'a Sides,
+    /// The meshes' ground truth, all together.
+    pub gt: &'a GroundTruth,
+    /// Whether the scene is closed (its corners start inside the solid).
+    pub closed: bool,
+}
+
+impl Starter<'_> {
+    /// `n` particles started as `start` says, moving in random directions at speeds drawn in
+    /// turn from `speeds`, with exact sides from the mesh (from the proxy for
+    /// [`Start::Outside`], where a leaf's label is exact), caged where they start strictly
+    /// inside a solid leaf ([`Sides::cages`]). Deterministic for a seed; fewer than `n` only
+    /// where the scene has no room for them.
+    pub fn particles(&self, start: Start, n: usize, speeds: &[f32], seed: u64) -> Vec<Particle> {
+        let leaf = self.view.finest_leaf_size();
+        let speed = |k: usize| speeds[k % speeds.len().max(1)];
+        let mut ps = match start {
+            Start::Outside => random_particles(self.view, self.gt, n, speeds, seed),
+            Start::Shell => {
+                near_surface_particles(self.meshes, self.sides, n, 1.5 * leaf, speeds, seed)
+            }
+            Start::Emitted => {
+                let mut ps = emit_surface_for(self.view, n, self.meshes, 0.0, seed);
+                let mut rng = Rng::new(seed);
+                for (k, p) in ps.iter_mut().enumerate() {
+                    p.velocity = (rng.unit_vector() * speed(k)).to_array();
+                }
+                ps
+            }
+            Start::Corners => {
+                let vertices: Vec<[f32; 3]> = self
+                    .meshes
+                    .iter()
+                    .flat_map(|m| m.positions.iter().copied())
+                    .filter(|v| v.iter().all(|c| c.is_finite()))
+                    .collect();
+                let mut rng = Rng::new(seed);
+                let mut ps = Vec::with_capacity(n);
+                for _ in 0..n.saturating_mul(50) {
+                    if ps.len() == n || vertices.is_empty() {
+                        break;
+                    }
+                    let v = vertices[(rng.next_u64() % vertices.len() as u64) as usize];
+                    let x = Vec3::from_array(v) + rng.unit_vector() * rng.range(0.05, 0.9) * leaf;
+                    if self.closed && !self.gt.is_inside(x.to_array()) {
+                        continue;
+                    }
+                    let v = rng.unit_vector() * speed(ps.len());
+                    let mut p = Particle::new(x.to_array(), v.to_array());
+                    p.side = self.sides.side(p.position);
+                    ps.push(p);
+                }
+                ps
+            }
+        };
+        self.sides.cages(self.view, &mut ps, false);
+        ps
+    }
 }
 
 /// Particles on the cell planes of random depths (one, two or three coordinates snapped: on

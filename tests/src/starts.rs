@@ -5,9 +5,9 @@
 //! tests run small ones; `cargo run --release -p octoproxy-tests --example starts` the sweep.
 
 use octoproxy_core::{ProxyView, StepParams};
-use octoproxy_cpu::emit::{emit_surface_for, Rng};
+use octoproxy_cpu::emit::Rng;
 use octoproxy_cpu::ground_truth::GroundTruth;
-use octoproxy_cpu::harness::{near_surface_particles, run_check, run_check_kicked, CheckReport};
+use octoproxy_cpu::harness::{self, run_check, run_check_kicked, CheckReport, Starter};
 use octoproxy_cpu::io::Mesh;
 use octoproxy_cpu::scenes::{self, MeshExt};
 use octoproxy_cpu::{bake, BuildParams, MeshRef, Sides};
@@ -153,46 +153,20 @@ pub fn run(
     let mut total = CheckReport::default();
     for (i, params) in parameter_sets(dt).iter().enumerate() {
         let seed = seed.wrapping_mul(31).wrapping_add(i as u64);
-        let mut ps = match start {
-            Start::Shell => near_surface_particles(&refs, &sides, n, 1.5 * leaf, &speeds, seed),
-            Start::Corners => {
-                let mut rng = Rng::new(seed);
-                let mut ps = Vec::with_capacity(n);
-                for _ in 0..n * 50 {
-                    if ps.len() == n || all.positions.is_empty() {
-                        break;
-                    }
-                    let v = all.positions[(rng.next_u64() % all.positions.len() as u64) as usize];
-                    let x =
-                        glam::Vec3::from_array(v) + rng.unit_vector() * rng.range(0.05, 0.9) * leaf;
-                    if closed && !gt.is_inside(x.to_array()) {
-                        continue;
-                    }
-                    let speed = speeds[ps.len() % speeds.len()];
-                    let mut p = octoproxy_core::Particle::new(
-                        x.to_array(),
-                        (rng.unit_vector() * speed).to_array(),
-                    );
-                    p.side = sides.side(p.position);
-                    ps.push(p);
-                }
-                ps
-            }
-            Start::Emitted | Start::Restarted => {
-                let mut ps = emit_surface_for(&view, n, &refs, 0.0, seed);
-                let mut rng = Rng::new(seed);
-                for (k, p) in ps.iter_mut().enumerate() {
-                    let s = if start == Start::Restarted {
-                        0.0
-                    } else {
-                        speeds[k % speeds.len()]
-                    };
-                    p.velocity = (rng.unit_vector() * s).to_array();
-                }
-                ps
-            }
+        let starter = Starter {
+            view: &view,
+            meshes: &refs,
+            sides: &sides,
+            gt: &gt,
+            closed,
         };
-        sides.cages(&view, &mut ps, false);
+        let mut ps = match start {
+            Start::Shell => starter.particles(harness::Start::Shell, n, &speeds, seed),
+            Start::Corners => starter.particles(harness::Start::Corners, n, &speeds, seed),
+            Start::Emitted => starter.particles(harness::Start::Emitted, n, &speeds, seed),
+            // Emitted at rest, to settle first.
+            Start::Restarted => starter.particles(harness::Start::Emitted, n, &[0.0], seed),
+        };
         let r = if start == Start::Restarted {
             // Settle under gravity with no bounce, then kick: the rested frame is the
             // restart's start, checked against the sides the particles first had.

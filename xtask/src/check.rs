@@ -10,7 +10,7 @@ use std::time::Instant;
 use anyhow::{bail, Result};
 use octoproxy_core::StepParams;
 use octoproxy_cpu::ground_truth::GroundTruth;
-use octoproxy_cpu::harness::{random_particles, run_check};
+use octoproxy_cpu::harness::{run_check, Start, Starter};
 use octoproxy_cpu::io::read_particles;
 use octoproxy_cpu::io::Mesh;
 use octoproxy_cpu::scenes::{self, MeshExt};
@@ -37,8 +37,12 @@ scene:
 particles:
   --particles FILE  a PLY point cloud (x y z, optional vx vy vz, side; without a side,
                     each takes it from the mesh)
-  --emit N          N random particles at least two leaf diagonals from the surface
-                    (default 20000), speeds from 0.1 leaf to the whole scene per step
+  --emit N          N particles (default 20000), speeds from 0.1 leaf to the whole scene
+                    per step, started where --starts says
+  --starts WHERE    outside: at least two leaf diagonals from the surface (default);
+                    shell: within 1.5 leaves of it, both sides; emitted: from it, as
+                    sim --emit-surface emits; corners: a fraction of a leaf from its
+                    vertices (inside a closed scene). Sides and cages from the mesh
   --seed K          (default 1)
 
 stepping:
@@ -74,6 +78,7 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     let mut build = BuildFlags::default();
     let mut particles_file: Option<PathBuf> = None;
     let mut emit: Option<usize> = None;
+    let mut starts: Option<Start> = None;
     let mut seed = 1u64;
     let mut steps = 100u32;
     let mut params = StepParams::default();
@@ -87,6 +92,14 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
             "--scene" => builtin_name = Some(flags::string(&mut p, "--scene")?),
             "--particles" => particles_file = Some(flags::path(&mut p, "--particles")?),
             "--emit" => emit = Some(flags::number(&mut p, "--emit")?),
+            "--starts" => {
+                let name = flags::string(&mut p, "--starts")?;
+                starts = Some(Start::from_name(&name).ok_or_else(|| {
+                    anyhow::anyhow!(
+                        "--starts: unknown place {name:?} (outside, shell, emitted, corners)"
+                    )
+                })?);
+            }
             "--seed" => seed = flags::number(&mut p, "--seed")?,
             "--steps" => steps = flags::number(&mut p, "--steps")?,
             "--restitution" => params.restitution = flags::number(&mut p, "--restitution")?,
@@ -101,8 +114,8 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
         }
     }
     params.validate()?;
-    if particles_file.is_some() && emit.is_some() {
-        bail!("give either --particles or --emit, not both");
+    if particles_file.is_some() && (emit.is_some() || starts.is_some()) {
+        bail!("give either --particles or --emit (with --starts), not both");
     }
     let mesh_list = match (meshes.is_empty(), &builtin_name) {
         (true, None) => bail!("check needs a scene: --mesh MESH or --scene NAME"),
@@ -157,7 +170,36 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
                 .iter()
                 .map(|d| d / params.dt)
                 .collect();
-            random_particles(&view, &gt, emit.unwrap_or(20_000), &speeds, seed)
+            let refs: Vec<MeshRef<'_>> = baked.meshes.iter().map(MeshRef::from).collect();
+            let sides = Sides::new(&refs);
+            let starter = Starter {
+                view: &view,
+                meshes: &refs,
+                sides: &sides,
+                gt: &gt,
+                closed,
+            };
+            let start = starts.unwrap_or(Start::Outside);
+            let n = emit.unwrap_or(20_000);
+            let ps = starter.particles(start, n, &speeds, seed);
+            let caged = ps.iter().filter(|p| p.is_caged()).count();
+            eprintln!(
+                "particles: {} started {}{}",
+                ps.len(),
+                match start {
+                    Start::Outside =>
+                        "outside the shell, at least two leaf diagonals from the surface",
+                    Start::Shell => "within 1.5 leaves of the surface, both sides",
+                    Start::Emitted => "from the surface, one leaf in front of their faces",
+                    Start::Corners => "a fraction of a leaf from the mesh's vertices",
+                },
+                if caged > 0 {
+                    format!("; {caged} caged in the solid leaves they start in")
+                } else {
+                    String::new()
+                }
+            );
+            ps
         }
     };
     let t = Instant::now();

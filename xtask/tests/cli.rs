@@ -634,3 +634,106 @@ fn sim_takes_sides_from_the_mesh_and_says_what_it_did() {
     assert!(err.contains("1 of 3 start inside the shell"), "{err}");
     assert!(err.contains("give --mesh for exact sides"), "{err}");
 }
+
+#[test]
+fn check_starts_particles_where_asked() {
+    let dir = scratch("starts");
+    let check = |starts: &str| {
+        let out = octoproxy(
+            &[
+                "check", "--scene", "comb", "--dmax", "6", "--emit", "400", "--steps", "10",
+                "--starts", starts,
+            ],
+            &dir,
+        );
+        let (stdout, stderr) = (
+            String::from_utf8_lossy(&out.stdout).to_string(),
+            String::from_utf8_lossy(&out.stderr).to_string(),
+        );
+        assert!(out.status.success(), "{starts}: {stderr}{stdout}");
+        assert!(stdout.contains("penetrations: 0 "), "{starts}: {stdout}");
+        stderr
+    };
+    assert!(check("outside").contains("400 started outside the shell"));
+    assert!(check("shell").contains("within 1.5 leaves of the surface"));
+    assert!(check("emitted").contains("from the surface, one leaf in front"));
+    // The comb's teeth are thinner than a leaf: solid, and particles by their corners start
+    // inside them, caged.
+    let corners = check("corners");
+    assert!(
+        corners.contains("a fraction of a leaf from the mesh's vertices"),
+        "{corners}"
+    );
+    assert!(
+        corners.contains("caged in the solid leaves they start in"),
+        "{corners}"
+    );
+    let out = octoproxy(&["check", "--scene", "comb", "--starts", "nowhere"], &dir);
+    assert_one_line_error(
+        &out,
+        "--starts: unknown place \"nowhere\" (outside, shell, emitted, corners)",
+    );
+}
+
+#[test]
+fn sim_cages_particles_that_start_inside_a_solid_leaf_and_keeps_the_cage_in_its_files() {
+    let dir = scratch("cages");
+    // A plate 0.004 thick: its leaves are solid; one particle in the plate, one above it.
+    let plate = "v -1 -0.002 -1\nv 1 -0.002 -1\nv -1 0.002 -1\nv 1 0.002 -1\nv -1 -0.002 1\nv 1 -0.002 1\nv -1 0.002 1\nv 1 0.002 1\n\
+f 1 3 4 2\nf 5 6 8 7\nf 1 2 6 5\nf 3 7 8 4\nf 1 5 7 3\nf 2 4 8 6\n";
+    std::fs::write(dir.join("plate.obj"), plate).unwrap();
+    std::fs::write(
+        dir.join("two.ply"),
+        "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\nend_header\n0.1 0.0005 0.2\n0.1 0.5 0.2\n",
+    )
+    .unwrap();
+    let sim = |args: &[&str]| {
+        let mut all = vec!["sim", "--mesh", "plate.obj", "--dmax", "6", "--ascii"];
+        all.extend_from_slice(args);
+        let out = octoproxy(&all, &dir);
+        let err = String::from_utf8_lossy(&out.stderr).to_string();
+        assert!(out.status.success(), "{err}");
+        err
+    };
+    let err = sim(&["--particles", "two.ply", "--steps", "0", "-o", "caged.ply"]);
+    assert!(
+        err.contains("cages: 1 of 2 particles start strictly inside solid leaves"),
+        "{err}"
+    );
+    let written = std::fs::read_to_string(dir.join("caged.ply")).unwrap();
+    let sides: Vec<u32> = written
+        .split("end_header\n")
+        .nth(1)
+        .unwrap()
+        .lines()
+        .map(|l| l.split_whitespace().nth(6).unwrap().parse().unwrap())
+        .collect();
+    assert!(
+        sides[0] >= 128 && sides[0] & 1 == 1,
+        "{sides:?}: caged, behind"
+    );
+    assert_eq!(sides[1], 0);
+    // Read back, the cage is the file's and is kept; stepped, the particle stays in the plate.
+    let err = sim(&[
+        "--particles",
+        "caged.ply",
+        "--steps",
+        "60",
+        "-o",
+        "after.ply",
+    ]);
+    assert!(
+        err.contains("cages: the file's, kept, for 1 particles"),
+        "{err}"
+    );
+    let after = std::fs::read_to_string(dir.join("after.ply")).unwrap();
+    let first = after
+        .split("end_header\n")
+        .nth(1)
+        .unwrap()
+        .lines()
+        .next()
+        .unwrap();
+    let y: f32 = first.split_whitespace().nth(1).unwrap().parse().unwrap();
+    assert!(y.abs() < 0.03, "{first}");
+}

@@ -23,7 +23,7 @@
 //!
 //! - **cages:** a particle that starts strictly inside a solid leaf, caged there by the host
 //!   from the mesh ([`SIDE_CAGED`]), moves freely in it and leaves it only through its exit
-//!   faces; the others are walls (`keep_in_cage`). One side bit cannot say which of the
+//!   faces; the others are walls (`walk_in_cage`). One side bit cannot say which of the
 //!   surfaces in a solid leaf a particle is behind; the host can, and says where it may go.
 //!
 //! The number of leaves a step visits is bounded by [`max_leaves_per_step`]; when the bound
@@ -651,12 +651,13 @@ pub enum MarchBranch {
     /// ... inside the shell, so the particle went back to where it entered it.
     LeafBoundInShell,
     /// A caged particle ([`SIDE_CAGED`]) was not strictly inside a solid leaf at the start of
-    /// its step, and lost its cage (`enter_cage`).
+    /// its step, and lost its cage (`walk_in_cage`).
     CageLost,
-    /// A caged particle reached a face of its cage that is not one of its exits, and bounced
-    /// off it as off a wall (`keep_in_cage`).
+    /// A caged particle reached a face of its cage that is not one of its exits (or is one,
+    /// but the leaf beyond is not empty: a stale cage), and bounced off it as off a wall
+    /// (`walk_in_cage`).
     CageWall,
-    /// A caged particle left its cage through one of its exits (`keep_in_cage`).
+    /// A caged particle left its cage through one of its exits (`walk_in_cage`).
     CageExit,
     /// A caged particle ended its step on its cage's boundary and was moved strictly inside
     /// (`finish_march`).
@@ -1216,14 +1217,29 @@ fn walk_in_cage<O: MarchObserver>(
         let axis = exit.axes.trailing_zeros().min(2);
         let upper = st.v[axis as usize] > 0.0;
         if exit.axes.count_ones() == 1 && st.exits & side_exit(axis, upper) != 0 {
-            // Out by an exit, and out of the shell: the leaf beyond is empty, and stamps it.
-            obs.branch(MarchBranch::CageExit);
-            st.exits = 0;
-            st.in_shell = false;
-            st.cross_axes = exit.axes;
-            st.cross_signs = st.v;
-            st.last_leaf = Some(cage);
-            return None;
+            // On the exit face, and strictly inside it: on an edge of the cage (a velocity
+            // component of +0 after sliding along a wall, or an exit point rounded onto a
+            // bound), the tie rule would find the leaf across the edge, not the face.
+            let mut x = strictly_inside(st.x, &cage.aabb);
+            x[axis as usize] = st.x[axis as usize];
+            // An exit leads into an empty leaf (the host made it one); a stale cage (a
+            // particle file written against another proxy) may name a face that does not,
+            // and that face is a wall.
+            if view
+                .locate_next(&cage, x, st.v)
+                .is_some_and(|l| l.kind == LeafKind::Empty)
+            {
+                // Out by an exit, and out of the shell: the leaf beyond stamps it.
+                obs.branch(MarchBranch::CageExit);
+                obs.piece(st.x, x);
+                st.x = x;
+                st.exits = 0;
+                st.in_shell = false;
+                st.cross_axes = exit.axes;
+                st.cross_signs = st.v;
+                st.last_leaf = Some(cage);
+                return None;
+            }
         }
         obs.branch(MarchBranch::CageWall);
         collide(st, &cage, face_normal(exit.axes, st.v), params, obs);
@@ -1232,7 +1248,7 @@ fn walk_in_cage<O: MarchObserver>(
 }
 
 /// The next float from `x` up (`up`) or down, never a subnormal (a GPU may flush those to
-/// zero): from zero, the smallest normal float.
+/// zero): from zero, the smallest normal float; from that, towards zero, zero.
 #[inline(always)]
 fn next_float(x: f32, up: bool) -> f32 {
     if x == 0.0 {
@@ -1241,6 +1257,9 @@ fn next_float(x: f32, up: bool) -> f32 {
         } else {
             -f32::MIN_POSITIVE
         };
+    }
+    if x.abs() == f32::MIN_POSITIVE && (x > 0.0) != up {
+        return 0.0;
     }
     let bits = x.to_bits();
     f32::from_bits(if (x > 0.0) == up { bits + 1 } else { bits - 1 })

@@ -646,3 +646,68 @@ fn a_caged_particle_leaves_its_cage_only_through_its_exits() {
     assert_eq!(bytemuck::bytes_of(&p), bytemuck::bytes_of(&plain));
     assert_eq!(p.side, SIDE_FRONT);
 }
+
+/// [`solid_corner`] with two more surface leaves: octant 3 (`x` and `y` upper, across an edge
+/// of the cage) and octant 4 (`z` upper, across its `+z` face), one-sided, normal `+y`.
+fn solid_corner_beside_surfaces() -> [u32; HEADER_WORDS + 8] {
+    let mut w = [0u32; HEADER_WORDS + 8];
+    w[..HEADER_WORDS].copy_from_slice(&tiny()[..HEADER_WORDS]);
+    w[header::TOTAL_WORDS] = (HEADER_WORDS + 8) as u32;
+    w[header::NODE_COUNT] = 4;
+    w[header::LUT_OFFSET] = (HEADER_WORDS + 8) as u32;
+    let labels = [1, 2, 5, 6, 7]
+        .iter()
+        .fold(0u16, |l, o| l | (Label::Front.bits() as u16) << (2 * o));
+    let root = NodeRecord::internal(1, 0b0001_1001, 0, labels);
+    let cage = NodeRecord::surface(encode_normal(Vec3::Y), true, 0.0);
+    let surface = NodeRecord::surface(encode_normal(Vec3::Y), false, 0.0);
+    w[HEADER_WORDS..].copy_from_slice(&[
+        root.a, root.b, cage.a, cage.b, surface.a, surface.b, surface.a, surface.b,
+    ]);
+    crate::format::seal(&mut w);
+    w
+}
+
+#[test]
+fn a_caged_particle_leaves_by_its_exit_face_and_never_by_an_edge_or_a_stale_exit() {
+    let w = solid_corner_beside_surfaces();
+    let view = ProxyView::new(&w).unwrap();
+    let sliding = StepParams {
+        gravity: [0.0; 3],
+        restitution: 0.0,
+        friction: 0.0,
+        ..StepParams::default()
+    };
+    // Up into the +y wall (no bounce: its velocity across it is +0), along it to the +x exit,
+    // out on the cage's edge at y = 0.5. The leaf beyond the face is octant 1, empty, which
+    // stamps front; by the tie rule for +0 the point was in octant 3, a surface leaf, where the
+    // particle kept its side.
+    let mut p = Particle::new([0.2, 0.45, 0.25], [24.0, 12.0, 0.0]);
+    p.side = SIDE_BACK | SIDE_CAGED | side_exit(0, true);
+    let mut counts = MarchCounts::default();
+    step_particle_counted(&view, &mut p, &sliding, &mut counts);
+    assert_eq!(counts[MarchBranch::CageWall], 1);
+    assert_eq!(counts[MarchBranch::CageExit], 1);
+    assert!(!p.is_caged());
+    assert_eq!(
+        p.side, SIDE_FRONT,
+        "stamped by the leaf across the face: {p:?}"
+    );
+    assert!(p.position[0] > 0.55 && p.position[1] < 0.5, "{p:?}");
+
+    // A stale exit (+z: octant 4 is a surface leaf, not empty) is a wall.
+    let elastic = StepParams {
+        restitution: 1.0,
+        ..sliding
+    };
+    let mut p = Particle::new([0.25, 0.25, 0.4], [0.0, 0.0, 12.0]);
+    p.side = SIDE_BACK | SIDE_CAGED | side_exit(2, true);
+    let mut counts = MarchCounts::default();
+    step_particle_counted(&view, &mut p, &elastic, &mut counts);
+    assert_eq!(counts[MarchBranch::CageExit], 0);
+    assert_eq!(counts[MarchBranch::CageWall], 1);
+    assert!(
+        p.is_caged() && p.velocity[2] < 0.0 && p.position[2] < 0.5,
+        "{p:?}"
+    );
+}

@@ -18,6 +18,7 @@ use octoproxy_core::{
     SIDE_MASK,
 };
 use octoproxy_cpu::bake::{self as baker, BuildError, BuildParams, MeshRef};
+use octoproxy_cpu::emit::emit_surface_for;
 use octoproxy_cpu::io::{encode_particles, parse_particles, PlyEncoding};
 use octoproxy_cpu::io::{parse_mesh, Mesh};
 
@@ -1037,7 +1038,9 @@ fn penetration_inner(u: &mut Unstructured<'_>) -> Result<()> {
             }
         }
         // Where users start: half the particles within 1.5 leaves of the surface, in the shell
-        // of surface leaves and beside it, on both sides.
+        // of surface leaves and beside it, on both sides; a sixth emitted from the surface as
+        // the command line emits them (one leaf in front of their face, with the emitter's side).
+        let mut emitted_side = None;
         if u.arbitrary()? {
             let mut near = Vec::new();
             gt.nearest_triangles(position.to_array(), &mut near);
@@ -1050,7 +1053,35 @@ fn penetration_inner(u: &mut Unstructured<'_>) -> Result<()> {
                 .normalize_or(Vec3::Y);
                 position = t.closest.as_vec3() + dir * range(u, 0.0, 1.5 * leaf)?;
             }
+        } else if u.ratio(1u8, 3)? {
+            let seed = u.arbitrary::<u64>()?;
+            if let Some(e) = emit_surface_for(&view, 1, &[MeshRef::from(&mesh)], 0.0, seed).first()
+            {
+                position = Vec3::from_array(e.position);
+                emitted_side = Some(e.side);
+            }
         }
+        // A restart: some particles first come to rest on the surface (no bounce, full
+        // friction, gravity at the scene's scale in a drawn direction), and are then stepped
+        // again with the velocity drawn below; every step of both is checked.
+        let settle = if u.ratio(1u8, 4)? {
+            let down = Vec3::new(
+                range(u, -1.0, 1.0)?,
+                range(u, -1.0, 1.0)?,
+                range(u, -1.0, 1.0)?,
+            )
+            .normalize_or(Vec3::NEG_Y);
+            let params = StepParams {
+                gravity: (down * 9.81 * scene).to_array(),
+                dt: 1.0 / 60.0,
+                restitution: 0.0,
+                friction: 1.0,
+                _pad: [0; 2],
+            };
+            Some((params, u.int_in_range(10u32..=90)?))
+        } else {
+            None
+        };
         let speed = per_step / dt;
         // Signs drawn in axis order for the moving axes (a bool from `Unstructured` never fails).
         let mut velocity = match u.int_in_range(0u8..=7)? {
@@ -1108,15 +1139,30 @@ fn penetration_inner(u: &mut Unstructured<'_>) -> Result<()> {
             );
             continue;
         }
-        // The exact starting side, from the mesh, and the cage of a particle that starts
-        // strictly inside a solid leaf.
-        p.side = sides.side(p.position) | sides.cage(&view, p.position);
+        // The exact starting side, from the mesh (or the emitter's), and the cage of a particle
+        // that starts strictly inside a solid leaf.
+        p.side =
+            emitted_side.unwrap_or_else(|| sides.side(p.position)) | sides.cage(&view, p.position);
         let inside = gt.is_inside(p.position);
         let start = p;
         let steps = u.int_in_range(1u32..=12)?;
+        let (settle_params, settle_steps) = settle.unwrap_or((step, 0));
+        if settle_steps > 0 {
+            p.velocity = [0.0; 3];
+        }
         // The same particle stepped with a leaf hint, as the backends step it: same bits.
         let (mut hinted, mut hint) = (p, LeafHint::NONE);
-        for s in 0..steps {
+        for s in 0..settle_steps + steps {
+            if s == settle_steps && settle_steps > 0 {
+                // The rested frame, kicked.
+                p.velocity = velocity.to_array();
+                hinted.velocity = p.velocity;
+            }
+            let step = if s < settle_steps {
+                settle_params
+            } else {
+                step
+            };
             let before = p;
             let mut pieces = Vec::new();
             step_particle_traced(&view, &mut p, &step, &mut |a, b| pieces.push((a, b)));
@@ -1167,7 +1213,9 @@ fn penetration_inner(u: &mut Unstructured<'_>) -> Result<()> {
 /// hulls of random points, unions of overlapping parts), baked at dmax 5–7, and particles at
 /// speeds from a fraction of a leaf to two scenes per step (some started on cell planes, some
 /// moving along an axis or an exact diagonal, some at rest under gravity, half within 1.5
-/// leaves of the surface, inside the shell and beside it, with exact sides from the mesh): a
+/// leaves of the surface, inside the shell and beside it, with exact sides from the mesh, some
+/// emitted from the surface by the command line's emitter, and a quarter first brought to rest
+/// on the surface and then stepped again, a restart from a rested frame): a
 /// particle never ends a step on the other side from where it started (by exact winding
 /// number) farther than one dmax-leaf diagonal from the surface, nor passes through the other
 /// side that deep on the way.

@@ -153,8 +153,11 @@ fn sheets(set: &[u32], joins: &[[u32; 3]]) -> usize {
 }
 
 /// Whether two of the triangles `list` cross or touch each other away from a shared vertex:
-/// an edge of one meets the other. Pairs sharing a vertex are not tested (neighbours in a
-/// mesh touch there), nor are coplanar pairs (the segment test misses them).
+/// an edge of one meets the other. Pairs sharing an edge are not tested (neighbours in a mesh
+/// touch there), nor are coplanar pairs (the segment test misses them). Pairs sharing one
+/// vertex (a fan folded through itself, as sculpted and decimated meshes have) cross exactly
+/// when the edge of one opposite that vertex meets the other: their intersection is a segment
+/// from the vertex, and it ends on one of those edges.
 fn crosses_itself(list: &[u32], tris: &[Tri]) -> bool {
     // Sweep along x over the triangles' boxes: only pairs whose boxes overlap are tested.
     let mut boxes: Vec<(f64, f64, u32)> = list
@@ -177,15 +180,23 @@ fn crosses_itself(list: &[u32], tris: &[Tri]) -> bool {
                 break;
             }
             let tb = &tris[b as usize];
-            if ta.vid.iter().any(|v| tb.vid.contains(v)) {
+            let shared = ta.vid.iter().filter(|v| tb.vid.contains(v)).count();
+            if shared >= 2 {
                 continue;
             }
             let (blo, bhi) = bounds(&tb.v);
             if alo.cmpgt(bhi).any() || blo.cmpgt(ahi).any() {
                 continue;
             }
+            // Edge k runs from vertex k to vertex k + 1; with a shared vertex, only the edge
+            // opposite it.
             let edge_meets = |p: &Tri, q: &Tri| {
-                (0..3).any(|k| geom::segment_triangle(p.v[k], p.v[(k + 1) % 3], &q.v).is_some())
+                (0..3).any(|k| {
+                    let (i, j) = (k, (k + 1) % 3);
+                    let away =
+                        shared == 0 || !(q.vid.contains(&p.vid[i]) || q.vid.contains(&p.vid[j]));
+                    away && geom::segment_triangle(p.v[i], p.v[j], &q.v).is_some()
+                })
             };
             if edge_meets(ta, tb) || edge_meets(tb, ta) {
                 return true;
@@ -228,6 +239,21 @@ mod tests {
             .map(|(i, p)| if i >= 3 { [p[0], p[1] + 2.5, p[2]] } else { *p })
             .collect();
         let t = tris(&lifted, &[[0, 2, 1], [3, 4, 5]]);
+        assert!(!crosses_itself(&[0, 1], &t));
+        // Sharing one vertex: a fan folded through itself crosses (the far edge of the second
+        // goes through the first at (0.3, 0.3, 0)); folded up and away, it only touches there.
+        let fan = [
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [0.3, 0.3, -0.5],
+            [0.3, 0.3, 0.5],
+            [0.6, 0.0, 0.5],
+        ];
+        let t = tris(&fan, &[[0, 1, 2], [0, 3, 4]]);
+        assert!(crosses_itself(&[0, 1], &t));
+        assert!(crosses_itself(&[1, 0], &t));
+        let t = tris(&fan, &[[0, 1, 2], [0, 4, 5]]);
         assert!(!crosses_itself(&[0, 1], &t));
         // A quad's two triangles share an edge: neighbours, one sheet.
         let quad = [

@@ -581,13 +581,22 @@ fn walk_in_cage(st: ptr<function, MarchState>, params: StepParams) -> LeafOption
         let axis = min(firstTrailingBit(exit.axes), 2u);
         let upper = (*st).v[axis] > 0.0;
         if countOneBits(exit.axes) == 1u && ((*st).exits & side_exit(axis, upper)) != 0u {
-            // Out by an exit, and out of the shell: the leaf beyond is empty, and stamps it.
-            (*st).exits = 0u;
-            (*st).in_shell = false;
-            (*st).cross_axes = exit.axes;
-            (*st).cross_signs = (*st).v;
-            (*st).last_leaf = LeafOption(cage, true);
-            return none;
+            // On the exit face, and strictly inside it: on an edge of the cage, the tie rule
+            // would find the leaf across the edge, not the face.
+            var x = strictly_inside((*st).x, cage.aabb);
+            x[axis] = (*st).x[axis];
+            // An exit leads into an empty leaf; a stale cage's face that does not is a wall.
+            let beyond = locate_next(cage, x, (*st).v);
+            if beyond.some && beyond.value.kind == LEAF_EMPTY {
+                // Out by an exit, and out of the shell: the leaf beyond stamps it.
+                (*st).x = x;
+                (*st).exits = 0u;
+                (*st).in_shell = false;
+                (*st).cross_axes = exit.axes;
+                (*st).cross_signs = (*st).v;
+                (*st).last_leaf = LeafOption(cage, true);
+                return none;
+            }
         }
         collide(st, cage, face_normal(exit.axes, (*st).v), params);
     }
@@ -604,6 +613,9 @@ fn side_exit(axis: u32, upper: bool) -> u32 {
 fn next_float(x: f32, up: bool) -> f32 {
     if x == 0.0 {
         return select(-F32_MIN_POSITIVE, F32_MIN_POSITIVE, up);
+    }
+    if abs(x) == F32_MIN_POSITIVE && (x > 0.0) != up {
+        return 0.0;
     }
     let bits = bitcast<u32>(x);
     return bitcast<f32>(select(bits - 1u, bits + 1u, (x > 0.0) == up));

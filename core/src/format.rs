@@ -10,7 +10,7 @@ use crate::math;
 /// First word of every proxy: the bytes `OCTP` read as a little-endian `u32`.
 pub const MAGIC: u32 = u32::from_le_bytes(*b"OCTP");
 /// Bumped whenever the meaning of any word or bit changes.
-pub const FORMAT_VERSION: u32 = 3;
+pub const FORMAT_VERSION: u32 = 4;
 /// Words in the header, before the node array.
 pub const HEADER_WORDS: usize = 17;
 /// Deepest tree the format supports. Cell bounds are computed on a `2^MAX_DEPTH` grid.
@@ -89,6 +89,14 @@ pub const LEAF_BIT: u32 = 1 << 31;
 /// Surface-leaf `a` word: the triangles in the leaf face opposite ways, so the averaged normal
 /// means nothing; the step treats the leaf as solid from every side.
 pub const TWO_SIDED_BIT: u32 = 1 << 30;
+/// Solid-leaf `b` word: bits of each face's clearance; face `k = 2 * axis + upper` at bits
+/// `CLEARANCE_BITS * k ..`, the top two bits zero.
+pub const CLEARANCE_BITS: u32 = 5;
+/// The largest clearance.
+pub const CLEARANCE_MAX: u32 = (1 << CLEARANCE_BITS) - 1;
+/// A clearance counts steps of the leaf's edge divided by this: the slab of the leaf within
+/// `clearance / CLEARANCE_STEPS` of its edge from the face holds no point of any triangle.
+pub const CLEARANCE_STEPS: u32 = 32;
 /// Surface-leaf `a` word: bits of each octahedral normal component.
 pub const OCT_BITS: u32 = 15;
 /// Largest magnitude of a centred octahedral component.
@@ -140,7 +148,8 @@ impl Label {
 /// Internal node: `a` is the index of its first child record (children with a record are
 /// stored contiguously in octant order), `b` holds the child, internal and label masks.
 /// Surface leaf: `a` holds [`LEAF_BIT`], [`TWO_SIDED_BIT`] and the octahedral normal; `b` is
-/// the plane offset as `f32` bits (see [`NodeRecord::plane_offset`]).
+/// the plane offset as `f32` bits (see [`NodeRecord::plane_offset`]) for a one-sided leaf, and
+/// the six faces' clearances for a solid (two-sided) one (see [`NodeRecord::clearance`]).
 // Layout reason: two `u32`, no padding, 4-byte aligned, so a `&[u32]` casts to `&[NodeRecord]`.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
@@ -169,21 +178,49 @@ impl NodeRecord {
         }
     }
 
-    /// A surface leaf record with the given (encoded) normal and plane offset.
-    pub fn surface(normal_bits: u32, two_sided: bool, plane_offset: f32) -> Self {
-        let two = if two_sided { TWO_SIDED_BIT } else { 0 };
+    /// A one-sided surface leaf record with the given (encoded) normal and plane offset.
+    pub fn surface(normal_bits: u32, plane_offset: f32) -> Self {
         Self {
-            a: LEAF_BIT | two | (normal_bits & oct_mask()),
+            a: LEAF_BIT | (normal_bits & oct_mask()),
             b: plane_offset.to_bits(),
         }
     }
 
-    /// Surface leaf: the offset `d` of the surface's mean plane `n · (x - c) = d`, with `n`
-    /// the normal and `c` the leaf's centre: where a particle colliding in the leaf makes
-    /// contact, and which side of it a particle that starts inside the leaf is on.
+    /// A solid (two-sided) surface leaf record with the given (encoded) normal and the
+    /// clearances of its faces (`clearance[2 * axis + upper]`, each at most
+    /// [`CLEARANCE_MAX`]; larger values are cut to it).
+    pub fn solid(normal_bits: u32, clearance: [u32; 6]) -> Self {
+        let mut b = 0;
+        for (k, c) in clearance.iter().enumerate() {
+            b |= (*c).min(CLEARANCE_MAX) << (CLEARANCE_BITS * k as u32);
+        }
+        Self {
+            a: LEAF_BIT | TWO_SIDED_BIT | (normal_bits & oct_mask()),
+            b,
+        }
+    }
+
+    /// One-sided surface leaf: the offset `d` of the surface's mean plane `n · (x - c) = d`,
+    /// with `n` the normal and `c` the leaf's centre: where a particle colliding in the leaf
+    /// makes contact, and which side of it a particle that starts inside the leaf is on. Zero
+    /// for a solid leaf, whose `b` word holds clearances.
     #[inline]
     pub fn plane_offset(self) -> f32 {
-        f32::from_bits(self.b)
+        if self.is_two_sided() {
+            0.0
+        } else {
+            f32::from_bits(self.b)
+        }
+    }
+
+    /// Solid leaf: the clearance of face `face` (`2 * axis + upper`), in steps of the leaf's
+    /// edge divided by [`CLEARANCE_STEPS`]: no point of any triangle lies in the closed slab
+    /// of the leaf within that distance of the face. A particle that enters the leaf through
+    /// that face alone moves in the slab and collides at its inner side, nearer the surface
+    /// than the face.
+    #[inline]
+    pub const fn clearance(self, face: u32) -> u32 {
+        (self.b >> (CLEARANCE_BITS * face)) & CLEARANCE_MAX
     }
 
     /// The largest `|plane_offset|` a valid proxy holds for a surface leaf at `depth` in a

@@ -22,8 +22,15 @@ pub const SIDE_CAGED: u32 = 1 << 7;
 pub const SIDE_EXITS_SHIFT: u32 = 1;
 /// Mask of the six exit bits in [`Particle::side`], in place.
 pub const SIDE_EXITS_MASK: u32 = 0x3f << SIDE_EXITS_SHIFT;
-/// Mask of the cage in [`Particle::side`]: [`SIDE_CAGED`] and the exit bits.
-pub const SIDE_CAGE_MASK: u32 = SIDE_CAGED | SIDE_EXITS_MASK;
+/// Set in [`Particle::side`], with [`SIDE_CAGED`] and one exit bit, while the particle is in
+/// the **slab** of a solid leaf: it came in through the exit's face, where the leaf's
+/// clearance says no triangle lies within some depth of it (`NodeRecord::clearance`), and it
+/// moves in that slab, collides at its inner side (nearer the surface than the face), and
+/// leaves through the face, or through a side of the slab back onto the face. The step sets
+/// and clears it; a file of particles keeps it between runs with the same proxy.
+pub const SIDE_SLAB: u32 = 1 << 8;
+/// Mask of the cage in [`Particle::side`]: [`SIDE_CAGED`], the exit bits and [`SIDE_SLAB`].
+pub const SIDE_CAGE_MASK: u32 = SIDE_CAGED | SIDE_EXITS_MASK | SIDE_SLAB;
 
 /// The exit bit of [`Particle::side`] for a cage's face across `axis` (0 = x, 1 = y, 2 = z)
 /// on its upper (`upper`) or lower side.
@@ -55,9 +62,9 @@ pub struct Particle {
     /// World-space position.
     pub position: [f32; 3],
     /// Bit 0 ([`SIDE_MASK`]): [`SIDE_FRONT`] or [`SIDE_BACK`], the label of the last
-    /// labelled empty leaf it crossed. Bits 1–7: zero, or the cage of a particle that started
-    /// inside a solid leaf ([`SIDE_CAGED`], [`SIDE_EXITS_MASK`]). A step ignores the bits
-    /// above and leaves them zero.
+    /// labelled empty leaf it crossed. Bits 1–8: zero, or the cage of a particle that started
+    /// inside a solid leaf ([`SIDE_CAGED`], [`SIDE_EXITS_MASK`]) or is in a solid leaf's slab
+    /// ([`SIDE_SLAB`]). A step ignores the bits above and leaves them zero.
     pub side: u32,
     /// Velocity in units per second.
     pub velocity: [f32; 3],

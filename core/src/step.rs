@@ -9,7 +9,9 @@
 //!   with restitution and Coulomb friction, and the march goes on with the new velocity and
 //!   the time left. A one-sided leaf collides where the path meets its stored plane
 //!   (`reach_plane`: contact where the surface is, within about a leaf of it), a solid leaf at
-//!   the entry point;
+//!   the entry point, or, entered through one face with clearance, at the inner side of the
+//!   slab by that face, which holds no triangle (**slabs**: `slab_entry`, `walk_in_slab`,
+//!   [`SIDE_SLAB`]);
 //! - **shell rule:** a particle that went into the shell of surface leaves from its own side
 //!   may come out only into an empty leaf of that side. Coming out into a leaf labelled with
 //!   the other side means it crossed the surface; it is put back where it entered the shell,
@@ -51,7 +53,7 @@
 use bytemuck::{Pod, Zeroable};
 use glam::{UVec3, Vec3, Vec3A};
 
-use crate::format::{Label, MAX_DEPTH};
+use crate::format::{Label, CLEARANCE_STEPS, MAX_DEPTH};
 use crate::math;
 use crate::particle::*;
 use crate::query::{Aabb, LeafInfo, LeafKind, NO_LEAF};
@@ -662,6 +664,12 @@ pub enum MarchBranch {
     /// A caged particle ended its step on its cage's boundary and was moved strictly inside
     /// (`finish_march`).
     CageNudge,
+    /// A particle entered a solid leaf through one face with clearance, into its slab
+    /// ([`SIDE_SLAB`]; `slab_entry`), instead of colliding at the face.
+    SlabEntry,
+    /// A particle in a slab reached one of its sides and was put back onto the face it came
+    /// in by (`walk_in_slab`).
+    SlabSide,
     /// A non-finite position or velocity on input.
     InvalidStart,
     /// A non-finite position or velocity at the end of the march.
@@ -670,7 +678,7 @@ pub enum MarchBranch {
 
 impl MarchBranch {
     /// Every branch, in the order of the variants.
-    pub const ALL: [MarchBranch; 17] = [
+    pub const ALL: [MarchBranch; 19] = [
         MarchBranch::RootEntry,
         MarchBranch::RootMiss,
         MarchBranch::StartBesideShell,
@@ -686,6 +694,8 @@ impl MarchBranch {
         MarchBranch::CageWall,
         MarchBranch::CageExit,
         MarchBranch::CageNudge,
+        MarchBranch::SlabEntry,
+        MarchBranch::SlabSide,
         MarchBranch::InvalidStart,
         MarchBranch::InvalidEnd,
     ];
@@ -965,11 +975,16 @@ fn enter_root<O: MarchObserver>(view: &ProxyView<'_>, st: &mut MarchState, obs: 
 
 /// The leaf the march is in: `next`'s, unless the particle slides along a face of a solid leaf
 /// (no velocity across it) and does not enter through another, when it is not in the leaf
-/// but in the one on the face's outer side.
+/// but in the one on the face's outer side. On the face it is on the shell: a step that
+/// starts there is in the shell from there (as `start_beside_shell` puts it for a face
+/// beside a one-sided leaf), so that it cannot come off the face into an empty leaf labelled
+/// with the other side. A particle that had passed a surface within a leaf by less than the
+/// tolerance and ended its step on a solid leaf's edge was otherwise stamped there, and went
+/// on on the wrong side (found by the starts campaign on the bunny, at `dmax` 6).
 #[inline(always)]
 fn slide_off_solid_face<O: MarchObserver>(
     view: &ProxyView<'_>,
-    st: &MarchState,
+    st: &mut MarchState,
     next: NextLeaf,
     obs: &mut O,
 ) -> LeafInfo {
@@ -986,6 +1001,10 @@ fn slide_off_solid_face<O: MarchObserver>(
         }
         if dir != v {
             obs.branch(MarchBranch::SlideOffSolid);
+            if !st.in_shell {
+                st.in_shell = true;
+                st.shell_entry = x;
+            }
             leaf = view.locate_inside(x, dir);
         }
     }
@@ -1033,6 +1052,7 @@ fn block_at_shell<O: MarchObserver>(st: &mut MarchState, params: &StepParams, ob
 /// crossings (`true`: it collided, and the march finds its leaf again with the new velocity).
 #[inline(always)]
 fn enter_surface_leaf<O: MarchObserver>(
+    view: &ProxyView<'_>,
     st: &mut MarchState,
     leaf: &LeafInfo,
     params: &StepParams,
@@ -1053,10 +1073,38 @@ fn enter_surface_leaf<O: MarchObserver>(
         return false;
     }
     if leaf.two_sided {
+        let slab = slab_entry(view, st, leaf);
+        if slab != 0 {
+            // Into the slab: the march walks it next (`walk_in_slab`).
+            obs.branch(MarchBranch::SlabEntry);
+            st.exits = slab;
+            return true;
+        }
         obs.branch(MarchBranch::SolidCollision);
     }
     collide(st, leaf, n, params, obs);
     true
+}
+
+/// Contact nearer the surface in a solid leaf: a particle entering it through one face (not
+/// an edge or a corner) that has clearance goes into the slab of the leaf by that face, which
+/// holds no triangle, and collides at the slab's inner side (`walk_in_slab`). The cage bits of
+/// that slab ([`SIDE_CAGED`], [`SIDE_SLAB`] and the face's exit bit), or 0 to collide at the
+/// face. Out of line: only collisions with solid leaves come here.
+#[inline(never)]
+fn slab_entry(view: &ProxyView<'_>, st: &MarchState, leaf: &LeafInfo) -> u32 {
+    let axes = entry_faces(&leaf.aabb, st.x, st.v);
+    if axes.count_ones() != 1 {
+        return 0;
+    }
+    let axis = axes.trailing_zeros();
+    // Moving down the axis, it comes in through the upper face.
+    let upper = st.v[axis as usize] < 0.0;
+    let clearance = view.nodes()[leaf.node as usize].clearance(2 * axis + upper as u32);
+    if clearance == 0 {
+        return 0;
+    }
+    SIDE_CAGED | SIDE_SLAB | side_exit(axis, upper)
 }
 
 /// Contact where the surface is: in a one-sided surface leaf a particle moving against the
@@ -1069,7 +1117,8 @@ fn enter_surface_leaf<O: MarchObserver>(
 /// surface however coarse the leaf, and pass it by at most that before they collide (at the
 /// entry face of a coarse leaf over a flat floor they rested up to 8 `dmax` leaves above it).
 /// Solid (two-sided) leaves collide at their faces (`true`): they are `dmax` leaves, and a
-/// particle must not go into one.
+/// particle must not move about in one; `enter_surface_leaf` sends it into the leaf's slab by
+/// the face instead where the face has clearance.
 #[inline(always)]
 fn reach_plane<O: MarchObserver>(st: &mut MarchState, leaf: &LeafInfo, obs: &mut O) -> bool {
     if leaf.two_sided {
@@ -1190,6 +1239,9 @@ fn walk_in_cage<O: MarchObserver>(
     st.shell_entry = st.x;
     // The particle moves now: a hint is for its first leaf only.
     st.hinted = None;
+    if st.exits & SIDE_SLAB != 0 {
+        return walk_in_slab(view, st, cage, false, params, obs);
+    }
     let budget = view.max_leaves_per_step();
     while st.remaining > 0.0 {
         if st.visited >= budget {
@@ -1245,6 +1297,119 @@ fn walk_in_cage<O: MarchObserver>(
         collide(st, &cage, face_normal(exit.axes, st.v), params, obs);
     }
     Some(cage)
+}
+
+/// A particle in the slab of a solid leaf ([`SIDE_SLAB`]): the part of the leaf within its
+/// clearance of the face the particle came in by, which holds no triangle. It moves freely in
+/// the slab and collides at its inner side, as it would have at the face, nearer the surface:
+/// particles rest there, not on a face up to a leaf above it. It leaves through the face; at
+/// a side of the slab it is put back onto the face (straight across the slab, crossing
+/// nothing) and goes on from there, as if it had slid along the face outside the leaf: into
+/// the leaf beyond the face, where the march goes on, with the shell rule. `entered`: it came
+/// in through the face in this step (`slab_entry`); otherwise the step started in the slab
+/// (`walk_in_cage`), and a particle not strictly inside it loses its slab bits. `Some(slab)`
+/// when the step ended in the slab (the slab as the leaf's box); `None` when the march goes
+/// on. Out of line.
+#[inline(never)]
+fn walk_in_slab<O: MarchObserver>(
+    view: &ProxyView<'_>,
+    st: &mut MarchState,
+    leaf: LeafInfo,
+    entered: bool,
+    params: &StepParams,
+    obs: &mut O,
+) -> Option<LeafInfo> {
+    let face = ((st.exits & SIDE_EXITS_MASK) >> SIDE_EXITS_SHIFT)
+        .trailing_zeros()
+        .min(5);
+    let (axis, upper) = ((face >> 1) as usize, face & 1 != 0);
+    let clearance = view.nodes()[leaf.node as usize].clearance(face);
+    let edge = leaf.aabb.max[axis] - leaf.aabb.min[axis];
+    let depth = edge * (clearance as f32 * (1.0 / CLEARANCE_STEPS as f32));
+    let mut slab = leaf;
+    let plane = if upper {
+        slab.aabb.min[axis] = leaf.aabb.max[axis] - depth;
+        leaf.aabb.max[axis]
+    } else {
+        slab.aabb.max[axis] = leaf.aabb.min[axis] + depth;
+        leaf.aabb.min[axis]
+    };
+    if !entered {
+        let inside = (st.x.cmpgt(slab.aabb.min) & st.x.cmplt(slab.aabb.max)).all();
+        if clearance == 0 || !inside {
+            obs.branch(MarchBranch::CageLost);
+            st.exits = 0;
+            return None;
+        }
+    }
+    let budget = view.max_leaves_per_step();
+    while st.remaining > 0.0 {
+        if st.visited >= budget {
+            if entered {
+                // The march stops at the bound, where the particle entered the shell.
+                st.exits = 0;
+                return None;
+            }
+            stop_at_leaf_bound(st, obs);
+            return Some(slab);
+        }
+        st.visited += 1;
+        let end = st.x + st.v * st.remaining;
+        if (end.cmpgt(slab.aabb.min) & end.cmplt(slab.aabb.max)).all() {
+            obs.piece(st.x, end);
+            st.x = end;
+            return Some(slab);
+        }
+        let exit = exit_box(&slab.aabb, st.x, st.v);
+        if exit.t >= st.remaining {
+            obs.branch(MarchBranch::EndOnFace);
+            let end = (st.x + st.v * st.remaining).clamp(slab.aabb.min, slab.aabb.max);
+            obs.piece(st.x, end);
+            st.x = end;
+            return Some(slab);
+        }
+        obs.piece(st.x, exit.point);
+        st.x = exit.point;
+        st.remaining -= exit.t;
+        let through_face = exit.axes & (1 << axis) != 0 && (st.v[axis] > 0.0) == upper;
+        let sides = exit.axes & !(1 << axis);
+        if through_face || sides != 0 {
+            let mut x = st.x;
+            if through_face {
+                // Strictly inside the face: never out by an edge of the leaf.
+                obs.branch(MarchBranch::CageExit);
+                x = strictly_inside(x, &slab.aabb);
+                x[axis] = plane;
+            } else {
+                obs.branch(MarchBranch::SlabSide);
+                x[axis] = plane;
+            }
+            obs.piece(st.x, x);
+            st.x = x;
+            st.exits = 0;
+            // Where the shell rule and the leaf bound put it back, if they stop it later in
+            // this step: a point on its side outside the leaf (a step that started in the
+            // slab had its start there, strictly inside a solid leaf, where it would be free
+            // once out of its slab).
+            st.shell_entry = x;
+            // Out across the face: the leaf beyond it at this point.
+            let mut out = st.v;
+            out[axis] = if upper { 1.0 } else { -1.0 };
+            st.cross_axes = 1 << axis;
+            st.cross_signs = out;
+            st.last_collided = NO_LEAF;
+            st.last_leaf = None;
+            st.hinted = if view.root_contains(x, out) {
+                Some(view.locate_inside(x, out))
+            } else {
+                None
+            };
+            return None;
+        }
+        obs.branch(MarchBranch::CageWall);
+        collide(st, &slab, face_normal(exit.axes, st.v), params, obs);
+    }
+    Some(slab)
 }
 
 /// The next float from `x` up (`up`) or down, never a subnormal (a GPU may flush those to
@@ -1403,7 +1568,7 @@ fn march<O: MarchObserver>(
             }
             break;
         };
-        let leaf = slide_off_solid_face(view, &st, next, obs);
+        let leaf = slide_off_solid_face(view, &mut st, next, obs);
         st.last_leaf = Some(leaf);
         match leaf.kind {
             LeafKind::Empty => {
@@ -1413,8 +1578,14 @@ fn march<O: MarchObserver>(
                 }
             }
             LeafKind::Surface => {
-                let collided = enter_surface_leaf(&mut st, &leaf, params, obs);
+                let collided = enter_surface_leaf(view, &mut st, &leaf, params, obs);
                 if collided {
+                    if st.exits != 0 {
+                        let slab = walk_in_slab(view, &mut st, leaf, true, params, obs);
+                        if slab.is_some() {
+                            return finish_caged(p, &st, slab, obs);
+                        }
+                    }
                     continue;
                 }
             }

@@ -71,10 +71,18 @@ fn record_accessors() {
     assert_eq!(r.child_index(2), 43);
     assert_eq!(r.child_index(5), 44);
     assert_eq!(r.child_index(7), 45);
-    let leaf = NodeRecord::surface(encode_normal(Vec3::Y), true, -0.25);
-    assert!(leaf.is_leaf() && leaf.is_two_sided());
+    let leaf = NodeRecord::surface(encode_normal(Vec3::Y), -0.25);
+    assert!(leaf.is_leaf() && !leaf.is_two_sided());
     assert_eq!(leaf.normal(), Vec3::Y);
     assert_eq!(leaf.plane_offset(), -0.25);
+    // A solid leaf's second word holds its faces' clearances, 5 bits each, cut to 31.
+    let solid = NodeRecord::solid(encode_normal(-Vec3::X), [0, 1, 7, 31, 40, 16]);
+    assert!(solid.is_leaf() && solid.is_two_sided());
+    assert_eq!(solid.normal(), -Vec3::X);
+    assert_eq!(solid.plane_offset(), 0.0);
+    let clearances: Vec<u32> = (0..6).map(|k| solid.clearance(k)).collect();
+    assert_eq!(clearances, [0, 1, 7, 31, 31, 16]);
+    assert_eq!(solid.b >> 30, 0);
     assert_eq!(lut_entry(7, 3) & LUT_INDEX_MASK, 7);
     assert_eq!(lut_entry(7, 3) >> LUT_DEPTH_SHIFT, 3);
 }
@@ -93,7 +101,7 @@ fn tiny() -> [u32; HEADER_WORDS + 4] {
     w[header::DMAX] = 1;
     w[header::ROOT_SIZE] = 1.0f32.to_bits();
     let root = NodeRecord::internal(1, 1, 0, 0);
-    let leaf = NodeRecord::surface(encode_normal(Vec3::Y), false, 0.0);
+    let leaf = NodeRecord::surface(encode_normal(Vec3::Y), 0.0);
     w[HEADER_WORDS..].copy_from_slice(&[root.a, root.b, leaf.a, leaf.b]);
     crate::format::seal(&mut w);
     w
@@ -464,8 +472,8 @@ fn facing_leaves() -> [u32; HEADER_WORDS + 6] {
     w[header::LUT_OFFSET] = (HEADER_WORDS + 6) as u32;
     let root = NodeRecord::internal(1, 0b101, 0, 0);
     // Both planes on the shared face (`y = 0.5`: a quarter along each normal from the centre).
-    let below = NodeRecord::surface(encode_normal(Vec3::Y), false, 0.25);
-    let above = NodeRecord::surface(encode_normal(-Vec3::Y), false, 0.25);
+    let below = NodeRecord::surface(encode_normal(Vec3::Y), 0.25);
+    let above = NodeRecord::surface(encode_normal(-Vec3::Y), 0.25);
     w[HEADER_WORDS..].copy_from_slice(&[root.a, root.b, below.a, below.b, above.a, above.b]);
     crate::format::seal(&mut w);
     w
@@ -550,7 +558,7 @@ fn solid_corner() -> [u32; HEADER_WORDS + 4] {
     let mut w = tiny();
     let labels = (1..8).fold(0u16, |l, o| l | (Label::Front.bits() as u16) << (2 * o));
     let root = NodeRecord::internal(1, 1, 0, labels);
-    let leaf = NodeRecord::surface(encode_normal(Vec3::Y), true, 0.0);
+    let leaf = NodeRecord::solid(encode_normal(Vec3::Y), [0; 6]);
     w[HEADER_WORDS..].copy_from_slice(&[root.a, root.b, leaf.a, leaf.b]);
     crate::format::seal(&mut w);
     w
@@ -659,8 +667,8 @@ fn solid_corner_beside_surfaces() -> [u32; HEADER_WORDS + 8] {
         .iter()
         .fold(0u16, |l, o| l | (Label::Front.bits() as u16) << (2 * o));
     let root = NodeRecord::internal(1, 0b0001_1001, 0, labels);
-    let cage = NodeRecord::surface(encode_normal(Vec3::Y), true, 0.0);
-    let surface = NodeRecord::surface(encode_normal(Vec3::Y), false, 0.0);
+    let cage = NodeRecord::solid(encode_normal(Vec3::Y), [0; 6]);
+    let surface = NodeRecord::surface(encode_normal(Vec3::Y), 0.0);
     w[HEADER_WORDS..].copy_from_slice(&[
         root.a, root.b, cage.a, cage.b, surface.a, surface.b, surface.a, surface.b,
     ]);
@@ -710,4 +718,93 @@ fn a_caged_particle_leaves_by_its_exit_face_and_never_by_an_edge_or_a_stale_exit
         p.is_caged() && p.velocity[2] < 0.0 && p.position[2] < 0.5,
         "{p:?}"
     );
+}
+
+/// [`solid_corner`] whose solid leaf (octant 0, `[0, 0.5]³`) has clearance 16 on its upper
+/// `y` face: the slab `y` in `[0.25, 0.5]` holds no triangle.
+fn solid_corner_with_slab() -> [u32; HEADER_WORDS + 4] {
+    let mut w = solid_corner();
+    let leaf = NodeRecord::solid(encode_normal(Vec3::Y), [0, 0, 0, 16, 0, 0]);
+    w[HEADER_WORDS + 2..].copy_from_slice(&[leaf.a, leaf.b]);
+    crate::format::seal(&mut w);
+    w
+}
+
+#[test]
+fn a_particle_entering_a_solid_leaf_by_a_face_with_clearance_collides_in_its_slab() {
+    let w = solid_corner_with_slab();
+    let view = ProxyView::new(&w).unwrap();
+    let resting = StepParams {
+        restitution: 0.0,
+        friction: 1.0,
+        ..StepParams::default()
+    };
+    // Dropped onto the solid leaf's top: it comes to rest on the slab's inner side, y = 0.25
+    // (a hair above, strictly inside the slab), not on the face at 0.5; in the slab it stays.
+    let mut p = Particle::new([0.2, 0.6, 0.3], [0.0; 3]);
+    let mut counts = MarchCounts::default();
+    for _ in 0..120 {
+        step_particle_counted(&view, &mut p, &resting, &mut counts);
+        assert!(p.position[1] > 0.25, "{p:?}");
+    }
+    assert!(
+        p.position[1] < 0.25 + 1e-6,
+        "rests on the slab's inner side: {p:?}"
+    );
+    assert_eq!(
+        p.side & !SIDE_MASK,
+        SIDE_CAGED | SIDE_SLAB | side_exit(1, true)
+    );
+    assert_eq!(p.side_only(), SIDE_FRONT);
+    assert!(counts[MarchBranch::SlabEntry] >= 1 && counts[MarchBranch::CageWall] >= 1);
+    assert_eq!(counts[MarchBranch::SolidCollision], 0);
+
+    // Sliding along the slab's floor to its side at x = 0.5: put back onto the face it came in
+    // by, y = 0.5, and on from there, out of the leaf: no longer in the slab.
+    let sliding = StepParams {
+        gravity: [0.0; 3],
+        restitution: 0.0,
+        friction: 0.0,
+        ..StepParams::default()
+    };
+    p.velocity = [3.0, 0.0, 0.0];
+    let mut counts = MarchCounts::default();
+    let mut pieces = Vec::new();
+    for _ in 0..10 {
+        step_particle_traced(&view, &mut p, &sliding, &mut |a, b| pieces.push((a, b)));
+        step_particle_counted(&view, &mut p.clone(), &sliding, &mut counts);
+    }
+    assert!(
+        !p.is_caged() && p.position[0] > 0.5 && p.position[1] == 0.5,
+        "{p:?}"
+    );
+    assert!(pieces
+        .iter()
+        .any(|&(a, b)| a.x == 0.5 && b.x == 0.5 && b.y == 0.5 && a.y < 0.5));
+
+    // Bouncing: in through the face, off the inner side, out through the face, stamped by
+    // the leaf above.
+    let elastic = StepParams {
+        gravity: [0.0; 3],
+        restitution: 1.0,
+        friction: 0.0,
+        ..StepParams::default()
+    };
+    let mut p = Particle::new([0.2, 0.55, 0.3], [0.0, -36.0, 0.0]);
+    let mut counts = MarchCounts::default();
+    step_particle_counted(&view, &mut p, &elastic, &mut counts);
+    assert_eq!(counts[MarchBranch::SlabEntry], 1);
+    assert_eq!(counts[MarchBranch::CageWall], 1);
+    assert_eq!(counts[MarchBranch::CageExit], 1);
+    assert!(
+        !p.is_caged() && p.position[1] > 0.5 && p.velocity[1] == 36.0,
+        "{p:?}"
+    );
+
+    // Into the leaf through an edge (two faces at once): no slab, a collision at the faces.
+    let mut p = Particle::new([0.55, 0.55, 0.3], [-36.0, -36.0, 0.0]);
+    let mut counts = MarchCounts::default();
+    step_particle_counted(&view, &mut p, &elastic, &mut counts);
+    assert_eq!(counts[MarchBranch::SlabEntry], 0);
+    assert_eq!(counts[MarchBranch::SolidCollision], 1);
 }

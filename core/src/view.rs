@@ -498,6 +498,13 @@ fn validate_nodes(
             if depth == 0 || depth > tree_depth {
                 return Err(FormatError::TooDeep { node: i });
             }
+            if rec.is_two_sided() {
+                // Six clearances; any values (a wrong one moves contact, not termination).
+                if rec.b >> (6 * format::CLEARANCE_BITS) != 0 {
+                    return Err(FormatError::BadNode { node: i });
+                }
+                continue;
+            }
             // The mean plane passes through the leaf: |d| is at most half its diagonal.
             let d = rec.plane_offset();
             if !d.is_finite() || d.abs() > NodeRecord::plane_offset_bound(root_size, depth) {

@@ -202,7 +202,7 @@ const REACHES: &[Reach] = {
         Reach {
             scene: "bunny",
             needs_meshes: true,
-            branches: &[SolidCollision, SlideOffSolid, Pinch],
+            branches: &[SolidCollision, SlideOffSolid, Pinch, SlabEntry, SlabSide],
         },
         Reach {
             scene: "nefertiti",
@@ -234,12 +234,14 @@ const REACHES: &[Reach] = {
                 CageWall,
                 CageExit,
                 CageNudge,
+                SlabEntry,
+                SlabSide,
             ],
         },
         Reach {
             scene: "wedge + star",
             needs_meshes: false,
-            branches: &[SolidCollision, Pinch, PinchStop],
+            branches: &[SolidCollision, Pinch, PinchStop, SlabEntry, SlabSide],
         },
         Reach {
             scene: "triangle soup + needle",
@@ -263,6 +265,8 @@ const REACHES: &[Reach] = {
                 CageWall,
                 CageExit,
                 CageNudge,
+                SlabEntry,
+                SlabSide,
             ],
         },
         Reach {
@@ -279,7 +283,14 @@ const REACHES: &[Reach] = {
         Reach {
             scene: "creases and apexes",
             needs_meshes: false,
-            branches: &[ShellBlock, SlideOffSolid, Pinch, PinchStop],
+            branches: &[
+                ShellBlock,
+                SlideOffSolid,
+                Pinch,
+                PinchStop,
+                SlabEntry,
+                SlabSide,
+            ],
         },
     ]
 };

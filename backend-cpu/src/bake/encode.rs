@@ -68,11 +68,11 @@ pub(crate) fn encode(
                 report.surface_leaves += 1;
                 report.two_sided_leaves += two_sided as usize;
                 let n = Vec3::new(s.normal.x as f32, s.normal.y as f32, s.normal.z as f32);
-                records.push(NodeRecord::surface(
-                    encode_normal(n),
-                    two_sided,
-                    s.plane_offset as f32,
-                ));
+                records.push(if two_sided {
+                    NodeRecord::solid(encode_normal(n), s.clearance)
+                } else {
+                    NodeRecord::surface(encode_normal(n), s.plane_offset as f32)
+                });
             }
         }
     }

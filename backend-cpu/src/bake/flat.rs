@@ -3,7 +3,7 @@
 //! (`Flat::for_each_touching_leaf`) that labelling and refinement query.
 
 use glam::{DVec3, UVec3};
-use octoproxy_core::format::NodeRecord;
+use octoproxy_core::format::{NodeRecord, CLEARANCE_MAX, CLEARANCE_STEPS};
 use octoproxy_core::MAX_DEPTH;
 use rayon::prelude::*;
 
@@ -20,6 +20,10 @@ pub(crate) struct Surface {
     pub two_sided: bool,
     /// Offset of the mean plane from the leaf centre along `normal`.
     pub plane_offset: f64,
+    /// Each face's clearance (`2 * axis + upper`), as a solid leaf stores it
+    /// (`NodeRecord::clearance`): the slab of the leaf within that many 32nds of its edge
+    /// from the face holds no point of its triangles.
+    pub clearance: [u32; 6],
     /// Points on the leaf's triangles inside its box, with their triangle: the start points
     /// of labelling segments.
     pub anchors: Vec<(DVec3, u32)>,
@@ -171,12 +175,26 @@ impl Flat {
     }
 }
 
+/// A face's clearance in steps of `edge / CLEARANCE_STEPS`, for a least distance `near` from
+/// the face to the leaf's triangles: the largest whole step strictly below it, with a margin
+/// of a twentieth of a step for the rounding of the step's `f32` planes; 0 for a triangle on
+/// the face, at most `CLEARANCE_MAX`.
+fn clearance_steps(near: f64, edge: f64) -> u32 {
+    let steps = near / edge * f64::from(CLEARANCE_STEPS) - 0.05;
+    if steps >= 1.0 {
+        (steps.ceil() - 1.0).min(f64::from(CLEARANCE_MAX)) as u32
+    } else {
+        0
+    }
+}
+
 fn empty_surface() -> Surface {
     Surface {
         tris: Vec::new(),
         normal: DVec3::Z,
         two_sided: false,
         plane_offset: 0.0,
+        clearance: [0; 6],
         anchors: Vec::new(),
     }
 }
@@ -191,10 +209,31 @@ fn finish_surface(s: &mut Surface, tris: &[Tri], lo: DVec3, hi: DVec3, bound: f6
     let mut rim = false;
     // Σ area · centroid of the clipped pieces, for the mean plane.
     let mut moment = DVec3::ZERO;
+    // The least distance from each face to a point of a triangle in the box.
+    let mut near = [f64::INFINITY; 6];
     for &t in &s.tris {
         let tri = &tris[t as usize];
         rim |= tri.rim_touches(lo, hi);
         let poly = geom::clip_triangle(&tri.v, lo, hi);
+        // Where clipping leaves nothing of a triangle that touches the box (numerically, at
+        // an edge or a corner), the part of its bounding box in the leaf stands in for it.
+        let (pmin, pmax) = if poly.is_empty() {
+            let (a, b) = (
+                tri.v[0].min(tri.v[1]).min(tri.v[2]),
+                tri.v[0].max(tri.v[1]).max(tri.v[2]),
+            );
+            (a.clamp(lo, hi), b.clamp(lo, hi))
+        } else {
+            poly.points()
+                .iter()
+                .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(a, b), p| {
+                    (a.min(*p), b.max(*p))
+                })
+        };
+        for a in 0..3 {
+            near[2 * a] = near[2 * a].min(pmin[a] - lo[a]);
+            near[2 * a + 1] = near[2 * a + 1].min(hi[a] - pmax[a]);
+        }
         let (area, centroid) = poly.area_centroid();
         if !poly.is_empty() {
             s.anchors.push((centroid, t));
@@ -227,6 +266,9 @@ fn finish_surface(s: &mut Surface, tris: &[Tri], lo: DVec3, hi: DVec3, bound: f6
     // both limit it.
     let limit = half_diagonal.min(bound) * 0.99;
     s.plane_offset = d.clamp(-limit, limit);
+    for (k, c) in s.clearance.iter_mut().enumerate() {
+        *c = clearance_steps(near[k], hi[k / 2] - lo[k / 2]);
+    }
     if s.anchors.is_empty() {
         // Numerically, no triangle reached inside: anchor at each centroid, clamped in.
         for &t in &s.tris {

@@ -797,3 +797,54 @@ fn leaves_near_two_sheets_are_solid_and_near_one_are_not() {
         assert!(solid_at(&view, [-0.4 * leaf, -0.2 * leaf, z]));
     }
 }
+
+#[test]
+fn solid_leaves_store_how_deep_each_face_is_clear_of_triangles() {
+    // A plate thinner than a leaf: its leaves are solid, and from their top and bottom faces
+    // each is clear down (up) to the plate, less at most a step and the margin; the sides,
+    // which the plate crosses, have none.
+    let (lo, hi) = (-0.013f32, -0.009f32);
+    let (p, t) = cube([-0.9, lo, -0.9], [0.9, hi, 0.9]);
+    let (words, report) = bake_one(
+        &p,
+        &t,
+        &BuildParams {
+            dmax: 5,
+            ..BuildParams::default()
+        },
+    );
+    assert!(report.two_sided_leaves > 0);
+    let view = ProxyView::new(&words).unwrap();
+    let mut clear = 0;
+    for x in [-0.5f32, 0.0, 0.4] {
+        let leaf = view
+            .locate_leaf(Vec3::new(x, 0.5 * (lo + hi), 0.2))
+            .unwrap();
+        assert!(leaf.two_sided, "{leaf:?}");
+        let rec = view.nodes()[leaf.node as usize];
+        let (bmin, bmax) = (leaf.aabb.min.y as f64, leaf.aabb.max.y as f64);
+        let edge = bmax - bmin;
+        // From each face to the nearest point of the plate in the leaf.
+        for (face, near) in [
+            (2, (lo as f64).max(bmin) - bmin),
+            (3, bmax - (hi as f64).min(bmax)),
+        ] {
+            let steps = rec.clearance(face);
+            let depth = f64::from(steps) / 32.0 * edge;
+            assert!(
+                depth < near || (steps == 0 && near == 0.0),
+                "face {face}: {steps} steps, {depth} deep, plate at {near}"
+            );
+            assert!(
+                depth > near - 1.1 * edge / 32.0,
+                "face {face}: {steps} steps, plate at {near}"
+            );
+            clear += (steps > 0) as u32;
+        }
+        for face in [0, 1, 4, 5] {
+            assert_eq!(rec.clearance(face), 0, "face {face}");
+        }
+        assert_eq!(leaf.plane_offset, 0.0);
+    }
+    assert!(clear >= 3, "{clear} faces with clearance");
+}

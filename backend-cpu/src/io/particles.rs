@@ -4,7 +4,8 @@
 //! with one element, `vertex`, whose properties are `x y z` (required), `vx vy vz`
 //! (velocity in units per second; all three or none), `side` and `flags` (optional, any
 //! integer type; `side` is 0 (front) or 1 (back), plus 128 and exit bits for a particle still
-//! caged in the solid leaf it started in, as `Particle::side` holds it: 128–255), and any
+//! caged in the solid leaf it started in, as `Particle::side` holds it: 128–255, and 256 more
+//! for one in a solid leaf's slab), and any
 //! other scalar properties, which are carried through unchanged:
 //! same names, types, values and order. Files are written with `x y z vx vy vz side flags`
 //! (float ×6, uint ×2) first, then the other properties.
@@ -279,7 +280,8 @@ pub fn parse_particles(name: &str, bytes: &[u8]) -> Result<ParticleCloud, Partic
                     }
                 }
                 Role::Side => {
-                    // 0 or 1, or a caged particle's side: the cage bit and any exits.
+                    // 0 or 1, or a caged particle's side: the cage bit, any exits, and the slab
+                    // bit of one in a solid leaf's slab.
                     let word = v as u32;
                     let valid = f64::from(word) == v
                         && (word <= SIDE_MASK
@@ -288,7 +290,7 @@ pub fn parse_particles(name: &str, bytes: &[u8]) -> Result<ParticleCloud, Partic
                     if !valid {
                         return Err(parse_err(
                             line,
-                            format!("vertex {i} (0-based): side is {v}; it must be 0 (front) or 1 (back), or 128-255 for a particle caged in the solid leaf it started in"),
+                            format!("vertex {i} (0-based): side is {v}; it must be 0 (front) or 1 (back), or 128-255 for a particle caged in the solid leaf it started in (384-511 in a solid leaf's slab)"),
                         ));
                     }
                     p.side = word;

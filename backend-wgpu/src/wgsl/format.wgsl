@@ -72,7 +72,14 @@ fn is_two_sided(r: NodeRecord) -> bool {
 }
 
 fn plane_offset(r: NodeRecord) -> f32 {
+    if is_two_sided(r) {
+        return 0.0;
+    }
     return bitcast<f32>(r.b);
+}
+
+fn clearance(r: NodeRecord, face: u32) -> u32 {
+    return (r.b >> (CLEARANCE_BITS * face)) & CLEARANCE_MAX;
 }
 
 fn normal(r: NodeRecord) -> vec3<f32> {

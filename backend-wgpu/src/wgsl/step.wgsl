@@ -439,6 +439,10 @@ fn slide_off_solid_face(st: ptr<function, MarchState>, next: NextLeaf) -> LeafIn
             }
         }
         if any(dir != v) {
+            if !(*st).in_shell {
+                (*st).in_shell = true;
+                (*st).shell_entry = x;
+            }
             leaf = locate_inside(x, dir);
         }
     }
@@ -480,8 +484,32 @@ fn enter_surface_leaf(st: ptr<function, MarchState>, leaf: LeafInfo, params: Ste
     if !reach_plane(st, leaf) {
         return false;
     }
+    if leaf.two_sided {
+        let slab = slab_entry(st, leaf);
+        if slab != 0u {
+            // Into the slab: the march walks it next (`walk_in_slab`).
+            (*st).exits = slab;
+            return true;
+        }
+    }
     collide(st, leaf, n, params);
     return true;
+}
+
+// core's `slab_entry`: the cage bits of the slab a particle entering a solid leaf through
+// one face with clearance goes into, or 0 to collide at the face.
+fn slab_entry(st: ptr<function, MarchState>, leaf: LeafInfo) -> u32 {
+    let axes = entry_faces(leaf.aabb, (*st).x, (*st).v);
+    if countOneBits(axes) != 1u {
+        return 0u;
+    }
+    let axis = firstTrailingBit(axes);
+    let upper = (*st).v[axis] < 0.0;
+    let c = clearance(node_record(leaf.node), 2u * axis + select(0u, 1u, upper));
+    if c == 0u {
+        return 0u;
+    }
+    return SIDE_CAGED | SIDE_SLAB | side_exit(axis, upper);
 }
 
 fn reach_plane(st: ptr<function, MarchState>, leaf: LeafInfo) -> bool {
@@ -559,6 +587,9 @@ fn walk_in_cage(st: ptr<function, MarchState>, params: StepParams) -> LeafOption
     (*st).in_shell = true;
     (*st).shell_entry = (*st).x;
     (*st).hinted.some = false;
+    if ((*st).exits & SIDE_SLAB) != 0u {
+        return walk_in_slab(st, cage, false, params);
+    }
     let budget = max_leaves_per_step(header.tree_depth);
     while (*st).remaining > 0.0 {
         if (*st).visited >= budget {
@@ -601,6 +632,86 @@ fn walk_in_cage(st: ptr<function, MarchState>, params: StepParams) -> LeafOption
         collide(st, cage, face_normal(exit.axes, (*st).v), params);
     }
     return LeafOption(cage, true);
+}
+
+// core's `walk_in_slab`: a particle in the slab of a solid leaf moves in it, collides at its
+// inner side, and leaves through the face it came in by, or is put back onto that face at a
+// side of the slab.
+fn walk_in_slab(st: ptr<function, MarchState>, leaf: LeafInfo, entered: bool, params: StepParams) -> LeafOption {
+    var none: LeafOption;
+    none.some = false;
+    let face = min(firstTrailingBit(((*st).exits & SIDE_EXITS_MASK) >> SIDE_EXITS_SHIFT), 5u);
+    let axis = face >> 1u;
+    let upper = (face & 1u) != 0u;
+    let c = clearance(node_record(leaf.node), face);
+    let edge = leaf.aabb.max[axis] - leaf.aabb.min[axis];
+    let depth = edge * (f32(c) * (1.0 / f32(CLEARANCE_STEPS)));
+    var slab = leaf;
+    var plane: f32;
+    if upper {
+        slab.aabb.min[axis] = leaf.aabb.max[axis] - depth;
+        plane = leaf.aabb.max[axis];
+    } else {
+        slab.aabb.max[axis] = leaf.aabb.min[axis] + depth;
+        plane = leaf.aabb.min[axis];
+    }
+    if !entered {
+        let inside = all((*st).x > slab.aabb.min) && all((*st).x < slab.aabb.max);
+        if c == 0u || !inside {
+            (*st).exits = 0u;
+            return none;
+        }
+    }
+    let budget = max_leaves_per_step(header.tree_depth);
+    while (*st).remaining > 0.0 {
+        if (*st).visited >= budget {
+            if entered {
+                (*st).exits = 0u;
+                return none;
+            }
+            stop_at_leaf_bound(st);
+            return LeafOption(slab, true);
+        }
+        (*st).visited += 1u;
+        let end = (*st).x + (*st).v * (*st).remaining;
+        if all(end > slab.aabb.min) && all(end < slab.aabb.max) {
+            (*st).x = end;
+            return LeafOption(slab, true);
+        }
+        let exit = exit_box(slab.aabb, (*st).x, (*st).v);
+        if exit.t >= (*st).remaining {
+            (*st).x = clamp((*st).x + (*st).v * (*st).remaining, slab.aabb.min, slab.aabb.max);
+            return LeafOption(slab, true);
+        }
+        (*st).x = exit.point;
+        (*st).remaining -= exit.t;
+        let through_face = (exit.axes & (1u << axis)) != 0u && ((*st).v[axis] > 0.0) == upper;
+        let sides = exit.axes & ~(1u << axis);
+        if through_face || sides != 0u {
+            var x = (*st).x;
+            if through_face {
+                x = strictly_inside(x, slab.aabb);
+            }
+            x[axis] = plane;
+            (*st).x = x;
+            (*st).exits = 0u;
+            (*st).shell_entry = x;
+            var out = (*st).v;
+            out[axis] = select(-1.0, 1.0, upper);
+            (*st).cross_axes = 1u << axis;
+            (*st).cross_signs = out;
+            (*st).last_collided = NO_LEAF;
+            (*st).last_leaf.some = false;
+            if root_contains(x, out) {
+                (*st).hinted = LeafOption(locate_inside(x, out), true);
+            } else {
+                (*st).hinted.some = false;
+            }
+            return none;
+        }
+        collide(st, slab, face_normal(exit.axes, (*st).v), params);
+    }
+    return LeafOption(slab, true);
 }
 
 // particle.rs's `side_exit`: the exit bit of a cage's face across `axis` on its upper or
@@ -719,6 +830,12 @@ fn march(p: ptr<function, Particle>, params: StepParams, hint: ptr<function, vec
         } else {
             let collided = enter_surface_leaf(&st, leaf, params);
             if collided {
+                if st.exits != 0u {
+                    let slab = walk_in_slab(&st, leaf, true, params);
+                    if slab.some {
+                        return finish_march(p, &st, slab);
+                    }
+                }
                 continue;
             }
         }

@@ -1392,7 +1392,8 @@ fn walk_in_slab<O: MarchObserver>(
             // slab had its start there, strictly inside a solid leaf, where it would be free
             // once out of its slab).
             st.shell_entry = x;
-            // Out across the face: the leaf beyond it at this point.
+            // Out across the face: the leaf beyond it at this point (at a side of the slab,
+            // on the leaf's edge, the leaf across that edge, as the velocity leads).
             let mut out = st.v;
             out[axis] = if upper { 1.0 } else { -1.0 };
             st.cross_axes = 1 << axis;

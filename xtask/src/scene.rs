@@ -111,6 +111,12 @@ pub fn print_bake_summary(scene: &Scene) -> Result<()> {
             "leaves: {} surface ({} two-sided), {} labelled empty ({} with conflicting votes)",
             r.surface_leaves, r.two_sided_leaves, r.labelled_leaves, r.conflicting_labels
         );
+        if r.coarse_solid_leaves > 0 {
+            eprintln!(
+                "warning: {} solid leaves are larger than a dmax leaf after {} passes; particles that start inside them are not covered by the guarantee (try a larger --dmin)",
+                r.coarse_solid_leaves, r.passes
+            );
+        }
     }
     eprintln!(
         "proxy: {} nodes, depth {} (dmin {}, dmax {}, epsilon {}), lookup table depth {}",

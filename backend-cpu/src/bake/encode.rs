@@ -67,6 +67,7 @@ pub(crate) fn encode(
                 let two_sided = s.two_sided || labels.conflicted(id) || crowded[id as usize];
                 report.surface_leaves += 1;
                 report.two_sided_leaves += two_sided as usize;
+                report.coarse_solid_leaves += (two_sided && node.depth < params.dmax) as usize;
                 let n = Vec3::new(s.normal.x as f32, s.normal.y as f32, s.normal.z as f32);
                 records.push(if two_sided {
                     NodeRecord::solid(encode_normal(n), s.clearance)

@@ -175,17 +175,39 @@ impl Flat {
     }
 }
 
-/// A face's clearance in steps of `edge / CLEARANCE_STEPS`, for a least distance `near` from
-/// the face to the leaf's triangles: the largest whole step strictly below it, with a margin
-/// of a twentieth of a step for the rounding of the step's `f32` planes; 0 for a triangle on
+/// The clearance of the face of the leaf `lo..hi` (one axis; its upper face if `upper`) in
+/// steps of the edge divided by `CLEARANCE_STEPS`, for a least distance `near` from the face
+/// to the leaf's triangles: the largest whole step strictly below it (less a twentieth of a
+/// step), then lowered until the slab's inner plane as the step computes it in `f32` (its
+/// rounding grows with the coordinates: at 2e5 from the origin half an ulp is an eighth of a
+/// 6 cm leaf) lies strictly inside the leaf and strictly short of `near`; 0 for a triangle on
 /// the face, at most `CLEARANCE_MAX`.
-fn clearance_steps(near: f64, edge: f64) -> u32 {
-    let steps = near / edge * f64::from(CLEARANCE_STEPS) - 0.05;
-    if steps >= 1.0 {
+pub(crate) fn clearance_steps(near: f64, lo: f64, hi: f64, upper: bool) -> u32 {
+    let steps = near / (hi - lo) * f64::from(CLEARANCE_STEPS) - 0.05;
+    let mut c = if steps >= 1.0 {
         (steps.ceil() - 1.0).min(f64::from(CLEARANCE_MAX)) as u32
     } else {
         0
+    };
+    // The leaf's planes are `f32` grid planes: the step's `slab` box, exactly.
+    let (lo32, hi32) = (lo as f32, hi as f32);
+    let edge = hi32 - lo32;
+    while c > 0 {
+        let depth = edge * (c as f32 * (1.0 / CLEARANCE_STEPS as f32));
+        let reach = if upper {
+            hi - f64::from(hi32 - depth)
+        } else {
+            f64::from(lo32 + depth) - lo
+        };
+        if reach <= 0.0 {
+            return 0;
+        }
+        if reach < near {
+            return c;
+        }
+        c -= 1;
     }
+    0
 }
 
 fn empty_surface() -> Surface {
@@ -267,7 +289,7 @@ fn finish_surface(s: &mut Surface, tris: &[Tri], lo: DVec3, hi: DVec3, bound: f6
     let limit = half_diagonal.min(bound) * 0.99;
     s.plane_offset = d.clamp(-limit, limit);
     for (k, c) in s.clearance.iter_mut().enumerate() {
-        *c = clearance_steps(near[k], hi[k / 2] - lo[k / 2]);
+        *c = clearance_steps(near[k], lo[k / 2], hi[k / 2], k % 2 == 1);
     }
     if s.anchors.is_empty() {
         // Numerically, no triangle reached inside: anchor at each centroid, clamped in.

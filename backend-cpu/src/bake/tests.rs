@@ -848,3 +848,40 @@ fn solid_leaves_store_how_deep_each_face_is_clear_of_triangles() {
     }
     assert!(clear >= 3, "{clear} faces with clearance");
 }
+
+#[test]
+fn a_clearance_never_reaches_the_surface_where_f32_planes_round() {
+    // At the origin a clearance is the whole steps below the distance; at 2e5 from it, where
+    // half an ulp is an eighth of a 6 cm leaf, it is lowered until the step's f32 inner plane
+    // falls short of the surface; where the plane cannot leave the face, none.
+    for (lo, edge) in [
+        (0.0f64, 0.0625f64),
+        (2e5, 0.0625),
+        (-2e5, 0.0625),
+        (2e5, 0.004),
+    ] {
+        let (lo32, hi32) = (lo as f32, (lo + edge) as f32);
+        let (lo, hi) = (lo32 as f64, hi32 as f64);
+        for upper in [false, true] {
+            for frac in [0.02, 0.3, 0.5, 0.77, 1.0] {
+                let near = frac * (hi - lo);
+                let c = flat::clearance_steps(near, lo, hi, upper);
+                if c == 0 {
+                    continue;
+                }
+                let depth = (hi32 - lo32) * (c as f32 / 32.0);
+                let reach = if upper {
+                    hi - f64::from(hi32 - depth)
+                } else {
+                    f64::from(lo32 + depth) - lo
+                };
+                assert!(
+                    reach > 0.0 && reach < near,
+                    "{lo} {edge} {upper} {frac}: {c} reaches {reach}"
+                );
+            }
+        }
+    }
+    assert_eq!(flat::clearance_steps(0.5 * 0.0625, 0.0, 0.0625, false), 15);
+    assert_eq!(flat::clearance_steps(0.0, 0.0, 0.0625, true), 0);
+}

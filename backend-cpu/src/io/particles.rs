@@ -15,7 +15,7 @@
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
-use octoproxy_core::{Particle, SIDE_CAGED, SIDE_CAGE_MASK, SIDE_MASK};
+use octoproxy_core::{Particle, SIDE_CAGED, SIDE_CAGE_MASK, SIDE_EXITS_MASK, SIDE_MASK, SIDE_SLAB};
 
 use super::gzip::{gunzip, MAX_DECOMPRESSED_BYTES};
 use crate::io::ply::{self, Element, Encoding, PlyError, Property, PropertyKind, Scalar};
@@ -286,11 +286,13 @@ pub fn parse_particles(name: &str, bytes: &[u8]) -> Result<ParticleCloud, Partic
                     let valid = f64::from(word) == v
                         && (word <= SIDE_MASK
                             || (word & SIDE_CAGED != 0
-                                && word & !(SIDE_CAGE_MASK | SIDE_MASK) == 0));
+                                && word & !(SIDE_CAGE_MASK | SIDE_MASK) == 0
+                                && (word & SIDE_SLAB == 0
+                                    || (word & SIDE_EXITS_MASK).count_ones() == 1)));
                     if !valid {
                         return Err(parse_err(
                             line,
-                            format!("vertex {i} (0-based): side is {v}; it must be 0 (front) or 1 (back), or 128-255 for a particle caged in the solid leaf it started in (384-511 in a solid leaf's slab)"),
+                            format!("vertex {i} (0-based): side is {v}; it must be 0 (front) or 1 (back), or 128-255 for a particle caged in the solid leaf it started in (384-511, with one exit, in a solid leaf's slab)"),
                         ));
                     }
                     p.side = word;

@@ -298,6 +298,7 @@ const TWINS: &[(&str, &str, Twin)] = &[
     ("step.wgsl", "enter_surface_leaf", Rust("step.rs", "enter_surface_leaf")),
     ("step.wgsl", "slab_entry", Rust("step.rs", "slab_entry")),
     ("step.wgsl", "walk_in_slab", Rust("step.rs", "walk_in_slab")),
+    ("step.wgsl", "move_in_box", Rust("step.rs", "move_in_box")),
     ("step.wgsl", "collision_normal", Rust("step.rs", "collision_normal")),
     ("step.wgsl", "reach_plane", Rust("step.rs", "reach_plane")),
     ("step.wgsl", "collide", Rust("step.rs", "collide")),

@@ -1249,23 +1249,9 @@ fn walk_in_cage<O: MarchObserver>(
             return Some(cage);
         }
         st.visited += 1;
-        let end = st.x + st.v * st.remaining;
-        if (end.cmpgt(cage.aabb.min) & end.cmplt(cage.aabb.max)).all() {
-            obs.piece(st.x, end);
-            st.x = end;
+        let Some(exit) = move_in_box(st, &cage.aabb, obs) else {
             return Some(cage);
-        }
-        let exit = exit_box(&cage.aabb, st.x, st.v);
-        if exit.t >= st.remaining {
-            obs.branch(MarchBranch::EndOnFace);
-            let end = (st.x + st.v * st.remaining).clamp(cage.aabb.min, cage.aabb.max);
-            obs.piece(st.x, end);
-            st.x = end;
-            return Some(cage);
-        }
-        obs.piece(st.x, exit.point);
-        st.x = exit.point;
-        st.remaining -= exit.t;
+        };
         let axis = exit.axes.trailing_zeros().min(2);
         let upper = st.v[axis as usize] > 0.0;
         if exit.axes.count_ones() == 1 && st.exits & side_exit(axis, upper) != 0 {
@@ -1297,6 +1283,35 @@ fn walk_in_cage<O: MarchObserver>(
         collide(st, &cage, face_normal(exit.axes, st.v), params, obs);
     }
     Some(cage)
+}
+
+/// A caged particle's move in its cage's box `b` (the leaf, or a slab of it): to the end of
+/// the step if that is strictly inside `b`, or on `b`'s boundary before the exit (`None`: the
+/// step ends there); otherwise to where it leaves `b` (`Some`, with the time left reduced).
+#[inline(always)]
+fn move_in_box<O: MarchObserver>(
+    st: &mut MarchState,
+    b: &Aabb,
+    obs: &mut O,
+) -> Option<BoxCrossing> {
+    let end = st.x + st.v * st.remaining;
+    if (end.cmpgt(b.min) & end.cmplt(b.max)).all() {
+        obs.piece(st.x, end);
+        st.x = end;
+        return None;
+    }
+    let exit = exit_box(b, st.x, st.v);
+    if exit.t >= st.remaining {
+        obs.branch(MarchBranch::EndOnFace);
+        let end = (st.x + st.v * st.remaining).clamp(b.min, b.max);
+        obs.piece(st.x, end);
+        st.x = end;
+        return None;
+    }
+    obs.piece(st.x, exit.point);
+    st.x = exit.point;
+    st.remaining -= exit.t;
+    Some(exit)
 }
 
 /// A particle in the slab of a solid leaf ([`SIDE_SLAB`]): the part of the leaf within its
@@ -1354,23 +1369,9 @@ fn walk_in_slab<O: MarchObserver>(
             return Some(slab);
         }
         st.visited += 1;
-        let end = st.x + st.v * st.remaining;
-        if (end.cmpgt(slab.aabb.min) & end.cmplt(slab.aabb.max)).all() {
-            obs.piece(st.x, end);
-            st.x = end;
+        let Some(exit) = move_in_box(st, &slab.aabb, obs) else {
             return Some(slab);
-        }
-        let exit = exit_box(&slab.aabb, st.x, st.v);
-        if exit.t >= st.remaining {
-            obs.branch(MarchBranch::EndOnFace);
-            let end = (st.x + st.v * st.remaining).clamp(slab.aabb.min, slab.aabb.max);
-            obs.piece(st.x, end);
-            st.x = end;
-            return Some(slab);
-        }
-        obs.piece(st.x, exit.point);
-        st.x = exit.point;
-        st.remaining -= exit.t;
+        };
         let through_face = exit.axes & (1 << axis) != 0 && (st.v[axis] > 0.0) == upper;
         let sides = exit.axes & !(1 << axis);
         if through_face || sides != 0 {

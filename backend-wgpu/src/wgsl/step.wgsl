@@ -597,18 +597,11 @@ fn walk_in_cage(st: ptr<function, MarchState>, params: StepParams) -> LeafOption
             return LeafOption(cage, true);
         }
         (*st).visited += 1u;
-        let end = (*st).x + (*st).v * (*st).remaining;
-        if all(end > cage.aabb.min) && all(end < cage.aabb.max) {
-            (*st).x = end;
+        let moved = move_in_box(st, cage.aabb);
+        if !moved.some {
             return LeafOption(cage, true);
         }
-        let exit = exit_box(cage.aabb, (*st).x, (*st).v);
-        if exit.t >= (*st).remaining {
-            (*st).x = clamp((*st).x + (*st).v * (*st).remaining, cage.aabb.min, cage.aabb.max);
-            return LeafOption(cage, true);
-        }
-        (*st).x = exit.point;
-        (*st).remaining -= exit.t;
+        let exit = moved.value;
         let axis = min(firstTrailingBit(exit.axes), 2u);
         let upper = (*st).v[axis] > 0.0;
         if countOneBits(exit.axes) == 1u && ((*st).exits & side_exit(axis, upper)) != 0u {
@@ -632,6 +625,26 @@ fn walk_in_cage(st: ptr<function, MarchState>, params: StepParams) -> LeafOption
         collide(st, cage, face_normal(exit.axes, (*st).v), params);
     }
     return LeafOption(cage, true);
+}
+
+// core's `move_in_box`: a caged particle's move in its cage's box; no value when the step
+// ends in the box.
+fn move_in_box(st: ptr<function, MarchState>, b: Aabb) -> BoxCrossingOption {
+    var none: BoxCrossingOption;
+    none.some = false;
+    let end = (*st).x + (*st).v * (*st).remaining;
+    if all(end > b.min) && all(end < b.max) {
+        (*st).x = end;
+        return none;
+    }
+    let exit = exit_box(b, (*st).x, (*st).v);
+    if exit.t >= (*st).remaining {
+        (*st).x = clamp((*st).x + (*st).v * (*st).remaining, b.min, b.max);
+        return none;
+    }
+    (*st).x = exit.point;
+    (*st).remaining -= exit.t;
+    return BoxCrossingOption(exit, true);
 }
 
 // core's `walk_in_slab`: a particle in the slab of a solid leaf moves in it, collides at its
@@ -673,18 +686,11 @@ fn walk_in_slab(st: ptr<function, MarchState>, leaf: LeafInfo, entered: bool, pa
             return LeafOption(slab, true);
         }
         (*st).visited += 1u;
-        let end = (*st).x + (*st).v * (*st).remaining;
-        if all(end > slab.aabb.min) && all(end < slab.aabb.max) {
-            (*st).x = end;
+        let moved = move_in_box(st, slab.aabb);
+        if !moved.some {
             return LeafOption(slab, true);
         }
-        let exit = exit_box(slab.aabb, (*st).x, (*st).v);
-        if exit.t >= (*st).remaining {
-            (*st).x = clamp((*st).x + (*st).v * (*st).remaining, slab.aabb.min, slab.aabb.max);
-            return LeafOption(slab, true);
-        }
-        (*st).x = exit.point;
-        (*st).remaining -= exit.t;
+        let exit = moved.value;
         let through_face = (exit.axes & (1u << axis)) != 0u && ((*st).v[axis] > 0.0) == upper;
         let sides = exit.axes & ~(1u << axis);
         if through_face || sides != 0u {

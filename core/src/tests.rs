@@ -771,9 +771,12 @@ fn a_particle_entering_a_solid_leaf_by_a_face_with_clearance_collides_in_its_sla
     let mut counts = MarchCounts::default();
     let mut pieces = Vec::new();
     for _ in 0..10 {
+        let mut counted = p;
+        step_particle_counted(&view, &mut counted, &sliding, &mut counts);
         step_particle_traced(&view, &mut p, &sliding, &mut |a, b| pieces.push((a, b)));
-        step_particle_counted(&view, &mut p.clone(), &sliding, &mut counts);
+        assert_eq!(bytemuck::bytes_of(&counted), bytemuck::bytes_of(&p));
     }
+    assert_eq!(counts[MarchBranch::SlabSide], 1);
     assert!(
         !p.is_caged() && p.position[0] > 0.5 && p.position[1] == 0.5,
         "{p:?}"

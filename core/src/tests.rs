@@ -811,3 +811,56 @@ fn a_particle_entering_a_solid_leaf_by_a_face_with_clearance_collides_in_its_sla
     assert_eq!(counts[MarchBranch::SlabEntry], 0);
     assert_eq!(counts[MarchBranch::SolidCollision], 1);
 }
+
+/// A root of depth 1 with two solid leaves that meet at an edge: octant 0 (`[0, 0.5]³`) with
+/// clearance 16 on its upper `y` face, octant 3 (`x` and `y` upper) with clearance 16 on its
+/// lower `x` face; the other octants empty, labelled front.
+fn solid_leaves_meeting_at_an_edge() -> [u32; HEADER_WORDS + 6] {
+    let mut w = [0u32; HEADER_WORDS + 6];
+    w[..HEADER_WORDS].copy_from_slice(&tiny()[..HEADER_WORDS]);
+    w[header::TOTAL_WORDS] = (HEADER_WORDS + 6) as u32;
+    w[header::NODE_COUNT] = 3;
+    w[header::LUT_OFFSET] = (HEADER_WORDS + 6) as u32;
+    let labels = [1, 2, 4, 5, 6, 7]
+        .iter()
+        .fold(0u16, |l, o| l | (Label::Front.bits() as u16) << (2 * o));
+    let root = NodeRecord::internal(1, 0b0000_1001, 0, labels);
+    let below = NodeRecord::solid(encode_normal(Vec3::Y), [0, 0, 0, 16, 0, 0]);
+    let beside = NodeRecord::solid(encode_normal(-Vec3::X), [16, 0, 0, 0, 0, 0]);
+    w[HEADER_WORDS..].copy_from_slice(&[root.a, root.b, below.a, below.b, beside.a, beside.b]);
+    crate::format::seal(&mut w);
+    w
+}
+
+#[test]
+fn a_particle_leaving_a_slab_at_an_edge_is_not_handed_between_slabs() {
+    let w = solid_leaves_meeting_at_an_edge();
+    let view = ProxyView::new(&w).unwrap();
+    let params = StepParams {
+        gravity: [0.0; 3],
+        restitution: 0.5,
+        friction: 0.0,
+        ..StepParams::default()
+    };
+    // Into the lower leaf's slab by its top face, across the slab to its side at x = 0.5, put
+    // back onto the top face there: on the edge both leaves share. The leaf beyond, as the
+    // velocity leads, is the upper one, entered by its lower x face at its edge, where it
+    // would be at a side of that face's slab at once and be put back into the lower leaf's
+    // slab, and so on, with no time spent, until the leaf bound (it was: 1,088 leaves, and
+    // back to where it entered the shell). On an edge it collides at the face instead.
+    let mut p = Particle::new([0.35, 0.52, 0.25], [12.0, -6.0, 0.0]);
+    let mut counts = MarchCounts::default();
+    let outcome = step_particle_counted(&view, &mut p, &params, &mut counts);
+    assert_eq!(outcome, StepOutcome::Done, "{p:?} {counts:?}");
+    assert_eq!(counts[MarchBranch::LeafBound], 0);
+    assert_eq!(counts[MarchBranch::SlabEntry], 1);
+    assert_eq!(counts[MarchBranch::SlabSide], 1);
+    assert!(counts[MarchBranch::SolidCollision] >= 1);
+    // It ends in the crease the two leaves make (pinched there), inside neither.
+    for leaf in [Vec3::new(0.25, 0.25, 0.25), Vec3::new(0.75, 0.75, 0.25)] {
+        let b = view.locate_leaf(leaf).unwrap().aabb;
+        let x = Vec3::from_array(p.position);
+        assert!(!(x.cmpgt(b.min) & x.cmplt(b.max)).all(), "{p:?}");
+    }
+    assert_eq!(p.side_only(), SIDE_FRONT);
+}

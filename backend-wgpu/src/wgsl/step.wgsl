@@ -503,6 +503,11 @@ fn slab_entry(st: ptr<function, MarchState>, leaf: LeafInfo) -> u32 {
     if countOneBits(axes) != 1u {
         return 0u;
     }
+    let within = ((*st).x > leaf.aabb.min) & ((*st).x < leaf.aabb.max);
+    let mask = select(0u, 1u, within.x) | select(0u, 2u, within.y) | select(0u, 4u, within.z);
+    if (mask | axes) != 7u {
+        return 0u;
+    }
     let axis = firstTrailingBit(axes);
     let upper = (*st).v[axis] < 0.0;
     let c = clearance(node_record(leaf.node), 2u * axis + select(0u, 1u, upper));

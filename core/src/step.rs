@@ -1086,6 +1086,11 @@ fn enter_surface_leaf<O: MarchObserver>(
         obs.branch(MarchBranch::SolidCollision);
     }
     collide(st, leaf, n, params, obs);
+    // Still strictly inside the leaf (it collided on the leaf's plane, or started inside a
+    // solid leaf): the march goes on in this leaf, which point location would find again.
+    if (st.x.cmpgt(leaf.aabb.min) & st.x.cmplt(leaf.aabb.max)).all() {
+        st.hinted = Some(*leaf);
+    }
     true
 }
 

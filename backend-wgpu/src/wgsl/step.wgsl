@@ -493,6 +493,9 @@ fn enter_surface_leaf(st: ptr<function, MarchState>, leaf: LeafInfo, params: Ste
         }
     }
     collide(st, leaf, n, params);
+    if all((*st).x > leaf.aabb.min) && all((*st).x < leaf.aabb.max) {
+        (*st).hinted = LeafOption(leaf, true);
+    }
     return true;
 }
 

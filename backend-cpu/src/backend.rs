@@ -33,7 +33,7 @@ pub enum CpuError {
 pub struct CpuBackend {
     proxy: Option<OwnedProxy>,
     particles: Vec<Particle>,
-    /// Each particle's last empty leaf, so that its next step starts there (core's
+    /// Each particle's last leaf, so that its next step starts there (core's
     /// [`LeafHint`]); reset when the proxy or the particles are replaced.
     hints: Vec<LeafHint>,
     use_lut: bool,

@@ -105,6 +105,11 @@ pub fn shared_constants() -> Vec<(&'static str, SharedValue)> {
         ("HINT_DEPTH_SHIFT", U32(LeafHint::DEPTH_SHIFT)),
         ("HINT_LABEL_SHIFT", U32(LeafHint::LABEL_SHIFT)),
         ("HINT_DEPTH_MASK", U32(LeafHint::DEPTH_MASK)),
+        ("HINT_SURFACE", U32(LeafHint::SURFACE)),
+        ("HINT_MAX_SURFACE_DEPTH", U32(LeafHint::MAX_SURFACE_DEPTH)),
+        ("HINT_SURFACE_CELL_BITS", U32(LeafHint::SURFACE_CELL_BITS)),
+        ("HINT_RECORD_DEPTH_SHIFT", U32(LeafHint::RECORD_DEPTH_SHIFT)),
+        ("HINT_RECORD_MASK", U32(LeafHint::RECORD_MASK)),
         ("WORKGROUP_SIZE", U32(WORKGROUP_SIZE)),
     ]
 }

@@ -266,6 +266,7 @@ const TWINS: &[(&str, &str, Twin)] = &[
     ("query.wgsl", "root_aabb", Rust("query.rs", "ProxyView::root_aabb")),
     ("query.wgsl", "cell_aabb", Rust("query.rs", "ProxyView::cell_aabb")),
     ("query.wgsl", "root_contains", Rust("query.rs", "ProxyView::root_contains")),
+    ("query.wgsl", "surface_leaf", Rust("query.rs", "ProxyView::surface_leaf")),
     ("query.wgsl", "empty_leaf", Rust("query.rs", "ProxyView::empty_leaf")),
     ("query.wgsl", "cell_at_depth", Rust("query.rs", "ProxyView::cell_at_depth")),
     ("query.wgsl", "locate_inside", Rust("query.rs", "ProxyView::locate_inside")),

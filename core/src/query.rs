@@ -7,7 +7,7 @@
 
 use glam::{UVec3, Vec3, Vec3A};
 
-use crate::format::{Label, LUT_DEPTH_SHIFT, LUT_INDEX_MASK, MAX_DEPTH};
+use crate::format::{Label, NodeRecord, LUT_DEPTH_SHIFT, LUT_INDEX_MASK, MAX_DEPTH};
 use crate::view::ProxyView;
 
 /// An axis-aligned box.
@@ -228,17 +228,7 @@ impl ProxyView<'_> {
         loop {
             let rec = nodes[index as usize];
             if rec.is_leaf() {
-                return LeafInfo {
-                    aabb: self.cell_aabb(cell, depth),
-                    kind: LeafKind::Surface,
-                    normal: rec.normal(),
-                    two_sided: rec.is_two_sided(),
-                    plane_offset: rec.plane_offset(),
-                    label: Label::None,
-                    node: index,
-                    depth,
-                    cell,
-                };
+                return self.surface_leaf(cell, depth, index, rec);
             }
             if depth >= MAX_DEPTH {
                 // A validated proxy has no internal node this deep; stay total anyway.
@@ -267,6 +257,30 @@ impl ProxyView<'_> {
                 return self.empty_leaf(cell, depth, index, label);
             }
             index = rec.child_index(octant);
+        }
+    }
+
+    /// The surface leaf `rec`, record `index`, of the cell `cell` at `depth`: what a descent
+    /// that reaches it returns, and what a hint naming it ([`LeafHint`](crate::LeafHint))
+    /// gives.
+    #[inline(always)]
+    pub(crate) fn surface_leaf(
+        &self,
+        cell: UVec3,
+        depth: u32,
+        index: u32,
+        rec: NodeRecord,
+    ) -> LeafInfo {
+        LeafInfo {
+            aabb: self.cell_aabb(cell, depth),
+            kind: LeafKind::Surface,
+            normal: rec.normal(),
+            two_sided: rec.is_two_sided(),
+            plane_offset: rec.plane_offset(),
+            label: Label::None,
+            node: index,
+            depth,
+            cell,
         }
     }
 

@@ -33,7 +33,7 @@
 //!
 //! Most steps start and end inside one empty leaf. [`step_particle_hinted`] takes the leaf a
 //! particle's last step ended in ([`LeafHint`]) and, while the particle is strictly inside it,
-//! starts there instead of descending the tree; a step that also ends strictly inside it is
+//! starts there instead of descending the tree; a step that also ends strictly inside an empty one is
 //! settled before the march is set up (`settle_in_hinted_leaf`; `settle_leaving_root` for
 //! particles flying away outside the root). The backends keep a hint beside every particle.
 //!
@@ -373,9 +373,16 @@ fn side_of(label: Label) -> u32 {
     }
 }
 
-/// The empty leaf a particle ended its last step in, kept by a backend beside the particle so
-/// that the next step can start there instead of descending the tree. Two words, zero when
-/// there is none ([`LeafHint::NONE`], also `LeafHint::default()`).
+/// The leaf a particle ended its last step in, kept by a backend beside the particle so that
+/// the next step can start there instead of descending the tree: an empty leaf, or a
+/// one-sided surface leaf (where particles rest, on its plane). Two words, zero when there is
+/// none ([`LeafHint::NONE`], also `LeafHint::default()`).
+///
+/// - **Empty leaf:** `xy = cell.x | cell.y << 16`, `z_depth_label = cell.z | depth << 16 |
+///   label bits << 21 | VALID`; bits 23–30 zero.
+/// - **One-sided surface leaf** no deeper than [`LeafHint::MAX_SURFACE_DEPTH`] (10):
+///   `xy = record index | depth << 27`, `z_depth_label = cell.x | cell.y << 10 | cell.z << 20 |
+///   SURFACE | VALID`. Deeper surface leaves and solid ones get no hint.
 ///
 /// A hint only saves work: a step uses it only when the particle lies strictly inside the
 /// hinted leaf's box, where the descent would find that very leaf, so a step gives the same
@@ -384,15 +391,17 @@ fn side_of(label: Label) -> u32 {
 /// reset; the box check catches it).
 ///
 /// Give a step only [`LeafHint::NONE`] or a hint a step left with the same proxy. A hint made
-/// up by hand is checked for shape (depth, cell range, label) and for holding the particle,
-/// never against the tree: one that names a cell which is not an empty leaf is memory-safe,
-/// but the step believes it, and may miss the surface there.
+/// up by hand is checked for shape (depth, cell range, label; a surface hint's record is a
+/// one-sided surface leaf of the proxy) and for holding the particle, never against the
+/// tree: one that names a cell which is not that leaf is memory-safe, but the step believes
+/// it, and may miss the surface there.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
 pub struct LeafHint {
-    /// `cell.x | cell.y << 16`.
+    /// Empty leaf: `cell.x | cell.y << 16`; surface leaf: `record | depth << 27`.
     pub xy: u32,
-    /// `cell.z | depth << DEPTH_SHIFT | label bits << LABEL_SHIFT | VALID`.
+    /// Empty leaf: `cell.z | depth << DEPTH_SHIFT | label bits << LABEL_SHIFT | VALID`;
+    /// surface leaf: the cell in 10 bits an axis, `SURFACE | VALID`.
     pub z_depth_label: u32,
 }
 
@@ -406,6 +415,8 @@ impl LeafHint {
     };
     /// Set in `z_depth_label` when the hint holds a leaf.
     pub const VALID: u32 = 1 << 31;
+    /// Set in `z_depth_label` when the leaf is a one-sided surface leaf.
+    pub const SURFACE: u32 = 1 << 30;
     /// Mask of one cell coordinate (a leaf is at most [`MAX_DEPTH`] = 16 deep).
     pub const CELL_MASK: u32 = 0xffff;
     /// Shift of the cell's `y` in `xy`.
@@ -416,11 +427,32 @@ impl LeafHint {
     pub const LABEL_SHIFT: u32 = 21;
     /// Mask of the depth, after shifting.
     pub const DEPTH_MASK: u32 = 0x1f;
+    /// The deepest surface leaf a hint holds: its cell takes 10 bits an axis.
+    pub const MAX_SURFACE_DEPTH: u32 = 10;
+    /// Bits of one axis of a surface leaf's cell in `z_depth_label`.
+    pub const SURFACE_CELL_BITS: u32 = 10;
+    /// Shift of a surface leaf's depth in `xy`, above its record index.
+    pub const RECORD_DEPTH_SHIFT: u32 = 27;
+    /// Mask of a surface leaf's record index in `xy` (a proxy has fewer than `2^27` records).
+    pub const RECORD_MASK: u32 = (1 << Self::RECORD_DEPTH_SHIFT) - 1;
 
-    /// The hint for `leaf`: its cell, depth and label if it is empty; none for a surface leaf.
+    /// The hint for `leaf`: its cell, depth and label if it is empty; its record, depth and
+    /// cell if it is a one-sided surface leaf no deeper than [`Self::MAX_SURFACE_DEPTH`]; none
+    /// otherwise.
     fn of(leaf: &LeafInfo) -> LeafHint {
-        if leaf.kind != LeafKind::Empty {
-            return LeafHint::NONE;
+        if leaf.kind == LeafKind::Surface {
+            if leaf.two_sided || leaf.depth > Self::MAX_SURFACE_DEPTH {
+                return LeafHint::NONE;
+            }
+            let b = Self::SURFACE_CELL_BITS;
+            return LeafHint {
+                xy: leaf.node | leaf.depth << Self::RECORD_DEPTH_SHIFT,
+                z_depth_label: leaf.cell.x
+                    | leaf.cell.y << b
+                    | leaf.cell.z << (2 * b)
+                    | Self::SURFACE
+                    | Self::VALID,
+            };
         }
         LeafHint {
             xy: leaf.cell.x | leaf.cell.y << Self::Y_SHIFT,
@@ -435,21 +467,42 @@ impl LeafHint {
     #[inline]
     fn leaf(self, view: &ProxyView<'_>, x: Vec3) -> Option<LeafInfo> {
         let w = self.z_depth_label;
-        let depth = (w >> Self::DEPTH_SHIFT) & Self::DEPTH_MASK;
-        // Depth 0 would be the root, which is never a leaf.
-        if w & Self::VALID == 0 || depth == 0 || depth > MAX_DEPTH {
+        if w & Self::VALID == 0 {
             return None;
         }
-        let cell = UVec3::new(
-            self.xy & Self::CELL_MASK,
-            self.xy >> Self::Y_SHIFT,
-            w & Self::CELL_MASK,
-        );
-        if (cell.x | cell.y | cell.z) >> depth != 0 {
-            return None;
-        }
-        let label = Label::from_bits((w >> Self::LABEL_SHIFT) & 3)?;
-        let leaf = view.empty_leaf(cell, depth, NO_LEAF, label);
+        let leaf = if w & Self::SURFACE != 0 {
+            let depth = self.xy >> Self::RECORD_DEPTH_SHIFT;
+            let node = self.xy & Self::RECORD_MASK;
+            let (b, mask) = (Self::SURFACE_CELL_BITS, (1 << Self::SURFACE_CELL_BITS) - 1);
+            let cell = UVec3::new(w & mask, (w >> b) & mask, (w >> (2 * b)) & mask);
+            if depth == 0
+                || depth > Self::MAX_SURFACE_DEPTH
+                || (cell.x | cell.y | cell.z) >> depth != 0
+            {
+                return None;
+            }
+            let rec = *view.nodes().get(node as usize)?;
+            if !rec.is_leaf() || rec.is_two_sided() {
+                return None;
+            }
+            view.surface_leaf(cell, depth, node, rec)
+        } else {
+            let depth = (w >> Self::DEPTH_SHIFT) & Self::DEPTH_MASK;
+            // Depth 0 would be the root, which is never a leaf.
+            if depth == 0 || depth > MAX_DEPTH {
+                return None;
+            }
+            let cell = UVec3::new(
+                self.xy & Self::CELL_MASK,
+                self.xy >> Self::Y_SHIFT,
+                w & Self::CELL_MASK,
+            );
+            if (cell.x | cell.y | cell.z) >> depth != 0 {
+                return None;
+            }
+            let label = Label::from_bits((w >> Self::LABEL_SHIFT) & 3)?;
+            view.empty_leaf(cell, depth, NO_LEAF, label)
+        };
         if !(x.cmpgt(leaf.aabb.min).all() && x.cmplt(leaf.aabb.max).all()) {
             return None;
         }
@@ -466,7 +519,7 @@ pub fn step_particle(view: &ProxyView<'_>, p: &mut Particle, params: &StepParams
 }
 
 /// [`step_particle`], starting from the leaf in `hint` when the particle is still strictly
-/// inside it, and leaving in `hint` the empty leaf the step ended in (or [`LeafHint::NONE`]).
+/// inside it, and leaving in `hint` the leaf the step ended in (or [`LeafHint::NONE`]).
 /// With [`LeafHint::NONE`] or a hint this function left with the same proxy, the result is
 /// [`step_particle`]'s, bit for bit; only the work differs (see [`LeafHint`]).
 #[inline(always)]
@@ -536,7 +589,7 @@ fn settle_in_hinted_leaf(
         w & LeafHint::CELL_MASK,
     );
     // `LeafHint::leaf`'s shape checks; `depth - 1 < MAX_DEPTH` is `1 <= depth <= MAX_DEPTH`.
-    let shape_ok = (w & LeafHint::VALID != 0)
+    let shape_ok = (w & (LeafHint::VALID | LeafHint::SURFACE) == LeafHint::VALID)
         & (depth.wrapping_sub(1) < MAX_DEPTH)
         & ((cell.x | cell.y | cell.z) >> depth == 0)
         & (label_bits != 3);

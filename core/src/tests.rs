@@ -282,8 +282,8 @@ fn leaf_hints_change_nothing_but_the_work() {
         ..StepParams::default()
     };
     let slow = Particle::new([0.75, 0.75, 0.75], [0.6, 0.0, 0.0]);
-    // A step that ends in an empty leaf leaves it as the hint; one that ends in a surface leaf
-    // leaves none.
+    // A step that ends in an empty leaf leaves it as the hint; one that ends in a one-sided
+    // surface leaf leaves that leaf: its record (1), depth (1) and cell (0).
     let mut hint = LeafHint::NONE;
     let mut p = slow;
     step_particle_hinted(&view, &mut p, &params, &mut hint);
@@ -292,10 +292,18 @@ fn leaf_hints_change_nothing_but_the_work() {
         hint.z_depth_label,
         1 | 1 << LeafHint::DEPTH_SHIFT | LeafHint::VALID
     );
-    let mut q = Particle::new([0.25, 0.3, 0.25], [0.0, 0.6, 0.0]);
-    let mut none = hint;
-    step_particle_hinted(&view, &mut q, &params, &mut none);
-    assert_eq!(none, LeafHint::NONE, "a surface leaf is not hinted");
+    let rising = Particle::new([0.25, 0.3, 0.25], [0.0, 0.6, 0.0]);
+    let mut q = rising;
+    let mut surface = hint;
+    step_particle_hinted(&view, &mut q, &params, &mut surface);
+    assert_eq!(
+        surface,
+        LeafHint {
+            xy: 1 | 1 << LeafHint::RECORD_DEPTH_SHIFT,
+            z_depth_label: LeafHint::SURFACE | LeafHint::VALID,
+        },
+        "the surface leaf is hinted"
+    );
     // Every hint that is malformed, or whose leaf does not hold the particle, gives what no
     // hint gives; so does the right one.
     let (good_xy, good_z) = (hint.xy, hint.z_depth_label);
@@ -333,14 +341,53 @@ fn leaf_hints_change_nothing_but_the_work() {
             z_depth_label: depth << LeafHint::DEPTH_SHIFT | LeafHint::VALID,
         });
     }
-    for start in [
-        slow,
-        Particle::new([0.75, 0.75, 0.75], [-40.0, -40.0, -40.0]),
-        Particle::new([0.5, 0.75, 0.75], [1.0, 0.0, 0.0]),
+    // Surface hints: the good one, and malformed ones (the root's record, which is internal;
+    // a record beyond the proxy's; depth 0, 11 (deeper than a surface hint holds) and 2 (a
+    // cell that does not hold the particle); a cell out of range).
+    let (sxy, sz) = (surface.xy, surface.z_depth_label);
+    let mut surface_hints = vec![surface, LeafHint::NONE, hint];
+    for (xy, z) in [
+        (1 << LeafHint::RECORD_DEPTH_SHIFT, sz),
+        (2 | 1 << LeafHint::RECORD_DEPTH_SHIFT, sz),
+        (
+            LeafHint::RECORD_MASK | 1 << LeafHint::RECORD_DEPTH_SHIFT,
+            sz,
+        ),
+        (1, sz),
+        (1 | 11 << LeafHint::RECORD_DEPTH_SHIFT, sz),
+        (1 | 2 << LeafHint::RECORD_DEPTH_SHIFT, sz),
+        (sxy, sz | 2),
+        (sxy, sz & !LeafHint::VALID),
     ] {
+        surface_hints.push(LeafHint {
+            xy,
+            z_depth_label: z,
+        });
+    }
+    hints.extend_from_slice(&surface_hints);
+    // Starts in the empty leaves with every hint; starts in the surface leaf with the
+    // surface hints (the made-up empty hint of its cell above is believed: see below).
+    let cases = [
+        (slow, &hints),
+        (
+            Particle::new([0.75, 0.75, 0.75], [-40.0, -40.0, -40.0]),
+            &hints,
+        ),
+        (Particle::new([0.5, 0.75, 0.75], [1.0, 0.0, 0.0]), &hints),
+        (rising, &surface_hints),
+        (
+            Particle::new([0.25, 0.26, 0.25], [0.0, -1.0, 0.0]),
+            &surface_hints,
+        ),
+        (
+            Particle::new([0.2, 0.3, 0.1], [3.0, -0.5, 1.0]),
+            &surface_hints,
+        ),
+    ];
+    for (start, hints) in cases {
         let mut expected = start;
         step_particle(&view, &mut expected, &params);
-        for h in &hints {
+        for h in hints {
             let mut got = start;
             let mut h = *h;
             step_particle_hinted(&view, &mut got, &params, &mut h);

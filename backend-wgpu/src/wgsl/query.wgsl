@@ -55,6 +55,11 @@ fn root_contains(p: vec3<f32>, dir: vec3<f32>) -> bool {
     return true;
 }
 
+// core's `ProxyView::surface_leaf`: the surface leaf `rec`, record `index`, of the cell.
+fn surface_leaf(cell: vec3<u32>, depth: u32, index: u32, rec: NodeRecord) -> LeafInfo {
+    return LeafInfo(cell_aabb(cell, depth), LEAF_SURFACE, normal(rec), is_two_sided(rec), plane_offset(rec), LABEL_NONE, index, depth, cell);
+}
+
 fn empty_leaf(cell: vec3<u32>, depth: u32, parent: u32, label: u32) -> LeafInfo {
     return LeafInfo(cell_aabb(cell, depth), LEAF_EMPTY, vec3<f32>(0.0), false, 0.0, label, parent, depth, cell);
 }
@@ -141,7 +146,7 @@ fn descend(start: u32, start_depth: u32, start_cell: vec3<u32>, known_cell: vec3
     for (var guard = 0u; guard <= MAX_DEPTH; guard++) {
         let rec = node_record(index);
         if is_leaf(rec) {
-            return LeafInfo(cell_aabb(cell, depth), LEAF_SURFACE, normal(rec), is_two_sided(rec), plane_offset(rec), LABEL_NONE, index, depth, cell);
+            return surface_leaf(cell, depth, index, rec);
         }
         if depth >= MAX_DEPTH {
             // A validated proxy has no internal node this deep; stay total anyway.

@@ -174,13 +174,21 @@ fn side_of(label: u32) -> u32 {
     return SIDE_FRONT;
 }
 
-// core's `LeafHint` is `vec2<u32>(xy, z_depth_label)`: the empty leaf a particle ended its
-// last step in, or zero.
+// core's `LeafHint` is `vec2<u32>(xy, z_depth_label)`: the empty or one-sided surface leaf a
+// particle ended its last step in, or zero.
 
-// core's `LeafHint::of`: the hint for `leaf`, none for a surface leaf.
+// core's `LeafHint::of`: the hint for `leaf`; for a one-sided surface leaf no deeper than
+// HINT_MAX_SURFACE_DEPTH its record, depth and cell; none for other surface leaves.
 fn leaf_hint_of(leaf: LeafInfo) -> vec2<u32> {
-    if leaf.kind != LEAF_EMPTY {
-        return vec2<u32>(0u);
+    if leaf.kind == LEAF_SURFACE {
+        if leaf.two_sided || leaf.depth > HINT_MAX_SURFACE_DEPTH {
+            return vec2<u32>(0u);
+        }
+        let b = HINT_SURFACE_CELL_BITS;
+        return vec2<u32>(
+            leaf.node | (leaf.depth << HINT_RECORD_DEPTH_SHIFT),
+            leaf.cell.x | (leaf.cell.y << b) | (leaf.cell.z << (2u * b)) | HINT_SURFACE | HINT_VALID,
+        );
     }
     return vec2<u32>(
         leaf.cell.x | (leaf.cell.y << HINT_Y_SHIFT),
@@ -194,20 +202,44 @@ fn leaf_hint_leaf(hint: vec2<u32>, x: vec3<f32>) -> LeafOption {
     var none: LeafOption;
     none.some = false;
     let w = hint.y;
-    let depth = (w >> HINT_DEPTH_SHIFT) & HINT_DEPTH_MASK;
-    // Depth 0 would be the root, which is never a leaf.
-    if (w & HINT_VALID) == 0u || depth == 0u || depth > MAX_DEPTH {
+    if (w & HINT_VALID) == 0u {
         return none;
     }
-    let cell = vec3<u32>(hint.x & HINT_CELL_MASK, hint.x >> HINT_Y_SHIFT, w & HINT_CELL_MASK);
-    if ((cell.x | cell.y | cell.z) >> depth) != 0u {
-        return none;
+    var leaf: LeafInfo;
+    if (w & HINT_SURFACE) != 0u {
+        let depth = hint.x >> HINT_RECORD_DEPTH_SHIFT;
+        let node = hint.x & HINT_RECORD_MASK;
+        let b = HINT_SURFACE_CELL_BITS;
+        let mask = (1u << b) - 1u;
+        let cell = vec3<u32>(w & mask, (w >> b) & mask, (w >> (2u * b)) & mask);
+        if depth == 0u || depth > HINT_MAX_SURFACE_DEPTH || ((cell.x | cell.y | cell.z) >> depth) != 0u {
+            return none;
+        }
+        // Rust's `nodes().get(node)`: the records lie between the header and the table.
+        if node >= (header.lut_offset - HEADER_WORDS) / NODE_WORDS {
+            return none;
+        }
+        let rec = node_record(node);
+        if !is_leaf(rec) || is_two_sided(rec) {
+            return none;
+        }
+        leaf = surface_leaf(cell, depth, node, rec);
+    } else {
+        let depth = (w >> HINT_DEPTH_SHIFT) & HINT_DEPTH_MASK;
+        // Depth 0 would be the root, which is never a leaf.
+        if depth == 0u || depth > MAX_DEPTH {
+            return none;
+        }
+        let cell = vec3<u32>(hint.x & HINT_CELL_MASK, hint.x >> HINT_Y_SHIFT, w & HINT_CELL_MASK);
+        if ((cell.x | cell.y | cell.z) >> depth) != 0u {
+            return none;
+        }
+        let label = (w >> HINT_LABEL_SHIFT) & 3u;
+        if label > LABEL_BACK {
+            return none;
+        }
+        leaf = empty_leaf(cell, depth, NO_LEAF, label);
     }
-    let label = (w >> HINT_LABEL_SHIFT) & 3u;
-    if label > LABEL_BACK {
-        return none;
-    }
-    let leaf = empty_leaf(cell, depth, NO_LEAF, label);
     if !(all(x > leaf.aabb.min) && all(x < leaf.aabb.max)) {
         return none;
     }
@@ -267,7 +299,7 @@ fn settle_in_hinted_leaf(p: ptr<function, Particle>, params: StepParams, hint: v
     let label_bits = (w >> HINT_LABEL_SHIFT) & 3u;
     let cell = vec3<u32>(hint.x & HINT_CELL_MASK, hint.x >> HINT_Y_SHIFT, w & HINT_CELL_MASK);
     // `leaf_hint_leaf`'s shape checks; `depth - 1 < MAX_DEPTH` is `1 <= depth <= MAX_DEPTH`.
-    let shape_ok = ((w & HINT_VALID) != 0u) & (depth - 1u < MAX_DEPTH) & (((cell.x | cell.y | cell.z) >> depth) == 0u) & (label_bits != 3u);
+    let shape_ok = ((w & (HINT_VALID | HINT_SURFACE)) == HINT_VALID) & (depth - 1u < MAX_DEPTH) & (((cell.x | cell.y | cell.z) >> depth) == 0u) & (label_bits != 3u);
     if !shape_ok {
         return false;
     }

@@ -113,7 +113,7 @@ pub fn print_bake_summary(scene: &Scene) -> Result<()> {
         );
         if r.coarse_solid_leaves > 0 {
             eprintln!(
-                "warning: {} solid leaves are larger than a dmax leaf after {} passes; particles that start inside them are not covered by the guarantee (try a larger --dmin)",
+                "warning: {} solid leaves are larger than a dmax leaf after {} passes (rounding kept them from splitting: the scene is far from the origin for its size); particles that start inside them are not covered by the guarantee (move the scene nearer the origin)",
                 r.coarse_solid_leaves, r.passes
             );
         }

@@ -219,9 +219,11 @@ pub struct BuildReport {
     pub surface_leaves: usize,
     /// Of those, two-sided.
     pub two_sided_leaves: usize,
-    /// Of those, larger than `dmax` leaves: left so after the bake's passes (see [`bake`]).
-    /// A particle caged in one moves about in it farther than a `dmax` diagonal from the
-    /// surface, so the guarantee does not cover particles that start inside one.
+    /// Of those, larger than `dmax` leaves. The bake's last pass refines every surface leaf
+    /// to `dmax` when the others leave such a leaf (see [`bake`]), so this is zero unless
+    /// rounding at extreme magnitudes kept a node from splitting. A particle caged in one
+    /// moves about in it farther than a `dmax` diagonal from the surface, so the guarantee
+    /// does not cover particles that start inside one.
     pub coarse_solid_leaves: usize,
     /// Empty leaves given a label.
     pub labelled_leaves: usize,
@@ -229,7 +231,8 @@ pub struct BuildReport {
     pub conflicting_labels: usize,
     /// Depth of the deepest leaf.
     pub tree_depth: u32,
-    /// Subdivide–label passes made (more than one when conflicts forced refinement).
+    /// Subdivide–label passes made (more than one when conflicts forced refinement; the
+    /// last of `MAX_PASSES + 1` refines every surface leaf to `dmax`).
     pub passes: u32,
     /// Lookup-table depth used.
     pub lut_depth: u32,
@@ -335,6 +338,17 @@ pub fn bake(
     params: &BuildParams,
     progress: &dyn BuildProgress,
 ) -> Result<(Vec<u32>, BuildReport), BuildError> {
+    bake_in_passes(meshes, params, progress, MAX_PASSES)
+}
+
+/// [`bake`] with at most `max_passes` subdivide–label passes before the last one, which
+/// refines every surface leaf to `dmax` (tests take fewer, to reach that pass).
+pub(crate) fn bake_in_passes(
+    meshes: &[MeshRef<'_>],
+    params: &BuildParams,
+    progress: &dyn BuildProgress,
+    max_passes: u32,
+) -> Result<(Vec<u32>, BuildReport), BuildError> {
     params.validate()?;
     let mut report = BuildReport::default();
     let t = Instant::now();
@@ -347,13 +361,15 @@ pub fn bake(
     report.root_size = grid.root_size;
 
     // Subdivide, flatten, label; if a leaf larger than dmax came out solid (two-sided: its
-    // normals cancel, or its labels conflict), force its region down to dmax and go again (solid leaves must be
-    // small: a particle inside one is then never farther than a dmax diagonal from the
-    // surface). The same for a leaf larger than dmax that touches a surface leaf holding
-    // another part of the scene (see `touches_other_parts`). A few passes settle it; what
-    // remains is left solid and reported (`coarse_solid_leaves`). Unions of thin parts at
-    // coarse `dmin` needed more than 4 passes (found by the penetration fuzz target: a
-    // particle caged in a solid leaf 8 `dmax` leaves wide went 3 leaves deep into a part).
+    // normals cancel, or its labels conflict), force its region down to dmax and go again
+    // (solid leaves must be small: a particle inside one is then never farther than a dmax
+    // diagonal from the surface). The same for a leaf larger than dmax that touches a surface
+    // leaf holding another part of the scene (see `touches_other_parts`). A few passes settle
+    // it. Where they do not (unions of thin parts at coarse `dmin` needed more than 4: found
+    // by the penetration fuzz target, a particle caged in a solid leaf 8 `dmax` leaves wide
+    // went 3 leaves deep into a part), one last pass refines every surface leaf to dmax: no
+    // leaf is then solid and coarse (`coarse_solid_leaves` counts what rounding at extreme
+    // magnitudes still leaves), at the cost of a larger proxy for that scene.
     let mut force = Forced::default();
     let mut pass = 0;
     let (tree, labels, crowded) = loop {
@@ -405,9 +421,13 @@ pub fn bake(
                     .then_some((n.depth, n.cell))
             })
             .collect();
-        if big.is_empty() || pass >= MAX_PASSES {
+        if big.is_empty() || force.everything {
             report.passes = pass;
             break (tree, labels, crowded);
+        }
+        if pass >= max_passes {
+            force.everything = true;
+            continue;
         }
         for (depth, cell) in big {
             force.add(depth, cell);
@@ -694,6 +714,8 @@ pub(crate) struct Forced {
     holders: HashSet<(u32, [u32; 3])>,
     /// The depth of the shallowest forced cell (`u32::MAX` when none).
     shallowest: u32,
+    /// Every cell is forced: the bake's last pass.
+    everything: bool,
 }
 
 impl Default for Forced {
@@ -702,6 +724,7 @@ impl Default for Forced {
             cells: HashSet::new(),
             holders: HashSet::new(),
             shallowest: u32::MAX,
+            everything: false,
         }
     }
 }
@@ -717,7 +740,8 @@ impl Forced {
 
     /// Whether the cell `cell` at `depth` overlaps a forced cell.
     pub(crate) fn overlaps(&self, depth: u32, cell: UVec3) -> bool {
-        self.holders.contains(&(depth, cell.to_array()))
+        self.everything
+            || self.holders.contains(&(depth, cell.to_array()))
             || (self.shallowest..=depth)
                 .any(|d| self.cells.contains(&(d, (cell >> (depth - d)).to_array())))
     }

@@ -885,3 +885,59 @@ fn a_clearance_never_reaches_the_surface_where_f32_planes_round() {
     assert_eq!(flat::clearance_steps(0.5 * 0.0625, 0.0, 0.0625, false), 15);
     assert_eq!(flat::clearance_steps(0.0, 0.0, 0.0625, true), 0);
 }
+
+#[test]
+fn the_last_pass_leaves_no_solid_leaf_coarser_than_dmax() {
+    // Thin parts through each other, a sheet soup and a sphere at a coarse dmin: scenes whose
+    // first pass leaves coarse leaves solid. With one pass before the last, the last refines
+    // every surface leaf to dmax; with all of them, the same holds.
+    use crate::scenes::{merge, slab, triangle_soup, uv_sphere};
+    let scenes = [
+        merge(&[
+            slab([0.0; 3], [1.0, 0.02, 1.0]),
+            slab([0.0; 3], [0.02, 1.0, 1.0]),
+            slab([0.1, 0.0, 0.0], [0.02, 1.0, 0.7]),
+        ]),
+        triangle_soup(60, 5),
+        merge(&[
+            uv_sphere([0.0; 3], 0.5, 24, 12),
+            slab([0.0; 3], [1.4, 0.03, 0.3]),
+        ]),
+    ];
+    let params = BuildParams {
+        dmin: 2,
+        dmax: 7,
+        ..BuildParams::default()
+    };
+    let mut reached_last_pass = 0;
+    for (i, mesh) in scenes.iter().enumerate() {
+        for max_passes in [1, MAX_PASSES] {
+            let refs = [MeshRef::from(mesh)];
+            let (words, report) = bake_in_passes(&refs, &params, &(), max_passes).unwrap();
+            let view = ProxyView::new(&words).unwrap();
+            assert_eq!(
+                report.coarse_solid_leaves, 0,
+                "scene {i}, {max_passes} passes"
+            );
+            assert!(report.passes <= max_passes + 1);
+            if report.passes == max_passes + 1 {
+                reached_last_pass += 1;
+                // Every surface leaf at dmax: the last pass stopped at nothing else.
+                let (lo, hi) = (view.root_aabb().min, view.root_aabb().max);
+                let leaf = view.finest_leaf_size();
+                let n = ((hi.x - lo.x) / leaf).round() as u32;
+                for c in 0..n * n * n {
+                    let p = lo
+                        + (Vec3::new((c % n) as f32, (c / n % n) as f32, (c / n / n) as f32) + 0.5)
+                            * leaf;
+                    let l = view.locate_leaf(p).unwrap();
+                    assert!(l.kind == LeafKind::Empty || l.depth == params.dmax);
+                }
+            }
+        }
+    }
+    assert!(
+        reached_last_pass > 0,
+        "no scene needed more than one pass: the last pass went untested"
+    );
+}

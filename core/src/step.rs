@@ -628,7 +628,8 @@ fn settle_in_hinted_leaf(
 }
 
 /// The march of [`step_particle_hinted`], out of line: the settled case above is the hot
-/// loop's, and stays small without it.
+/// loop's, and stays small without it. A particle whose hint is a surface leaf tries
+/// `settle_on_plane` first.
 #[inline(never)]
 fn march_from_hint(
     view: &ProxyView<'_>,
@@ -636,7 +637,88 @@ fn march_from_hint(
     params: &StepParams,
     hint: &mut LeafHint,
 ) -> StepOutcome {
+    if settle_on_plane(view, p, params, *hint) {
+        return StepOutcome::Done;
+    }
     march(view, p, params, hint, &mut Unobserved)
+}
+
+/// The common case of a particle in a one-sided surface leaf, settled without the march: it
+/// rests on the leaf's plane or moves inside the leaf, colliding with the plane at most once,
+/// and ends the step strictly inside the leaf (sand on a floor, or settling into a bowl). It
+/// does what the march does for such a particle, in the same operations (`collision_normal`,
+/// `reach_plane`, `respond`, the end point, the flags), and leaves the hint as it is, the
+/// march's hint for that leaf. `false`, with the particle untouched, for anything else (a
+/// caged particle, the path leaving the leaf, a collision on the leaf's boundary): the march
+/// takes it. Contact on the plane put resting particles inside surface leaves, where every
+/// step marched (the bunny under the bench's gravity: 34 % more instructions per step).
+#[inline(always)]
+fn settle_on_plane(
+    view: &ProxyView<'_>,
+    p: &mut Particle,
+    params: &StepParams,
+    hint: LeafHint,
+) -> bool {
+    if hint.z_depth_label & LeafHint::SURFACE == 0 || p.side & !SIDE_MASK != 0 {
+        return false;
+    }
+    let x0 = Vec3::from_array(p.position);
+    let Some(leaf) = hint.leaf(view, x0) else {
+        return false;
+    };
+    let v = Vec3::from_array(p.velocity) + Vec3::from_array(params.gravity) * params.dt;
+    // The march's loop condition, and a finite velocity (a finite start: it is in the box).
+    if !(params.dt > 0.0) || !v.is_finite() {
+        return false;
+    }
+    let strictly_in = |x: Vec3| (x.cmpgt(leaf.aabb.min) & x.cmplt(leaf.aabb.max)).all();
+    // `collision_normal` for a particle strictly inside a one-sided leaf.
+    let n = if p.side == SIDE_BACK {
+        -leaf.normal
+    } else {
+        leaf.normal
+    };
+    let (mut x, mut vel, mut remaining, mut collided) = (x0, v, params.dt, 0);
+    if v.dot(n) < 0.0 {
+        // `reach_plane`.
+        let centre = (leaf.aabb.min + leaf.aabb.max) * 0.5;
+        let above = leaf.normal.dot(x - centre) - leaf.plane_offset;
+        let t = -above / leaf.normal.dot(v);
+        let reached = if !(t > 0.0) {
+            true
+        } else {
+            let hit = x + v * t;
+            let in_leaf = (hit.cmpge(leaf.aabb.min) & hit.cmple(leaf.aabb.max)).bitmask() == 0b111;
+            if !(t < remaining) || !in_leaf {
+                false
+            } else {
+                x = hit;
+                remaining -= t;
+                true
+            }
+        };
+        if reached {
+            // `collide`'s first collision of a step: no pinch. The march goes on in the leaf,
+            // where it collided already, when the point is strictly inside it.
+            vel = respond(v, n, params.restitution, params.friction);
+            collided = 1;
+            if !strictly_in(x) || !(remaining > 0.0) {
+                return false;
+            }
+        }
+    }
+    // `travel_through_leaf`'s end point, strictly inside the leaf.
+    let end = x + vel * remaining;
+    if !strictly_in(end) {
+        return false;
+    }
+    p.position = end.to_array();
+    p.velocity = vel.to_array();
+    // `finish_march`'s flags, for a step that ends as it should.
+    let count = (p.collisions() + collided).min(MAX_COLLISIONS);
+    let status = p.flags & FLAG_STATUS_MASK & !FLAG_STEP_STATUS;
+    p.flags = status | count << COLLISION_SHIFT;
+    true
 }
 
 /// [`step_particle`], calling `trace(from, to)` for every straight piece of the particle's

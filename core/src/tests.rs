@@ -911,3 +911,46 @@ fn a_particle_leaving_a_slab_at_an_edge_is_not_handed_between_slabs() {
     }
     assert_eq!(p.side_only(), SIDE_FRONT);
 }
+
+#[test]
+fn particles_resting_on_a_surface_leafs_plane_step_as_the_march_steps_them() {
+    // `settle_on_plane`: dropped onto the plane of the tiny proxy's surface leaf (`y = 0.25`)
+    // with bounce, then at rest with friction; at every step the hinted step (which settles
+    // such a particle without the march while its hint is the surface leaf) gives the bits
+    // of the unhinted march, and the hint stays that leaf once it rests.
+    let w = tiny();
+    let view = ProxyView::new(&w).unwrap();
+    for (restitution, friction) in [(0.5, 0.1), (0.0, 0.8), (1.0, 0.0)] {
+        for (start, v, side, g) in [
+            ([0.2, 0.3, 0.3], [0.3, 0.0, -0.2], SIDE_FRONT, -9.81),
+            // Behind the plane, pressed up against it from below.
+            ([0.3, 0.2, 0.2], [0.0, 0.5, 0.1], SIDE_BACK, 9.81),
+            ([0.1, 0.26, 0.4], [0.0, 0.0, 0.0], SIDE_FRONT, -9.81),
+        ] {
+            let params = StepParams {
+                gravity: [0.0, g, 0.0],
+                restitution,
+                friction,
+                ..StepParams::default()
+            };
+            let mut plain = Particle::new(start, v);
+            plain.side = side;
+            let mut hinted = plain;
+            let mut hint = LeafHint::NONE;
+            let mut on_surface = 0;
+            for _ in 0..200 {
+                step_particle(&view, &mut plain, &params);
+                step_particle_hinted(&view, &mut hinted, &params, &mut hint);
+                assert_eq!(bytemuck::bytes_of(&plain), bytemuck::bytes_of(&hinted));
+                on_surface += (hint.z_depth_label & LeafHint::SURFACE != 0) as u32;
+            }
+            // Sliding ones leave the leaf in time; the one dropped straight stays.
+            let expected = if v == [0.0; 3] { 190 } else { 10 };
+            assert!(
+                on_surface > expected,
+                "{on_surface} steps in the surface leaf: {plain:?}"
+            );
+            assert!(plain.collisions() > 0);
+        }
+    }
+}

@@ -268,7 +268,70 @@ fn step_particle_hinted(p: ptr<function, Particle>, params: StepParams, hint: pt
     if all(*hint == vec2<u32>(0u)) && settle_leaving_root(p, params) {
         return STEP_DONE;
     }
+    if settle_on_plane(p, params, *hint) {
+        return STEP_DONE;
+    }
     return march(p, params, hint);
+}
+
+// core's `settle_on_plane`: a particle in its hinted one-sided surface leaf that collides
+// with the leaf's plane at most once and ends strictly inside the leaf, settled as the march
+// would settle it; the hint stays.
+fn settle_on_plane(p: ptr<function, Particle>, params: StepParams, hint: vec2<u32>) -> bool {
+    if (hint.y & HINT_SURFACE) == 0u || ((*p).side & ~SIDE_MASK) != 0u {
+        return false;
+    }
+    let x0 = (*p).position;
+    let found = leaf_hint_leaf(hint, x0);
+    if !found.some {
+        return false;
+    }
+    let leaf = found.value;
+    let v = (*p).velocity + params.gravity * params.dt;
+    if !(params.dt > 0.0) || !is_finite3(v) {
+        return false;
+    }
+    var n = leaf.normal;
+    if (*p).side == SIDE_BACK {
+        n = -leaf.normal;
+    }
+    var x = x0;
+    var vel = v;
+    var remaining = params.dt;
+    var collided = 0u;
+    if dot3(v, n) < 0.0 {
+        let centre = (leaf.aabb.min + leaf.aabb.max) * 0.5;
+        let above = dot3(leaf.normal, x - centre) - leaf.plane_offset;
+        let t = -above / dot3(leaf.normal, v);
+        var reached = true;
+        if t > 0.0 {
+            let hit = x + v * t;
+            let in_leaf = all(hit >= leaf.aabb.min) && all(hit <= leaf.aabb.max);
+            if !(t < remaining) || !in_leaf {
+                reached = false;
+            } else {
+                x = hit;
+                remaining -= t;
+            }
+        }
+        if reached {
+            vel = respond(v, n, params.restitution, params.friction);
+            collided = 1u;
+            if !(all(x > leaf.aabb.min) && all(x < leaf.aabb.max)) || !(remaining > 0.0) {
+                return false;
+            }
+        }
+    }
+    let end = x + vel * remaining;
+    if !(all(end > leaf.aabb.min) && all(end < leaf.aabb.max)) {
+        return false;
+    }
+    (*p).position = end;
+    (*p).velocity = vel;
+    let count = min(collisions(*p) + collided, MAX_COLLISIONS);
+    let status = (*p).flags & FLAG_STATUS_MASK & ~FLAG_STEP_STATUS;
+    (*p).flags = status | (count << COLLISION_SHIFT);
+    return true;
 }
 
 // core's `settle_leaving_root`: a particle outside the root cube, beyond one of its faces and

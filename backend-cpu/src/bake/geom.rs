@@ -134,10 +134,20 @@ pub fn clip_triangle(v: &[DVec3; 3], min: DVec3, max: DVec3) -> Poly {
 /// Area and perimeter of the section of the closed box `[min, max]` by the plane
 /// `n · x = d` (`n` a unit vector): a convex polygon of up to six sides, or nothing.
 pub fn plane_section(n: DVec3, d: f64, min: DVec3, max: DVec3) -> (f64, f64) {
+    let poly = section_polygon(n, d, min, max);
+    let p = poly.points();
+    let perimeter = (0..p.len())
+        .map(|i| (p[(i + 1) % p.len()] - p[i]).length())
+        .sum();
+    (poly.area_centroid().0, perimeter)
+}
+
+/// The section of the closed box `[min, max]` by the plane `n · x = d`: a square in the plane,
+/// larger than the box's section wherever it is, clipped to the box.
+fn section_polygon(n: DVec3, d: f64, min: DVec3, max: DVec3) -> Poly {
     let mid = (min + max) * 0.5;
     let center = mid - n * (n.dot(mid) - d);
     let (u, w) = n.any_orthonormal_pair();
-    // A square in the plane, larger than the box's section wherever it is.
     let h = (max - min).length() + (center - mid).length();
     let mut poly = Poly {
         pts: [DVec3::ZERO; 12],
@@ -153,11 +163,123 @@ pub fn plane_section(n: DVec3, d: f64, min: DVec3, max: DVec3) -> (f64, f64) {
         poly = clip_plane(&poly, a, min[a], 1.0);
         poly = clip_plane(&poly, a, max[a], -1.0);
     }
-    let p = poly.points();
-    let perimeter = (0..p.len())
-        .map(|i| (p[(i + 1) % p.len()] - p[i]).length())
-        .sum();
-    (poly.area_centroid().0, perimeter)
+    poly
+}
+
+/// Whether every point of the section of the closed box `[min, max]` by the plane `n · x = d`
+/// (`n` a unit vector) lies within `reach` of the patch `polys` projected on that plane,
+/// checked at the centres of a grid of `spacing` over the section: a patch that spans the box
+/// up to a rim of `reach`. Each polygon is binned into the grid cells its projection, grown by
+/// `reach`, overlaps, so a sample tests only the polygons near it.
+pub fn patch_covers_section(
+    polys: &[&Poly],
+    n: DVec3,
+    d: f64,
+    min: DVec3,
+    max: DVec3,
+    spacing: f64,
+    reach: f64,
+) -> bool {
+    let (u, w) = n.any_orthonormal_pair();
+    let origin = n * d;
+    let flat = |q: DVec3| [u.dot(q - origin), w.dot(q - origin)];
+    let section = section_polygon(n, d, min, max);
+    let outline: Vec<[f64; 2]> = section.points().iter().map(|&q| flat(q)).collect();
+    if outline.len() < 3 {
+        return true;
+    }
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for q in &outline {
+        for k in 0..2 {
+            lo[k] = lo[k].min(q[k]);
+            hi[k] = hi[k].max(q[k]);
+        }
+    }
+    let cells = [0, 1].map(|k| (((hi[k] - lo[k]) / spacing).ceil() as usize).clamp(1, 4096));
+    let cell_of =
+        |x: f64, k: usize| (((x - lo[k]) / spacing).floor().max(0.0) as usize).min(cells[k] - 1);
+    let shapes: Vec<Vec<[f64; 2]>> = polys
+        .iter()
+        .map(|p| p.points().iter().map(|&q| flat(q)).collect())
+        .collect();
+    let mut bins: Vec<Vec<u32>> = vec![Vec::new(); cells[0] * cells[1]];
+    for (i, shape) in shapes.iter().enumerate() {
+        if shape.is_empty() {
+            continue;
+        }
+        let (mut a, mut b) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+        for q in shape {
+            for k in 0..2 {
+                a[k] = a[k].min(q[k] - reach);
+                b[k] = b[k].max(q[k] + reach);
+            }
+        }
+        if b[0] < lo[0] || b[1] < lo[1] || a[0] > hi[0] || a[1] > hi[1] {
+            continue;
+        }
+        for y in cell_of(a[1], 1)..=cell_of(b[1], 1) {
+            for x in cell_of(a[0], 0)..=cell_of(b[0], 0) {
+                bins[y * cells[0] + x].push(i as u32);
+            }
+        }
+    }
+    let inside_outline = |p: [f64; 2]| convex_distance(&outline, p) == 0.0;
+    for y in 0..cells[1] {
+        for x in 0..cells[0] {
+            let p = [
+                lo[0] + (x as f64 + 0.5) * spacing,
+                lo[1] + (y as f64 + 0.5) * spacing,
+            ];
+            if !inside_outline(p) {
+                continue;
+            }
+            let near = bins[y * cells[0] + x]
+                .iter()
+                .any(|&i| convex_distance(&shapes[i as usize], p) <= reach);
+            if !near {
+                return false;
+            }
+        }
+    }
+    true
+}
+
+/// Distance in the plane from `p` to the convex polygon `shape` (either orientation; a
+/// segment or a point when it is degenerate): 0 inside it.
+fn convex_distance(shape: &[[f64; 2]], p: [f64; 2]) -> f64 {
+    let m = shape.len();
+    let (mut pos, mut neg) = (false, false);
+    let mut best = f64::INFINITY;
+    for i in 0..m {
+        let (a, b) = (shape[i], shape[(i + 1) % m]);
+        let (ex, ey) = (b[0] - a[0], b[1] - a[1]);
+        let (px, py) = (p[0] - a[0], p[1] - a[1]);
+        let cross = ex * py - ey * px;
+        pos |= cross > 0.0;
+        neg |= cross < 0.0;
+        let len2 = ex * ex + ey * ey;
+        let t = if len2 > 0.0 {
+            ((px * ex + py * ey) / len2).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        let (dx, dy) = (px - t * ex, py - t * ey);
+        best = best.min((dx * dx + dy * dy).sqrt());
+    }
+    let degenerate = {
+        // Zero area: the inside test means nothing; only the distance to the edges counts.
+        let mut area = 0.0;
+        for i in 0..m {
+            let (a, b) = (shape[i], shape[(i + 1) % m]);
+            area += a[0] * b[1] - a[1] * b[0];
+        }
+        area.abs() <= 1e-300
+    };
+    if m >= 3 && !degenerate && !(pos && neg) {
+        0.0
+    } else {
+        best
+    }
 }
 
 /// Keeps the part of `poly` where `sign * (p[axis] - value) >= 0`.

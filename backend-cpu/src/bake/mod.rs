@@ -913,13 +913,14 @@ impl Subdiv<'_> {
         if !(low <= high) {
             return f64::INFINITY;
         }
-        let covered: f64 = list
-            .iter()
-            .zip(&polys)
-            .map(|(&t, (_, area))| area * self.tris[t as usize].n.dot(n).abs())
-            .sum();
-        let (section, perimeter) = geom::plane_section(n, 0.5 * (low + high), lo, hi);
-        if covered < section - perimeter * self.flat_tolerance() {
+        // The patch must span the cell: every point of the section within a `dmax` leaf of
+        // it, sampled every half leaf. (An area test let a knife thinner than a leaf end
+        // inside a coarse leaf: beyond its end, the section's uncovered quarter was a strip two
+        // leaves wide, where a particle behind the plane was outside the knife, and went 2.3
+        // leaves from it; found by the penetration fuzz target.)
+        let tol = self.flat_tolerance();
+        let clipped: Vec<&geom::Poly> = polys.iter().map(|(p, _)| p).collect();
+        if !geom::patch_covers_section(&clipped, n, 0.5 * (low + high), lo, hi, tol, 2.0 * tol) {
             return f64::INFINITY;
         }
         high - low

@@ -558,6 +558,21 @@ fn a_flat_patch_stops_early_only_where_it_spans_the_leaf() {
         ends.is_infinite(),
         "a face that ends in the middle of the cell does not span it: {ends}"
     );
+    // Ending 1.8 dmax leaves short of the far side (a knife thinner than a leaf whose end is
+    // in the cell): a quarter of the section, which an area test let pass, is farther than a
+    // leaf from the patch (found by the penetration fuzz target). Half a leaf short is within
+    // the rim the test allows.
+    let leaf = 2.0 * flat;
+    let short = slab(hi.x - 1.8 * leaf, lo.y + 0.2 * flat);
+    assert!(
+        short.is_infinite(),
+        "a face that ends 1.8 leaves short of the far side does not span the cell: {short}"
+    );
+    let rim = slab(hi.x - 0.5 * leaf, lo.y + 0.2 * flat);
+    assert!(
+        rim.is_finite(),
+        "a face that ends half a leaf short of the far side spans the cell: {rim}"
+    );
 }
 
 #[test]

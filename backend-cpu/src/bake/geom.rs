@@ -131,17 +131,6 @@ pub fn clip_triangle(v: &[DVec3; 3], min: DVec3, max: DVec3) -> Poly {
     poly
 }
 
-/// Area and perimeter of the section of the closed box `[min, max]` by the plane
-/// `n · x = d` (`n` a unit vector): a convex polygon of up to six sides, or nothing.
-pub fn plane_section(n: DVec3, d: f64, min: DVec3, max: DVec3) -> (f64, f64) {
-    let poly = section_polygon(n, d, min, max);
-    let p = poly.points();
-    let perimeter = (0..p.len())
-        .map(|i| (p[(i + 1) % p.len()] - p[i]).length())
-        .sum();
-    (poly.area_centroid().0, perimeter)
-}
-
 /// The section of the closed box `[min, max]` by the plane `n · x = d`: a square in the plane,
 /// larger than the box's section wherever it is, clipped to the box.
 fn section_polygon(n: DVec3, d: f64, min: DVec3, max: DVec3) -> Poly {
@@ -448,20 +437,29 @@ mod tests {
     #[test]
     fn sections_of_a_box_by_planes() {
         let (min, max) = (DVec3::ZERO, DVec3::ONE);
+        // Area and perimeter of the section.
+        let section = |n: DVec3, d: f64| {
+            let poly = section_polygon(n, d, min, max);
+            let p = poly.points();
+            let perimeter: f64 = (0..p.len())
+                .map(|i| (p[(i + 1) % p.len()] - p[i]).length())
+                .sum();
+            (poly.area_centroid().0, perimeter)
+        };
         let close = |got: (f64, f64), want: (f64, f64)| {
             (got.0 - want.0).abs() < 1e-12 && (got.1 - want.1).abs() < 1e-12
         };
         // Across an axis: the unit square.
-        let s = plane_section(DVec3::Y, 0.25, min, max);
+        let s = section(DVec3::Y, 0.25);
         assert!(close(s, (1.0, 4.0)), "{s:?}");
         // On a face: still the whole face (the box is closed).
-        let s = plane_section(-DVec3::X, 0.0, min, max);
+        let s = section(-DVec3::X, 0.0);
         assert!(close(s, (1.0, 4.0)), "{s:?}");
         // Through the centre across the main diagonal: a regular hexagon of side √2/2.
-        let s = plane_section(DVec3::ONE.normalize(), 1.5 / 3f64.sqrt(), min, max);
+        let s = section(DVec3::ONE.normalize(), 1.5 / 3f64.sqrt());
         assert!(close(s, (0.75 * 3f64.sqrt(), 3.0 * 2f64.sqrt())), "{s:?}");
         // Past the box: nothing.
-        assert_eq!(plane_section(DVec3::Z, 1.5, min, max), (0.0, 0.0));
+        assert_eq!(section(DVec3::Z, 1.5), (0.0, 0.0));
     }
 
     #[test]

@@ -1370,11 +1370,10 @@ fn collide<O: MarchObserver>(
 #[inline(never)]
 fn walk_in_cage<O: MarchObserver>(
     view: &ProxyView<'_>,
-    state: MarchState,
+    mut state: MarchState,
     params: &StepParams,
     obs: &mut O,
 ) -> (MarchState, Option<LeafInfo>) {
-    let mut state = state;
     let st = &mut state;
     let cage = 'walk: {
         let found = if view.root_contains(st.x, st.v) {
@@ -1485,13 +1484,12 @@ fn move_in_box<O: MarchObserver>(
 #[inline(never)]
 fn walk_in_slab<O: MarchObserver>(
     view: &ProxyView<'_>,
-    state: MarchState,
+    mut state: MarchState,
     leaf: LeafInfo,
     entered: bool,
     params: &StepParams,
     obs: &mut O,
 ) -> (MarchState, Option<LeafInfo>) {
-    let mut state = state;
     let st = &mut state;
     let slab = 'walk: {
         let face = ((st.exits & SIDE_EXITS_MASK) >> SIDE_EXITS_SHIFT)

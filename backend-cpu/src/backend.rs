@@ -1,8 +1,12 @@
 //! [`CpuBackend`]: the core step run over particles in parallel with rayon.
 
+use octoproxy_core::scene::{FLAG_CRUSHED, FLAG_SIDES_LOST};
 use octoproxy_core::{
-    step_particle_hinted, Backend, FormatError, LeafHint, OwnedProxy, Particle, StepParams,
+    step_particle_hinted, step_particle_scene, Backend, FormatError, Hit, LeafHint, OwnedProxy,
+    Particle, SceneSides, StepParams,
 };
+
+use crate::scene::{Scene, SceneBuildError};
 use rayon::prelude::*;
 
 /// What the CPU backend can report.
@@ -18,6 +22,9 @@ pub enum CpuError {
     /// Step parameters out of range.
     #[error("invalid step parameters: {0}")]
     Params(#[from] octoproxy_core::ParamError),
+    /// The scene did not validate.
+    #[error("invalid scene: {0}")]
+    Scene(#[from] SceneBuildError),
     /// `download_particles` was given a slice of the wrong length.
     #[error("expected room for {expected} particles, got {got}")]
     LengthMismatch {
@@ -36,7 +43,20 @@ pub struct CpuBackend {
     /// Each particle's last leaf, so that its next step starts there (core's
     /// [`LeafHint`]); reset when the proxy or the particles are replaced.
     hints: Vec<LeafHint>,
+    /// Each particle's sides for the instances of a scene ([`CpuBackend::step_scene`]).
+    scene_sides: Vec<SceneSides>,
+    /// Each particle's last collision in its last scene step, when asked for.
+    hits: Vec<Hit>,
     use_lut: bool,
+}
+
+/// What one scene step did, over all particles.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct SceneStepReport {
+    /// Particles pressed between colliders and left at their last contact (`FLAG_CRUSHED`).
+    pub crushed: usize,
+    /// Particles in more shells than they keep sides for (`FLAG_SIDES_LOST`).
+    pub sides_lost: usize,
 }
 
 impl CpuBackend {
@@ -56,6 +76,82 @@ impl CpuBackend {
     /// The particles, in upload order.
     pub fn particles(&self) -> &[Particle] {
         &self.particles
+    }
+
+    /// Each particle's sides for a scene's instances, in upload order.
+    pub fn scene_sides(&self) -> &[SceneSides] {
+        &self.scene_sides
+    }
+
+    /// Replaces the particles' scene sides (a restart, or starting sides from the meshes).
+    pub fn set_scene_sides(&mut self, sides: &[SceneSides]) -> Result<(), CpuError> {
+        if sides.len() != self.particles.len() {
+            return Err(CpuError::LengthMismatch {
+                expected: self.particles.len(),
+                got: sides.len(),
+            });
+        }
+        self.scene_sides.copy_from_slice(sides);
+        Ok(())
+    }
+
+    /// Each particle's last collision in the last scene step taken with hits on.
+    pub fn hits(&self) -> &[Hit] {
+        &self.hits
+    }
+
+    /// One step of every particle through `scene`, moving each instance from its start pose
+    /// to its end pose (see [`Scene`]); afterwards every instance holds its end pose
+    /// ([`Scene::hold`]). With `hits`, [`CpuBackend::hits`] holds each particle's last
+    /// collision of the step. A scene of one proxy placed once at the identity steps exactly
+    /// as [`Backend::step`] steps that proxy.
+    pub fn step_scene(
+        &mut self,
+        scene: &mut Scene,
+        params: &StepParams,
+        hits: bool,
+    ) -> Result<SceneStepReport, CpuError> {
+        params.validate()?;
+        let Self {
+            particles,
+            scene_sides,
+            hits: hit_buf,
+            ..
+        } = self;
+        if hits {
+            hit_buf.resize(particles.len(), Hit::NONE);
+        }
+        let report = scene.with_view(|view| {
+            let step = |(p, s): (&mut Particle, &mut SceneSides), h: &mut Hit| {
+                step_particle_scene(view, p, s, params, h);
+            };
+            if hits {
+                particles
+                    .par_iter_mut()
+                    .zip(scene_sides.par_iter_mut())
+                    .zip(hit_buf.par_iter_mut())
+                    .with_min_len(1024)
+                    .for_each(|(ps, h)| step(ps, h));
+            } else {
+                particles
+                    .par_iter_mut()
+                    .zip(scene_sides.par_iter_mut())
+                    .with_min_len(1024)
+                    .for_each(|ps| step(ps, &mut Hit::default()));
+            }
+            SceneStepReport {
+                crushed: particles
+                    .iter()
+                    .filter(|p| p.flags & FLAG_CRUSHED != 0)
+                    .count(),
+                sides_lost: particles
+                    .iter()
+                    .filter(|p| p.flags & FLAG_SIDES_LOST != 0)
+                    .count(),
+            }
+        })?;
+        scene.hold();
+        Ok(report)
     }
 
     /// The floor: steps the particles `steps` times with integration only (the step's
@@ -97,6 +193,9 @@ impl Backend for CpuBackend {
         self.particles.extend_from_slice(particles);
         self.hints.clear();
         self.hints.resize(particles.len(), LeafHint::NONE);
+        self.scene_sides.clear();
+        self.scene_sides.resize(particles.len(), SceneSides::EMPTY);
+        self.hits.clear();
         Ok(())
     }
 
@@ -122,6 +221,7 @@ impl Backend for CpuBackend {
             particles,
             hints,
             use_lut,
+            ..
         } = self;
         let Some(proxy) = proxy else {
             return Err(CpuError::NoProxy);

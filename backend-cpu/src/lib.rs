@@ -8,6 +8,7 @@
 //! - [`sides`]: exact starting sides from the mesh ([`starting_sides`], beside [`bake()`]).
 //! - [`ground_truth`], [`harness`], [`scenes`]: checking a scene the way the tests do: exact
 //!   winding numbers and segment crossings, the penetration harness, procedural meshes.
+//! - [`Scene`]: proxies placed by moving instances, stepped by [`CpuBackend::step_scene`].
 //! - [`CpuBackend`]: the core step over particles with rayon, behind the core `Backend` trait.
 //!
 //! # Example
@@ -66,11 +67,13 @@ pub mod emit;
 pub mod ground_truth;
 pub mod harness;
 pub mod io;
+pub mod scene;
 pub mod scenes;
 pub mod sides;
 
-pub use backend::{CpuBackend, CpuError};
+pub use backend::{CpuBackend, CpuError, SceneStepReport};
 pub use bake::{bake, BuildError, BuildParams, BuildProgress, BuildReport, MeshRef};
+pub use scene::{Scene, SceneBuildError};
 pub use sides::{starting_sides, CageCounts, Sides, StartCounts};
 
 /// The README's examples, compiled and run as doctests.

@@ -51,6 +51,7 @@ pub mod format;
 mod math;
 mod particle;
 mod query;
+pub mod scene;
 mod step;
 mod view;
 
@@ -58,6 +59,9 @@ pub use backend::Backend;
 pub use format::{Label, NodeRecord, FORMAT_VERSION, MAX_DEPTH, MAX_LUT_DEPTH};
 pub use particle::*;
 pub use query::{Aabb, LeafInfo, LeafKind, NO_LEAF};
+pub use scene::{
+    step_particle_scene, BroadNode, Hit, Instance, Pose, SceneError, SceneSides, SceneView,
+};
 pub use step::{
     initial_side, max_leaves_per_step, pinch, respond, step_particle, step_particle_counted,
     step_particle_hinted, step_particle_traced, LeafHint, MarchBranch, MarchCounts, ParamError,

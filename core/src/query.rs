@@ -112,6 +112,36 @@ impl ProxyView<'_> {
         (root_min + c * size, root_min + (c + Vec3A::ONE) * size)
     }
 
+    /// The box of every surface leaf (the shell's surface leaves), or `None` for a proxy
+    /// with none. Walks every record once, depth first, with a fixed stack.
+    pub fn surface_box(&self) -> Option<Aabb> {
+        // (record, cell, depth): at most 8 pending children per level.
+        let mut stack = [(0u32, UVec3::ZERO, 0u32); 8 * MAX_DEPTH as usize + 1];
+        let mut top = 1usize;
+        let mut lo = Vec3::splat(f32::INFINITY);
+        let mut hi = Vec3::splat(f32::NEG_INFINITY);
+        while top > 0 {
+            top -= 1;
+            let (index, cell, depth) = stack[top];
+            let rec = self.nodes()[index as usize];
+            if rec.is_leaf() {
+                let b = self.cell_aabb(cell, depth);
+                lo = lo.min(b.min);
+                hi = hi.max(b.max);
+                continue;
+            }
+            for octant in 0..8 {
+                if rec.child_mask() & (1 << octant) != 0 {
+                    let child =
+                        cell * 2 + UVec3::new(octant & 1, (octant >> 1) & 1, (octant >> 2) & 1);
+                    stack[top] = (rec.child_index(octant), child, depth + 1);
+                    top += 1;
+                }
+            }
+        }
+        (lo.cmple(hi).all()).then_some(Aabb { min: lo, max: hi })
+    }
+
     /// Whether `p`, travelling along `dir`, is inside the root cube (ties as the module says).
     #[inline]
     pub fn root_contains(&self, p: Vec3, dir: Vec3) -> bool {

@@ -860,15 +860,33 @@ impl core::ops::Index<MarchBranch> for MarchCounts {
 /// branches taken. The step's own entry points observe nothing ([`Unobserved`] inlines to
 /// nothing); the host-only ones trace pieces ([`Pieces`]) or count branches
 /// ([`MarchCounts`]). WGSL has no observer.
-trait MarchObserver {
+pub(crate) trait MarchObserver {
     /// The particle moved (or, for a jump back to the shell entry, was put) from `from` to `to`.
     fn piece(&mut self, from: Vec3, to: Vec3);
     /// The march took `branch`.
     fn branch(&mut self, branch: MarchBranch);
+    /// A collision response (a pinch and a shell block included): at `x`, with unit normal
+    /// `n` facing the particle, velocity `before` just before it and `after` just after, with
+    /// `remaining` of the step's time left, in surface leaf `leaf` (its record; [`NO_LEAF`]
+    /// for a shell block). `true` stops the march there, as if its time were
+    /// up (the scene step's probes: the earliest hit over several instances is taken first).
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn hit(
+        &mut self,
+        _x: Vec3,
+        _n: Vec3,
+        _before: Vec3,
+        _after: Vec3,
+        _remaining: f32,
+        _leaf: u32,
+    ) -> bool {
+        false
+    }
 }
 
 /// The observer of the step itself: nothing.
-struct Unobserved;
+pub(crate) struct Unobserved;
 
 impl MarchObserver for Unobserved {
     #[inline(always)]
@@ -1180,9 +1198,12 @@ fn block_at_shell<O: MarchObserver>(st: &mut MarchState, params: &StepParams, ob
     obs.piece(st.x, st.shell_entry);
     st.x = st.shell_entry;
     let n = face_normal(st.cross_axes, st.cross_signs);
+    let before = st.v;
     st.v = respond(st.v, n, params.restitution, params.friction);
     st.collisions += 1;
     st.outcome = StepOutcome::Blocked;
+    // The march ends here whatever the observer says.
+    obs.hit(st.x, n, before, st.v, st.remaining, NO_LEAF);
 }
 
 /// Into a surface leaf: the particle is in the shell (from here, if it was not), and collides
@@ -1324,6 +1345,7 @@ fn collide<O: MarchObserver>(
     params: &StepParams,
     obs: &mut O,
 ) {
+    let before = st.v;
     st.v = respond(st.v, n, params.restitution, params.friction);
     // Caught: at the point of the last collision, or against a surface facing the last one
     // within this leaf's diagonal of it (contact is on the leaves' planes, so two facing
@@ -1350,6 +1372,10 @@ fn collide<O: MarchObserver>(
     (st.hit_x, st.hit_n) = (st.x, n);
     st.collisions += 1;
     st.last_collided = leaf.node;
+    if obs.hit(st.x, n, before, st.v, st.remaining, leaf.node) {
+        // Every loop of the march ends when the time is up; the particle stays at the hit.
+        st.remaining = 0.0;
+    }
 }
 
 /// A caged particle's step, before the march: in its cage ([`SIDE_CAGED`]: the solid leaf it
@@ -1697,12 +1723,27 @@ fn finish_march<O: MarchObserver>(
 /// The step itself, for every public entry point above: leaf by leaf, each found from the
 /// last, until the time is used up, a rule stops the particle, or the leaf bound is hit.
 #[inline(always)]
-fn march<O: MarchObserver>(
+pub(crate) fn march<O: MarchObserver>(
     view: &ProxyView<'_>,
     p: &mut Particle,
     params: &StepParams,
     hint: &mut LeafHint,
     obs: &mut O,
+) -> StepOutcome {
+    march_after(view, p, params, hint, obs, NO_LEAF)
+}
+
+/// [`march`] for a particle that has just collided in surface leaf `collided` (a record, or
+/// [`NO_LEAF`]) and has not left it: it does not collide there again before it crosses a
+/// face, as within one march. The scene step goes on from a contact with it.
+#[inline(always)]
+pub(crate) fn march_after<O: MarchObserver>(
+    view: &ProxyView<'_>,
+    p: &mut Particle,
+    params: &StepParams,
+    hint: &mut LeafHint,
+    obs: &mut O,
+    collided: u32,
 ) -> StepOutcome {
     let start_hint = core::mem::take(hint);
     if !Vec3::from_array(p.position).is_finite() || !Vec3::from_array(p.velocity).is_finite() {
@@ -1711,6 +1752,7 @@ fn march<O: MarchObserver>(
         return StepOutcome::Invalid;
     }
     let mut st = start_march(view, p, params, start_hint);
+    st.last_collided = collided;
     if st.exits != 0 {
         // By value, in and out: a march state behind a pointer that escapes into a call out
         // of line lives in memory for the whole march (LLVM keeps it in registers only while

@@ -28,6 +28,8 @@ impl BackendChoice {
 }
 
 /// One of the backends, behind one set of methods.
+// One per process: the CPU variant's size does not matter.
+#[allow(clippy::large_enum_variant)]
 pub enum Stepper {
     Cpu(CpuBackend),
     Wgpu(Box<WgpuBackend>),

@@ -1,0 +1,404 @@
+//! [`Scene`]: proxies baked once and instances that place them, moved between steps without
+//! re-baking; it builds the broad phase and checks the scene whenever poses change.
+//!
+//! (The built-in test scenes, meshes made in code, are [`crate::scenes`].)
+//!
+//! **Poses and steps.** Each instance holds the pose it had at the start of the next step and
+//! the pose it will have at its end. [`Scene::move_to`] sets the end and keeps the start
+//! where the last step left the instance; [`Scene::set_motion`] sets both (a cut, a
+//! teleport); after a step, [`Scene::hold`] makes every end the next start (what
+//! [`crate::CpuBackend::step_scene`] does itself). A multi-step run is one call per step, with
+//! the poses for that step set before it: the caller samples its animation at step ends.
+//!
+//! **Indices** are stable: [`Scene::add_instance`] always appends, and a removed instance
+//! keeps its index, inactive, so no index is reused.
+
+use glam::Vec3;
+use octoproxy_core::scene::{
+    BroadNode, Instance, Pose, SceneError, SceneView, BROAD_INTERNAL, BROAD_LEAF, INSTANCE_LIVE,
+    MAX_INSTANCES, SIDE_SLOTS,
+};
+use octoproxy_core::{Aabb, FormatError, OwnedProxy, ProxyView};
+
+/// What can go wrong with a scene.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum SceneBuildError {
+    /// A proxy did not validate.
+    #[error("proxy {index}: {source}")]
+    Proxy {
+        /// Its index in the scene.
+        index: u32,
+        /// Why.
+        source: FormatError,
+    },
+    /// The scene did not validate.
+    #[error("{0}")]
+    Scene(#[from] SceneError),
+    /// An instance index that the scene never had.
+    #[error("instance {0} does not exist")]
+    NoSuchInstance(u32),
+    /// An instance that was removed.
+    #[error("instance {0} was removed")]
+    Removed(u32),
+    /// A proxy index the scene does not have.
+    #[error("proxy {0} does not exist")]
+    NoSuchProxy(u32),
+    /// More instances than a scene holds.
+    #[error("a scene holds at most {MAX_INSTANCES} instances")]
+    TooManyInstances,
+    /// A pose that is not finite, has a negative scale or a rotation that is not a unit
+    /// quaternion.
+    #[error("instance {instance}: {why}")]
+    BadPose {
+        /// The instance.
+        instance: u32,
+        /// What is wrong.
+        why: &'static str,
+    },
+    /// More shells overlap at one point than a particle can keep sides for.
+    #[error(
+        "instances {instances:?} overlap at one point within a leaf of their surfaces; a particle keeps its side for at most {SIDE_SLOTS} instances at once: move them apart"
+    )]
+    TooManyOverlapping {
+        /// The instances whose shells share a point.
+        instances: Vec<u32>,
+    },
+}
+
+/// Proxies and the instances that place them, with the broad phase over them.
+#[derive(Clone, Debug, Default)]
+pub struct Scene {
+    proxies: Vec<OwnedProxy>,
+    /// Per proxy: the box of its surface leaves grown by one finest leaf (its shell), in the
+    /// proxy's frame.
+    shells: Vec<Option<Aabb>>,
+    instances: Vec<Instance>,
+    nodes: Vec<BroadNode>,
+    /// Whether poses changed since the broad phase was built and the scene checked.
+    dirty: bool,
+}
+
+fn check_pose(instance: u32, pose: &Pose) -> Result<(), SceneBuildError> {
+    let bad = |why| Err(SceneBuildError::BadPose { instance, why });
+    if !Vec3::from_array(pose.translation).is_finite() {
+        return bad("its translation is not finite");
+    }
+    if !pose.scale.is_finite() || pose.scale < 0.0 {
+        return bad("its scale must be a finite number >= 0");
+    }
+    let q = pose.rotation;
+    let len2: f32 = q.iter().map(|c| c * c).sum();
+    if !len2.is_finite() || (len2 - 1.0).abs() > 1e-6 {
+        return bad("its rotation must be a unit quaternion [x, y, z, w]");
+    }
+    Ok(())
+}
+
+/// `q` scaled to unit length (a rotation read from a file is rarely unit to the last bit).
+pub fn normalize_rotation(q: [f32; 4]) -> Option<[f32; 4]> {
+    let len = q
+        .iter()
+        .map(|c| (*c as f64) * (*c as f64))
+        .sum::<f64>()
+        .sqrt();
+    if !len.is_finite() || len < 1e-6 {
+        return None;
+    }
+    Some(q.map(|c| (c as f64 / len) as f32))
+}
+
+impl Scene {
+    /// An empty scene.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Adds a proxy (validated here) and returns its index.
+    pub fn add_proxy(&mut self, words: Vec<u32>) -> Result<u32, SceneBuildError> {
+        let index = self.proxies.len() as u32;
+        let proxy =
+            OwnedProxy::new(words).map_err(|source| SceneBuildError::Proxy { index, source })?;
+        let view = proxy.view();
+        let leaf = Vec3::splat(view.finest_leaf_size());
+        self.shells.push(view.surface_box().map(|b| Aabb {
+            min: b.min - leaf,
+            max: b.max + leaf,
+        }));
+        self.proxies.push(proxy);
+        Ok(index)
+    }
+
+    /// Places proxy `proxy` at `pose`, not moving; returns the new instance's index (never
+    /// one used before).
+    pub fn add_instance(&mut self, proxy: u32, pose: Pose) -> Result<u32, SceneBuildError> {
+        if proxy as usize >= self.proxies.len() {
+            return Err(SceneBuildError::NoSuchProxy(proxy));
+        }
+        let index = self.instances.len() as u32;
+        if index >= MAX_INSTANCES {
+            return Err(SceneBuildError::TooManyInstances);
+        }
+        check_pose(index, &pose)?;
+        self.instances.push(Instance::new(proxy, pose, pose));
+        self.dirty = true;
+        Ok(index)
+    }
+
+    fn live(&mut self, instance: u32) -> Result<&mut Instance, SceneBuildError> {
+        match self.instances.get_mut(instance as usize) {
+            None => Err(SceneBuildError::NoSuchInstance(instance)),
+            Some(i) if i.flags & INSTANCE_LIVE == 0 => Err(SceneBuildError::Removed(instance)),
+            Some(i) => Ok(i),
+        }
+    }
+
+    /// The next step moves `instance` from where it is to `pose`.
+    pub fn move_to(&mut self, instance: u32, pose: Pose) -> Result<(), SceneBuildError> {
+        check_pose(instance, &pose)?;
+        let i = self.live(instance)?;
+        *i = Instance::new(i.proxy, i.end, pose);
+        self.dirty = true;
+        Ok(())
+    }
+
+    /// The next step moves `instance` from `start` to `end` (a cut: the start need not be
+    /// where the last step left it).
+    pub fn set_motion(
+        &mut self,
+        instance: u32,
+        start: Pose,
+        end: Pose,
+    ) -> Result<(), SceneBuildError> {
+        check_pose(instance, &start)?;
+        check_pose(instance, &end)?;
+        let i = self.live(instance)?;
+        *i = Instance::new(i.proxy, start, end);
+        self.dirty = true;
+        Ok(())
+    }
+
+    /// Every instance holds still where the last step left it: each end pose becomes the
+    /// start and the end of the next step.
+    pub fn hold(&mut self) {
+        for i in &mut self.instances {
+            if !i.is_static() {
+                *i = Instance {
+                    flags: i.flags,
+                    ..Instance::new(i.proxy, i.end, i.end)
+                };
+                self.dirty = true;
+            }
+        }
+    }
+
+    /// Removes `instance`; its index stays taken.
+    pub fn remove(&mut self, instance: u32) -> Result<(), SceneBuildError> {
+        let i = self.live(instance)?;
+        i.flags &= !INSTANCE_LIVE;
+        self.dirty = true;
+        Ok(())
+    }
+
+    /// The instances, removed ones included (inactive), by index.
+    pub fn instances(&self) -> &[Instance] {
+        &self.instances
+    }
+
+    /// The proxies, by index.
+    pub fn proxies(&self) -> &[OwnedProxy] {
+        &self.proxies
+    }
+
+    /// The broad phase as it was last built.
+    pub fn broad_phase(&self) -> &[BroadNode] {
+        &self.nodes
+    }
+
+    /// Builds the broad phase if poses changed, and checks the scene: the core validation
+    /// ([`SceneView::new`]) and that no point lies within the shells of more instances than a
+    /// particle keeps sides for ([`SIDE_SLOTS`]).
+    pub fn prepare(&mut self) -> Result<(), SceneBuildError> {
+        if !self.dirty {
+            return Ok(());
+        }
+        self.build_broad_phase();
+        let views: Vec<ProxyView<'_>> = self.proxies.iter().map(|p| p.view()).collect();
+        let view = SceneView::new(&views, &self.instances, &self.nodes)?;
+        self.check_overlap(&view)?;
+        self.dirty = false;
+        Ok(())
+    }
+
+    /// Calls `f` with the validated scene (after [`Scene::prepare`]).
+    pub fn with_view<R>(
+        &mut self,
+        f: impl FnOnce(&SceneView<'_>) -> R,
+    ) -> Result<R, SceneBuildError> {
+        self.prepare()?;
+        let views: Vec<ProxyView<'_>> = self.proxies.iter().map(|p| p.view()).collect();
+        let view = SceneView::new(&views, &self.instances, &self.nodes)?;
+        Ok(f(&view))
+    }
+
+    /// A bounding-volume hierarchy over the active instances' swept boxes, split at the
+    /// median of the boxes' centres along the widest axis, in depth-first order.
+    fn build_broad_phase(&mut self) {
+        let mut items: Vec<(u32, Aabb)> = Vec::new();
+        for (k, inst) in self.instances.iter_mut().enumerate() {
+            inst.leaf = u32::MAX;
+            if inst.is_active() {
+                let view = self.proxies[inst.proxy as usize].view();
+                items.push((k as u32, inst.swept_box(&view)));
+            }
+        }
+        self.nodes.clear();
+        if items.is_empty() {
+            return;
+        }
+        build_node(&mut items, &mut self.nodes);
+        for (k, node) in self.nodes.iter().enumerate() {
+            if node.kind == BROAD_LEAF {
+                self.instances[node.index as usize].leaf = k as u32;
+            }
+        }
+    }
+
+    /// The shells' overlap: the largest set of instances whose shell boxes (swept over the
+    /// step) share a point must fit the side slots.
+    fn check_overlap(&self, view: &SceneView<'_>) -> Result<(), SceneBuildError> {
+        let boxes: Vec<Option<Aabb>> = self
+            .instances
+            .iter()
+            .map(|inst| {
+                if !inst.is_active() {
+                    return None;
+                }
+                self.shells[inst.proxy as usize].map(|s| inst.swept_box_of(&s))
+            })
+            .collect();
+        for (b, own) in boxes.iter().enumerate() {
+            let Some(own) = own else { continue };
+            // The instances whose shells meet this one's (the broad phase's boxes hold them).
+            let mut near = vec![b as u32];
+            view.for_each_candidate(own, |c| {
+                if c as usize != b && boxes[c as usize].is_some_and(|o| overlaps(&o, own)) {
+                    near.push(c);
+                }
+            });
+            if near.len() <= SIDE_SLOTS {
+                continue;
+            }
+            if let Some(clique) = deepest_point(&near, &boxes, SIDE_SLOTS + 1) {
+                return Err(SceneBuildError::TooManyOverlapping { instances: clique });
+            }
+        }
+        Ok(())
+    }
+}
+
+fn overlaps(a: &Aabb, b: &Aabb) -> bool {
+    a.min.cmple(b.max).all() && b.min.cmple(a.max).all()
+}
+
+/// Among the boxes of `set` (whose first is the one they all meet), `want` that share a
+/// point, if any. Boxes share a point when they overlap pairwise (boxes have Helly's
+/// property), and the deepest point's coordinates are some boxes' minima: for each candidate
+/// `x` and `y` among the minima, the boxes holding that `(x, y)` line are counted along `z`.
+fn deepest_point(set: &[u32], boxes: &[Option<Aabb>], want: usize) -> Option<Vec<u32>> {
+    let own = boxes[set[0] as usize]?;
+    let get = |i: u32| boxes[i as usize].expect("only active instances are in the set");
+    let xs: Vec<f32> = set.iter().map(|&i| get(i).min.x.max(own.min.x)).collect();
+    let ys: Vec<f32> = set.iter().map(|&i| get(i).min.y.max(own.min.y)).collect();
+    for &x in &xs {
+        let at_x: Vec<u32> = set
+            .iter()
+            .copied()
+            .filter(|&i| get(i).min.x <= x && x <= get(i).max.x)
+            .collect();
+        if at_x.len() < want {
+            continue;
+        }
+        for &y in &ys {
+            let at_xy: Vec<u32> = at_x
+                .iter()
+                .copied()
+                .filter(|&i| get(i).min.y <= y && y <= get(i).max.y)
+                .collect();
+            if at_xy.len() < want {
+                continue;
+            }
+            // Along z: open at each minimum, closed after each maximum.
+            let mut events: Vec<(f32, bool, u32)> = at_xy
+                .iter()
+                .flat_map(|&i| [(get(i).min.z, false, i), (get(i).max.z, true, i)])
+                .collect();
+            events.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            let mut open: Vec<u32> = Vec::new();
+            for (_, closes, i) in events {
+                if closes {
+                    open.retain(|&o| o != i);
+                } else {
+                    open.push(i);
+                    if open.len() >= want && open.contains(&set[0]) {
+                        let mut clique = open.clone();
+                        clique.sort_unstable();
+                        return Some(clique);
+                    }
+                }
+            }
+        }
+    }
+    None
+}
+
+/// Appends the subtree over `items` to `nodes` in depth-first order; returns its box.
+fn build_node(items: &mut [(u32, Aabb)], nodes: &mut Vec<BroadNode>) -> Aabb {
+    let at = nodes.len();
+    if let [(instance, b)] = items {
+        nodes.push(BroadNode {
+            min: b.min.to_array(),
+            index: *instance,
+            max: b.max.to_array(),
+            kind: BROAD_LEAF,
+        });
+        return *b;
+    }
+    nodes.push(BroadNode {
+        min: [0.0; 3],
+        index: 0,
+        max: [0.0; 3],
+        kind: BROAD_INTERNAL,
+    });
+    let centre = |b: &Aabb| (b.min + b.max) * 0.5;
+    let (lo, hi) = items.iter().fold(
+        (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
+        |(lo, hi), (_, b)| (lo.min(centre(b)), hi.max(centre(b))),
+    );
+    let extent = hi - lo;
+    let axis = if extent.x >= extent.y && extent.x >= extent.z {
+        0
+    } else if extent.y >= extent.z {
+        1
+    } else {
+        2
+    };
+    let mid = items.len() / 2;
+    items.select_nth_unstable_by(mid, |a, b| {
+        centre(&a.1)[axis]
+            .total_cmp(&centre(&b.1)[axis])
+            .then(a.0.cmp(&b.0))
+    });
+    let (left, right) = items.split_at_mut(mid);
+    let a = build_node(left, nodes);
+    let second = nodes.len() as u32;
+    let b = build_node(right, nodes);
+    let (min, max) = (a.min.min(b.min), a.max.max(b.max));
+    nodes[at] = BroadNode {
+        min: min.to_array(),
+        index: second,
+        max: max.to_array(),
+        kind: BROAD_INTERNAL,
+    };
+    Aabb { min, max }
+}

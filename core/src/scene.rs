@@ -1,0 +1,1501 @@
+//! Scenes of moving and instanced colliders: proxies placed by rigid poses, a broad phase over
+//! their boxes, each particle's side for every instance it is near, and the step against them.
+//!
+//! A scene is three flat arrays that both backends read as bytes (`FORMAT.md`, "Scenes"):
+//! the proxies (each validated as a [`ProxyView`]), the instance table ([`Instance`]: a
+//! proxy, the pose it had at the start of the step and the pose it has at the end) and the
+//! broad phase ([`BroadNode`]: a bounding-volume hierarchy over the instances' swept boxes).
+//! [`SceneView::new`] validates them together, once per change of poses; every step after
+//! takes `&SceneView`.
+//!
+//! **The step** ([`step_particle_scene`]) marches a particle in each instance's own frame,
+//! from its start in the start pose to its end in the end pose: the relative motion.
+//! - A particle near one static instance only (the common case, and every particle of a
+//!   one-proxy static scene) takes the whole step in that frame, as [`crate::step_particle_hinted`]
+//!   does, with every rule of the march (pinch, shell, cages, slabs) and the leaf hint.
+//! - Otherwise the step goes in **rounds**. Each round probes every instance the rest of the
+//!   straight path can meet up to its first collision, takes the earliest (lowest instance
+//!   order on a tie), brings every other instance's side up to that moment, responds there
+//!   with the velocity relative to the collider's surface at the contact point, and starts
+//!   the next round from the contact with the time left. A particle still colliding after
+//!   [`MAX_ROUNDS`] rounds is pressed between colliders: it stays at its last contact, riding
+//!   with the instance it touched, and is flagged [`FLAG_CRUSHED`]; it is never pushed through.
+//! - A moving instance's frame turns and scales along the step (the slerp and lerp between
+//!   its poses), so a straight world path is a curve in it. The march follows chords of that
+//!   curve, [`substeps`] of them, chosen per particle so that the curve stays within a
+//!   quarter of the proxy's finest leaf of its chords ([`SUBSTEP_MARGIN`]). Translation alone
+//!   needs none: the chord is the curve.
+//!
+//! **Sides per instance** ([`SceneSides`]): a particle's side is relative to each instance it
+//! is near. Outside an instance's shell it is the label of the empty leaf the particle is in
+//! (a particle reaching the surface always crosses a labelled leaf first), so only the sides of
+//! particles that end a step in a surface leaf, or caged in a solid one, must be kept: those
+//! slots are *required*; the others are kept while there is room and save a descent. A
+//! particle keeps [`SIDE_SLOTS`] slots; the host checks, whenever poses change, that no point
+//! lies in more shells than that (`octoproxy_cpu::Scene`), and a particle that would need more
+//! is flagged [`FLAG_SIDES_LOST`].
+
+use bytemuck::{Pod, Zeroable};
+use glam::Vec3;
+
+use crate::math;
+use crate::particle::*;
+use crate::query::{Aabb, NO_LEAF};
+use crate::step::{
+    initial_side, march, march_after, LeafHint, MarchObserver, StepOutcome, StepParams,
+};
+use crate::view::{ulp, ProxyView};
+
+/// Flag: the last step's collisions with several instances did not resolve within
+/// [`MAX_ROUNDS`] rounds (a particle pressed between converging colliders); it was left at its
+/// last contact, moving with the instance it touched last.
+pub const FLAG_CRUSHED: u32 = 1 << 3;
+/// Flag: the last step ended with the particle in the shells of more instances than
+/// [`SIDE_SLOTS`]; the sides beyond the slots were dropped (the scene check prevents it).
+pub const FLAG_SIDES_LOST: u32 = 1 << 4;
+/// The status flags a scene step recomputes, the static step's included.
+pub const FLAG_SCENE_STATUS: u32 = FLAG_STEP_STATUS | FLAG_CRUSHED | FLAG_SIDES_LOST;
+
+/// Rounds of collisions with different instances one step may take before the particle is
+/// taken as crushed ([`FLAG_CRUSHED`]).
+pub const MAX_ROUNDS: u32 = 16;
+/// Chords a particle's path may be cut into against one turning or scaling instance in one
+/// step ([`substeps`]).
+pub const MAX_SUBSTEPS: u32 = 1024;
+/// How far the curve of a path in a turning instance's frame may stray from its chords, in
+/// the proxy's finest leaves (local units): a quarter of a leaf, within the guarantee's one
+/// leaf diagonal.
+pub const SUBSTEP_MARGIN: f32 = 0.25;
+/// Depth bound of the broad phase's tree, which the step walks with a stack of this size.
+pub const MAX_BROAD_DEPTH: u32 = 32;
+/// Instances a scene may hold: indices below this fit a side slot.
+pub const MAX_INSTANCES: u32 = (1 << 22) - 1;
+/// Side slots per particle in [`SceneSides`].
+pub const SIDE_SLOTS: usize = 8;
+
+/// A rigid pose with uniform scale: a local point `l` is at `translation + R(rotation) *
+/// (scale * l)` in the world. 32 bytes, a GPU struct as it is.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct Pose {
+    /// Where the local origin is.
+    pub translation: [f32; 3],
+    /// Uniform scale, `>= 0`; 0 hides the instance.
+    pub scale: f32,
+    /// Unit quaternion `[x, y, z, w]`.
+    pub rotation: [f32; 4],
+}
+
+const _: () = assert!(core::mem::size_of::<Pose>() == 32);
+
+impl Default for Pose {
+    fn default() -> Self {
+        Self::IDENTITY
+    }
+}
+
+/// `v` rotated by the unit quaternion `q`. Written out so that WGSL's twin does the same
+/// operations; a quaternion with no vector part leaves `v` exactly as it is (an identity
+/// pose changes no bit).
+#[inline(always)]
+fn rotate(q: [f32; 4], v: Vec3) -> Vec3 {
+    let [x, y, z, w] = q;
+    if x == 0.0 && y == 0.0 && z == 0.0 {
+        return v;
+    }
+    // t = 2 (u × v); v + w t + u × t.
+    let t = Vec3::new(
+        2.0 * (y * v.z - z * v.y),
+        2.0 * (z * v.x - x * v.z),
+        2.0 * (x * v.y - y * v.x),
+    );
+    Vec3::new(
+        v.x + w * t.x + (y * t.z - z * t.y),
+        v.y + w * t.y + (z * t.x - x * t.z),
+        v.z + w * t.z + (x * t.y - y * t.x),
+    )
+}
+
+/// The conjugate of a unit quaternion: the inverse rotation.
+#[inline(always)]
+fn conjugate(q: [f32; 4]) -> [f32; 4] {
+    [-q[0], -q[1], -q[2], q[3]]
+}
+
+/// `sin x` for `x` in `[0, π/2]`, by its Taylor polynomial to `x^11` (error below 6e-8), in
+/// operations WGSL repeats exactly: a GPU's `sin` differs from libm's in the last bits.
+#[inline(always)]
+fn sin_poly(x: f32) -> f32 {
+    let x2 = x * x;
+    let p = 1.0 / 39_916_800.0;
+    let p = p * -x2 + 1.0 / 362_880.0;
+    let p = p * x2 - 1.0 / 5_040.0;
+    let p = p * x2 + 1.0 / 120.0;
+    let p = p * x2 - 1.0 / 6.0;
+    let p = p * x2 + 1.0;
+    x * p
+}
+
+impl Pose {
+    /// No move, no turn, scale 1.
+    pub const IDENTITY: Pose = Pose {
+        translation: [0.0; 3],
+        scale: 1.0,
+        rotation: [0.0, 0.0, 0.0, 1.0],
+    };
+
+    /// The world point of local point `l`.
+    #[inline(always)]
+    pub fn to_world(&self, l: Vec3) -> Vec3 {
+        Vec3::from_array(self.translation) + rotate(self.rotation, l * self.scale)
+    }
+
+    /// The local point of world point `x` (the pose's scale must not be 0).
+    #[inline(always)]
+    pub fn to_local(&self, x: Vec3) -> Vec3 {
+        rotate(
+            conjugate(self.rotation),
+            x - Vec3::from_array(self.translation),
+        ) / self.scale
+    }
+
+    /// A local direction (or velocity) in the world: rotated and scaled.
+    #[inline(always)]
+    pub fn vector_to_world(&self, l: Vec3) -> Vec3 {
+        rotate(self.rotation, l * self.scale)
+    }
+
+    /// A world direction (or velocity) in the local frame.
+    #[inline(always)]
+    pub fn vector_to_local(&self, x: Vec3) -> Vec3 {
+        rotate(conjugate(self.rotation), x) / self.scale
+    }
+
+    /// A local unit normal in the world (rotated only: still unit).
+    #[inline(always)]
+    pub fn normal_to_world(&self, n: Vec3) -> Vec3 {
+        rotate(self.rotation, n)
+    }
+
+    /// Whether every field is finite, the scale `>= 0` and the rotation a unit quaternion
+    /// (its squared length within `1e-6` of 1).
+    pub fn is_valid(&self) -> bool {
+        let q = Vec3::new(self.rotation[0], self.rotation[1], self.rotation[2]);
+        let w = self.rotation[3];
+        let len2 = q.dot(q) + w * w;
+        Vec3::from_array(self.translation).is_finite()
+            && self.scale.is_finite()
+            && self.scale >= 0.0
+            && q.is_finite()
+            && w.is_finite()
+            && math::abs(len2 - 1.0) <= 1e-6
+    }
+}
+
+/// Half the angle between two unit quaternions' rotations as slerp takes it (the shorter
+/// way): `acos |a · b|`, in `[0, π/2]`. The host computes it once per pose pair
+/// ([`Instance::new`]); the step reads it from the instance, so both backends use the same
+/// bits.
+pub fn half_turn(a: [f32; 4], b: [f32; 4]) -> f32 {
+    let d = a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3];
+    libm::acosf(math::abs(d).min(1.0))
+}
+
+/// Flag of [`Instance::flags`]: the instance exists (a removed one keeps its index, without
+/// this flag, so that indices stay stable).
+pub const INSTANCE_LIVE: u32 = 1 << 0;
+
+/// An instance: a proxy placed in the world by the pose it had at the start of the step and
+/// the pose it has at its end. 80 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct Instance {
+    /// The pose at the start of the step.
+    pub start: Pose,
+    /// The pose at the end of the step.
+    pub end: Pose,
+    /// Index of its proxy in the scene's proxies.
+    pub proxy: u32,
+    /// [`INSTANCE_LIVE`]; the other bits are zero.
+    pub flags: u32,
+    /// The broad phase's leaf that holds it ([`BroadNode`]), when it is active.
+    pub leaf: u32,
+    /// [`half_turn`] of its two rotations.
+    pub half_turn: f32,
+}
+
+const _: () = assert!(core::mem::size_of::<Instance>() == 80);
+
+impl Instance {
+    /// A live instance of `proxy` moving from `start` to `end` (its broad-phase leaf is set
+    /// when the broad phase is built).
+    pub fn new(proxy: u32, start: Pose, end: Pose) -> Self {
+        Self {
+            start,
+            end,
+            proxy,
+            flags: INSTANCE_LIVE,
+            leaf: u32::MAX,
+            half_turn: half_turn(start.rotation, end.rotation),
+        }
+    }
+
+    /// Whether it takes part in the step: live, and not hidden by a scale of 0 at either
+    /// end of the step (particles pass where it is).
+    pub fn is_active(&self) -> bool {
+        self.flags & INSTANCE_LIVE != 0 && self.start.scale > 0.0 && self.end.scale > 0.0
+    }
+
+    /// Whether it does not move in this step (the two poses are the same bits).
+    pub fn is_static(&self) -> bool {
+        bytemuck::bytes_of(&self.start) == bytemuck::bytes_of(&self.end)
+    }
+
+    /// Its pose at fraction `u` of the step: translation and scale interpolated linearly,
+    /// rotation by slerp the shorter way; exactly the start at 0 and the end at 1.
+    #[inline(always)]
+    pub fn pose_at(&self, u: f32) -> Pose {
+        if u <= 0.0 {
+            return self.start;
+        }
+        if u >= 1.0 {
+            return self.end;
+        }
+        let (a, b) = (&self.start, &self.end);
+        let lerp = |x: f32, y: f32| x + (y - x) * u;
+        let translation = core::array::from_fn(|i| lerp(a.translation[i], b.translation[i]));
+        let scale = lerp(a.scale, b.scale);
+        let (qa, mut qb) = (a.rotation, b.rotation);
+        let d = qa[0] * qb[0] + qa[1] * qb[1] + qa[2] * qb[2] + qa[3] * qb[3];
+        if d < 0.0 {
+            qb = qb.map(|c| -c);
+        }
+        let phi = self.half_turn;
+        let (wa, wb) = if phi < 1e-3 {
+            (1.0 - u, u)
+        } else {
+            let s = sin_poly(phi);
+            (sin_poly((1.0 - u) * phi) / s, sin_poly(u * phi) / s)
+        };
+        let q: [f32; 4] = core::array::from_fn(|i| qa[i] * wa + qb[i] * wb);
+        let len = math::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+        Pose {
+            translation,
+            scale,
+            rotation: q.map(|c| c / len),
+        }
+    }
+
+    /// The world box that holds its proxy's root cube at every pose of the step, padded for
+    /// rounding. For a static instance, the box of the cube's eight corners; for a moving one,
+    /// the box of the cube's centre path with the rotation held at the start (a segment),
+    /// grown by the cube's radius and by how far turning can move the centre (`|c| θ`, the
+    /// arc length, for a turn of `θ`), both at the larger scale.
+    pub fn swept_box(&self, view: &ProxyView<'_>) -> Aabb {
+        self.swept_box_of(&view.root_aabb())
+    }
+
+    /// [`Self::swept_box`] of any local box (the host checks how the instances' shells
+    /// overlap with the boxes of their surface leaves).
+    pub fn swept_box_of(&self, local: &Aabb) -> Aabb {
+        let root = local;
+        let (bmin, bmax) = if self.is_static() {
+            let mut lo = Vec3::splat(f32::INFINITY);
+            let mut hi = Vec3::splat(f32::NEG_INFINITY);
+            for corner in 0..8u32 {
+                let l = Vec3::new(
+                    if corner & 1 != 0 {
+                        root.max.x
+                    } else {
+                        root.min.x
+                    },
+                    if corner & 2 != 0 {
+                        root.max.y
+                    } else {
+                        root.min.y
+                    },
+                    if corner & 4 != 0 {
+                        root.max.z
+                    } else {
+                        root.min.z
+                    },
+                );
+                let w = self.start.to_world(l);
+                lo = lo.min(w);
+                hi = hi.max(w);
+            }
+            (lo, hi)
+        } else {
+            let c = (root.min + root.max) * 0.5;
+            let radius = (root.max - root.min).length() * 0.5;
+            let s_max = self.start.scale.max(self.end.scale);
+            let turn = (2.0 * self.half_turn).min(2.0);
+            let c0 = Vec3::from_array(self.start.translation)
+                + rotate(self.start.rotation, c * self.start.scale);
+            let c1 = Vec3::from_array(self.end.translation)
+                + rotate(self.start.rotation, c * self.end.scale);
+            let grow = s_max * (radius + c.length() * turn);
+            (c0.min(c1) - grow, c0.max(c1) + grow)
+        };
+        // Rounding of the transforms: a few ulps of the largest coordinate involved.
+        let mag = bmin.abs().max(bmax.abs()).max_element();
+        let pad = 16.0 * ulp(mag) + 1e-30;
+        Aabb {
+            min: bmin - pad,
+            max: bmax + pad,
+        }
+    }
+}
+
+/// Value of [`BroadNode::kind`] for an internal node: its children are the next node and
+/// node [`BroadNode::index`].
+pub const BROAD_INTERNAL: u32 = 0;
+/// Value of [`BroadNode::kind`] for a leaf: it holds instance [`BroadNode::index`].
+pub const BROAD_LEAF: u32 = 1;
+
+/// A node of the broad phase: a box and either two children or one instance. Nodes are in
+/// depth-first order: node 0 is the root, an internal node's first child follows it and its
+/// second is at `index`. 32 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct BroadNode {
+    /// Minimum corner of a box holding everything below.
+    pub min: [f32; 3],
+    /// The second child (internal) or the instance (leaf).
+    pub index: u32,
+    /// Maximum corner.
+    pub max: [f32; 3],
+    /// [`BROAD_INTERNAL`] or [`BROAD_LEAF`].
+    pub kind: u32,
+}
+
+const _: () = assert!(core::mem::size_of::<BroadNode>() == 32);
+
+impl BroadNode {
+    fn aabb(&self) -> Aabb {
+        Aabb {
+            min: Vec3::from_array(self.min),
+            max: Vec3::from_array(self.max),
+        }
+    }
+}
+
+/// Why a scene was rejected.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
+pub enum SceneError {
+    /// More instances than [`MAX_INSTANCES`].
+    TooManyInstances(usize),
+    /// An instance names a proxy the scene does not have.
+    BadProxy {
+        /// The instance.
+        instance: u32,
+        /// The proxy it names.
+        proxy: u32,
+    },
+    /// An instance's pose is not finite, has a negative scale, or a rotation that is not a
+    /// unit quaternion; or its flags have unknown bits.
+    BadPose {
+        /// The instance.
+        instance: u32,
+    },
+    /// An instance's stored half turn is not [`half_turn`] of its poses.
+    BadTurn {
+        /// The instance.
+        instance: u32,
+    },
+    /// An instance turns too far in one step for its proxy's finest leaf.
+    TurnsTooFast {
+        /// The instance.
+        instance: u32,
+        /// Its turn in the step, degrees.
+        degrees: f32,
+        /// The most it may turn, degrees.
+        max_degrees: f32,
+    },
+    /// An instance is so far from the origin, or so small, that `f32` cannot resolve a
+    /// leaf of its proxy where it is.
+    TooFarOut {
+        /// The instance.
+        instance: u32,
+    },
+    /// The broad phase is not a tree of the active instances in depth-first order.
+    BadBroadPhase {
+        /// The node where it went wrong.
+        node: u32,
+    },
+    /// A broad-phase box does not hold what is below it.
+    BroadBoxTooSmall {
+        /// The node.
+        node: u32,
+    },
+    /// The broad phase is deeper than [`MAX_BROAD_DEPTH`].
+    BroadTooDeep,
+    /// An active instance is not in the broad phase (or an inactive one is).
+    NotInBroadPhase {
+        /// The instance.
+        instance: u32,
+    },
+}
+
+impl core::fmt::Display for SceneError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match *self {
+            SceneError::TooManyInstances(n) => {
+                write!(f, "{n} instances; a scene holds at most {MAX_INSTANCES}")
+            }
+            SceneError::BadProxy { instance, proxy } => {
+                write!(f, "instance {instance} names proxy {proxy}, which the scene does not have")
+            }
+            SceneError::BadPose { instance } => write!(
+                f,
+                "instance {instance}: a pose must be finite, with a scale >= 0 and a unit rotation quaternion"
+            ),
+            SceneError::BadTurn { instance } => write!(
+                f,
+                "instance {instance}: its stored half turn is not that of its poses (build it with Instance::new)"
+            ),
+            SceneError::TurnsTooFast {
+                instance,
+                degrees,
+                max_degrees,
+            } => write!(
+                f,
+                "instance {instance} turns {degrees:.1} degrees in one step; its proxy allows at most {max_degrees:.1}: use a smaller time step"
+            ),
+            SceneError::TooFarOut { instance } => write!(
+                f,
+                "instance {instance} is too far from the origin (or too small) for f32 to resolve a leaf of its proxy there"
+            ),
+            SceneError::BadBroadPhase { node } => {
+                write!(f, "broad phase node {node}: not a tree of the active instances")
+            }
+            SceneError::BroadBoxTooSmall { node } => {
+                write!(f, "broad phase node {node}: its box does not hold what is below it")
+            }
+            SceneError::BroadTooDeep => {
+                write!(f, "the broad phase is deeper than {MAX_BROAD_DEPTH} levels")
+            }
+            SceneError::NotInBroadPhase { instance } => write!(
+                f,
+                "instance {instance} is active but not in the broad phase, or inactive and in it"
+            ),
+        }
+    }
+}
+
+impl core::error::Error for SceneError {}
+
+/// The largest turn an instance of a proxy may make in one step, in radians: the one whose
+/// chords alone (no particle motion) need half of [`MAX_SUBSTEPS`] to stay within
+/// [`SUBSTEP_MARGIN`] of the curve, up to half a turn.
+pub fn max_turn(view: &ProxyView<'_>) -> f32 {
+    let root = view.root_aabb();
+    let r = local_radius(&root);
+    let m = SUBSTEP_MARGIN * view.finest_leaf_size();
+    // θ² r / 8 ≤ m (n/2)²  ⇒  θ ≤ (n/2) sqrt(8 m / r).
+    let n = (MAX_SUBSTEPS / 2) as f32;
+    (n * math::sqrt(8.0 * m / r)).min(core::f32::consts::PI)
+}
+
+/// The largest distance from the local origin to a point of the root cube.
+fn local_radius(root: &Aabb) -> f32 {
+    root.min.abs().max(root.max.abs()).length()
+}
+
+fn contains(outer: &Aabb, inner: &Aabb) -> bool {
+    outer.min.cmple(inner.min).all() && outer.max.cmpge(inner.max).all()
+}
+
+/// A validated scene: proxies, instances and the broad phase over them.
+#[derive(Clone, Copy)]
+pub struct SceneView<'a> {
+    proxies: &'a [ProxyView<'a>],
+    instances: &'a [Instance],
+    nodes: &'a [BroadNode],
+}
+
+impl core::fmt::Debug for SceneView<'_> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("SceneView")
+            .field("proxies", &self.proxies.len())
+            .field("instances", &self.instances.len())
+            .field("broad_nodes", &self.nodes.len())
+            .finish()
+    }
+}
+
+impl<'a> SceneView<'a> {
+    /// Validates a scene: every instance's proxy index, poses, flags and half turn; every
+    /// pose near enough to the origin for `f32` to resolve its proxy's finest leaf; the
+    /// broad phase a tree in depth-first order (each internal node's first child right after
+    /// it, its second further on and before the end of the node's range), at most
+    /// [`MAX_BROAD_DEPTH`] deep, whose leaves are the active instances, each once (an active
+    /// instance's `leaf` names the leaf that holds it), and whose boxes hold the swept boxes
+    /// of the instances below them. No allocation; linear in the sizes.
+    pub fn new(
+        proxies: &'a [ProxyView<'a>],
+        instances: &'a [Instance],
+        nodes: &'a [BroadNode],
+    ) -> Result<Self, SceneError> {
+        if instances.len() > MAX_INSTANCES as usize {
+            return Err(SceneError::TooManyInstances(instances.len()));
+        }
+        let mut active = 0usize;
+        for (i, inst) in instances.iter().enumerate() {
+            let instance = i as u32;
+            if inst.flags & !INSTANCE_LIVE != 0 || !inst.start.is_valid() || !inst.end.is_valid() {
+                return Err(SceneError::BadPose { instance });
+            }
+            if inst.half_turn.to_bits()
+                != half_turn(inst.start.rotation, inst.end.rotation).to_bits()
+            {
+                return Err(SceneError::BadTurn { instance });
+            }
+            let Some(view) = proxies.get(inst.proxy as usize) else {
+                return Err(SceneError::BadProxy {
+                    instance,
+                    proxy: inst.proxy,
+                });
+            };
+            if !inst.is_active() {
+                continue;
+            }
+            active += 1;
+            let turn = 2.0 * inst.half_turn;
+            let max = max_turn(view);
+            if turn > max {
+                return Err(SceneError::TurnsTooFast {
+                    instance,
+                    degrees: turn.to_degrees(),
+                    max_degrees: max.to_degrees(),
+                });
+            }
+            // A finest leaf in the world must stay many ulps of the coordinates there wide
+            // (the static format asks 4 ulps of a cell at the tree depth of the root).
+            let b = inst.swept_box(view);
+            let leaf = view.finest_leaf_size() * inst.start.scale.min(inst.end.scale);
+            let mag = b.min.abs().max(b.max.abs()).max_element();
+            if !b.min.is_finite() || !b.max.is_finite() || !(leaf >= 64.0 * ulp(mag)) {
+                return Err(SceneError::TooFarOut { instance });
+            }
+        }
+        if nodes.is_empty() {
+            if active > 0 {
+                let instance = instances.iter().position(|i| i.is_active()).unwrap_or(0);
+                return Err(SceneError::NotInBroadPhase {
+                    instance: instance as u32,
+                });
+            }
+            return Ok(Self {
+                proxies,
+                instances,
+                nodes,
+            });
+        }
+        // Depth first, with an explicit stack of (node, end of its range, depth).
+        let mut stack = [(0u32, 0u32, 0u32); MAX_BROAD_DEPTH as usize + 2];
+        let mut top = 1usize;
+        stack[0] = (0, nodes.len() as u32, 1);
+        let mut leaves = 0usize;
+        while top > 0 {
+            top -= 1;
+            let (i, end, depth) = stack[top];
+            if depth > MAX_BROAD_DEPTH {
+                return Err(SceneError::BroadTooDeep);
+            }
+            let node = &nodes[i as usize];
+            let b = node.aabb();
+            if !b.min.is_finite() || !b.max.is_finite() || b.min.cmpgt(b.max).any() {
+                return Err(SceneError::BroadBoxTooSmall { node: i });
+            }
+            match node.kind {
+                BROAD_LEAF => {
+                    if end != i + 1 {
+                        return Err(SceneError::BadBroadPhase { node: i });
+                    }
+                    let Some(inst) = instances.get(node.index as usize) else {
+                        return Err(SceneError::BadBroadPhase { node: i });
+                    };
+                    if !inst.is_active() || inst.leaf != i {
+                        return Err(SceneError::NotInBroadPhase {
+                            instance: node.index,
+                        });
+                    }
+                    let view = &proxies[inst.proxy as usize];
+                    if !contains(&b, &inst.swept_box(view)) {
+                        return Err(SceneError::BroadBoxTooSmall { node: i });
+                    }
+                    leaves += 1;
+                }
+                BROAD_INTERNAL => {
+                    let second = node.index;
+                    if !(i + 1 < second && second < end) {
+                        return Err(SceneError::BadBroadPhase { node: i });
+                    }
+                    for child in [i + 1, second] {
+                        if !contains(&b, &nodes[child as usize].aabb()) {
+                            return Err(SceneError::BroadBoxTooSmall { node: i });
+                        }
+                    }
+                    stack[top] = (second, end, depth + 1);
+                    stack[top + 1] = (i + 1, second, depth + 1);
+                    top += 2;
+                }
+                _ => return Err(SceneError::BadBroadPhase { node: i }),
+            }
+        }
+        if leaves != active {
+            // Every node was visited once, and every leaf names an active instance that names
+            // it back: some active instance names no leaf that holds it.
+            let missing = instances.iter().enumerate().position(|(i, inst)| {
+                inst.is_active()
+                    && nodes
+                        .get(inst.leaf as usize)
+                        .is_none_or(|n| n.kind != BROAD_LEAF || n.index != i as u32)
+            });
+            return Err(SceneError::NotInBroadPhase {
+                instance: missing.unwrap_or(0) as u32,
+            });
+        }
+        Ok(Self {
+            proxies,
+            instances,
+            nodes,
+        })
+    }
+
+    /// The proxies.
+    pub fn proxies(&self) -> &'a [ProxyView<'a>] {
+        self.proxies
+    }
+
+    /// The instances.
+    pub fn instances(&self) -> &'a [Instance] {
+        self.instances
+    }
+
+    /// The broad phase's nodes.
+    pub fn nodes(&self) -> &'a [BroadNode] {
+        self.nodes
+    }
+
+    /// Calls `f` with every active instance whose swept box meets `b`, in the broad phase's
+    /// depth-first order (the order ties between instances are broken in).
+    #[inline(always)]
+    pub fn for_each_candidate(&self, b: &Aabb, mut f: impl FnMut(u32)) {
+        if self.nodes.is_empty() {
+            return;
+        }
+        let mut stack = [0u32; MAX_BROAD_DEPTH as usize + 1];
+        let mut top = 1usize;
+        while top > 0 {
+            top -= 1;
+            let i = stack[top];
+            let node = &self.nodes[i as usize];
+            if Vec3::from_array(node.min).cmpgt(b.max).any()
+                || Vec3::from_array(node.max).cmplt(b.min).any()
+            {
+                continue;
+            }
+            if node.kind == BROAD_LEAF {
+                f(node.index);
+            } else {
+                // Validation proved the depth: the stack holds every pending second child.
+                // The first child is visited first.
+                stack[top] = node.index;
+                stack[top + 1] = i + 1;
+                top += 2;
+            }
+        }
+    }
+}
+
+/// A side slot that holds nothing.
+pub const EMPTY_SLOT: u32 = u32::MAX;
+/// Bits of a slot that hold the side word (as [`Particle::side`]: the side and a cage).
+pub const SLOT_SIDE_MASK: u32 = SIDE_MASK | SIDE_CAGE_MASK;
+/// Bit of a slot set when its side must be kept: the particle ended its last step in a
+/// surface leaf of the instance, or caged in a solid one.
+pub const SLOT_REQUIRED: u32 = 1 << 9;
+/// Shift of the instance index in a slot.
+pub const SLOT_INSTANCE_SHIFT: u32 = 10;
+const _: () = assert!(SLOT_SIDE_MASK < SLOT_REQUIRED);
+// Indices are below `MAX_INSTANCES`, so no slot of an instance reads as `EMPTY_SLOT`.
+const _: () = assert!(MAX_INSTANCES < (1 << (32 - SLOT_INSTANCE_SHIFT)));
+
+/// No instance (a [`SceneSides::hint_instance`] that names none).
+pub const NO_INSTANCE: u32 = u32::MAX;
+
+/// A particle's state in a scene, beside it in a side buffer: its side for each instance it
+/// is near, and one leaf hint. 48 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Pod, Zeroable)]
+pub struct SceneSides {
+    /// Slots: [`EMPTY_SLOT`], or `instance << SLOT_INSTANCE_SHIFT`, [`SLOT_REQUIRED`] and the
+    /// side word.
+    pub slots: [u32; SIDE_SLOTS],
+    /// The leaf the last step ended in, in the proxy of [`Self::hint_instance`].
+    pub hint: LeafHint,
+    /// The instance the hint is for, or [`NO_INSTANCE`].
+    pub hint_instance: u32,
+    /// Zero.
+    pub _pad: u32,
+}
+
+const _: () = assert!(core::mem::size_of::<SceneSides>() == 48);
+
+impl Default for SceneSides {
+    fn default() -> Self {
+        Self::EMPTY
+    }
+}
+
+impl SceneSides {
+    /// No sides, no hint.
+    pub const EMPTY: SceneSides = SceneSides {
+        slots: [EMPTY_SLOT; SIDE_SLOTS],
+        hint: LeafHint::NONE,
+        hint_instance: NO_INSTANCE,
+        _pad: 0,
+    };
+
+    /// The side word kept for `instance`, if any.
+    pub fn side_of(&self, instance: u32) -> Option<u32> {
+        self.slots
+            .iter()
+            .find(|&&s| s != EMPTY_SLOT && s >> SLOT_INSTANCE_SHIFT == instance)
+            .map(|&s| s & SLOT_SIDE_MASK)
+    }
+
+    /// Sets the side word for `instance` (a starting side, from the mesh or a file), kept as
+    /// required. `false` when every slot holds another required side.
+    pub fn set_side(&mut self, instance: u32, side: u32) -> bool {
+        commit(&mut self.slots, instance, side, true)
+    }
+
+    /// The instances with a side, and their side words, in slot order.
+    pub fn iter(&self) -> impl Iterator<Item = (u32, u32)> + '_ {
+        self.slots
+            .iter()
+            .filter(|&&s| s != EMPTY_SLOT)
+            .map(|&s| (s >> SLOT_INSTANCE_SHIFT, s & SLOT_SIDE_MASK))
+    }
+}
+
+/// Puts `instance`'s side into `slots`: in its own slot, else an empty one, else (when
+/// `required`) over the last slot that is not required. `false` when a required side found
+/// no room.
+fn commit(slots: &mut [u32; SIDE_SLOTS], instance: u32, side: u32, required: bool) -> bool {
+    let word = instance << SLOT_INSTANCE_SHIFT
+        | if required { SLOT_REQUIRED } else { 0 }
+        | (side & SLOT_SIDE_MASK);
+    let mut free = None;
+    let mut optional = None;
+    for (k, &s) in slots.iter().enumerate() {
+        if s == EMPTY_SLOT {
+            free = free.or(Some(k));
+        } else if s >> SLOT_INSTANCE_SHIFT == instance {
+            slots[k] = word;
+            return true;
+        } else if s & SLOT_REQUIRED == 0 {
+            optional = Some(k);
+        }
+    }
+    match (free, optional) {
+        (Some(k), _) => {
+            slots[k] = word;
+            true
+        }
+        (None, Some(k)) if required => {
+            slots[k] = word;
+            true
+        }
+        // No room for a side that may be derived again: dropping it loses nothing.
+        _ => !required,
+    }
+}
+
+fn slot_side(slots: &[u32; SIDE_SLOTS], instance: u32) -> Option<u32> {
+    slots
+        .iter()
+        .find(|&&s| s != EMPTY_SLOT && s >> SLOT_INSTANCE_SHIFT == instance)
+        .map(|&s| s & SLOT_SIDE_MASK)
+}
+
+/// Where and how a particle's last step last collided, in the world. 36 bytes, as the hit
+/// records of `sim --hits` are.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct Hit {
+    /// The instance, or -1 when the step had no collision.
+    pub instance: i32,
+    /// World position of the collision response.
+    pub position: [f32; 3],
+    /// World unit normal the response used, facing the particle.
+    pub normal: [f32; 3],
+    /// Fraction of the whole step at which it happened.
+    pub t: f32,
+    /// Normal speed relative to the collider just before it, world units per second, `>= 0`.
+    pub speed: f32,
+}
+
+const _: () = assert!(core::mem::size_of::<Hit>() == 36);
+
+impl Hit {
+    /// No collision.
+    pub const NONE: Hit = Hit {
+        instance: -1,
+        position: [0.0; 3],
+        normal: [0.0; 3],
+        t: 0.0,
+        speed: 0.0,
+    };
+}
+
+impl Default for Hit {
+    fn default() -> Self {
+        Self::NONE
+    }
+}
+
+/// The observer of a march in an instance's frame: the last collision (`stop`: the first,
+/// and the march stops there).
+struct HitObserver {
+    stop: bool,
+    count: u32,
+    x: Vec3,
+    n: Vec3,
+    before: Vec3,
+    after: Vec3,
+    remaining: f32,
+    leaf: u32,
+}
+
+impl HitObserver {
+    fn new(stop: bool) -> Self {
+        Self {
+            stop,
+            count: 0,
+            x: Vec3::ZERO,
+            n: Vec3::ZERO,
+            before: Vec3::ZERO,
+            after: Vec3::ZERO,
+            remaining: 0.0,
+            leaf: NO_LEAF,
+        }
+    }
+}
+
+impl MarchObserver for HitObserver {
+    #[inline(always)]
+    fn piece(&mut self, _: Vec3, _: Vec3) {}
+    #[inline(always)]
+    fn branch(&mut self, _: crate::step::MarchBranch) {}
+    #[inline(always)]
+    fn hit(
+        &mut self,
+        x: Vec3,
+        n: Vec3,
+        before: Vec3,
+        after: Vec3,
+        remaining: f32,
+        leaf: u32,
+    ) -> bool {
+        self.count += 1;
+        (
+            self.x,
+            self.n,
+            self.before,
+            self.after,
+            self.remaining,
+            self.leaf,
+        ) = (x, n, before, after, remaining, leaf);
+        self.stop
+    }
+}
+
+/// Chords of a particle's path against a turning or scaling instance between fractions `u0`
+/// and `u1` of the step, world velocity `v`: enough that the path in the instance's frame
+/// stays within [`SUBSTEP_MARGIN`] finest leaves of them, up to [`MAX_SUBSTEPS`]; 1 for an
+/// instance that only translates (the path in its frame is then straight).
+///
+/// The bound: in the frame, the path is `l(t) = R(t)ᵀ y(t) / s(t)` with `y = x − T` moving
+/// by `Δy` (the relative displacement), the rotation turning by `θ` at a steady rate and the
+/// scale changing by `Δs` linearly; a chord of a piece of length `h` strays from the curve by
+/// at most `h² max|l''| / 8`, and over the whole interval cut into `n` pieces
+/// `max|l''| h² ≤ [(2θ|Δy| + θ²|y|)/s + 2(θ|y| + |Δy|)Δs/s² + 2|y|Δs²/s³] / n²`, with `s` the
+/// smaller scale and `|y| ≤ s_max r + |Δy|` (`r`: the root cube's farthest point from the
+/// local origin; the path matters only where it is near the cube).
+pub fn substeps(inst: &Instance, view: &ProxyView<'_>, v: Vec3, u0: f32, u1: f32, dt: f32) -> u32 {
+    let f = u1 - u0;
+    let theta = 2.0 * inst.half_turn * f;
+    let sigma = math::abs(inst.end.scale - inst.start.scale) * f;
+    if theta == 0.0 && sigma == 0.0 {
+        return 1;
+    }
+    let d_t =
+        (Vec3::from_array(inst.end.translation) - Vec3::from_array(inst.start.translation)) * f;
+    let d = (v * (dt * f) - d_t).length();
+    let s = inst.start.scale.min(inst.end.scale);
+    let s_max = inst.start.scale.max(inst.end.scale);
+    let y = s_max * local_radius(&view.root_aabb()) + d;
+    let c = ((2.0 * theta * d + theta * theta * y) / s
+        + 2.0 * (theta * y + d) * sigma / (s * s)
+        + 2.0 * y * sigma * sigma / (s * s * s))
+        * 0.125;
+    let m = SUBSTEP_MARGIN * view.finest_leaf_size();
+    let n = math::sqrt(c / m);
+    if !(n < MAX_SUBSTEPS as f32) {
+        return MAX_SUBSTEPS;
+    }
+    (math::floor(n) as u32 + 1).min(MAX_SUBSTEPS)
+}
+
+/// The last collision of a march in an instance's frame, in the world.
+#[derive(Clone, Copy)]
+struct FrameHit {
+    /// Fraction of the step at which it happened.
+    u: f32,
+    /// World position and unit normal; normal speed before it, relative to the collider.
+    x: Vec3,
+    n: Vec3,
+    speed: f32,
+    /// The surface leaf it was in (its record), or [`NO_LEAF`] for a shell block.
+    leaf: u32,
+    blocked: bool,
+}
+
+/// How a march in an instance's frame goes on after a collision.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum AfterHit {
+    /// It stops at the first collision (probing several instances for the earliest).
+    Stop,
+    /// The chord with the collisions is marched to its end (one instance only); the frame
+    /// march ends there.
+    FinishChord,
+}
+
+/// What a march in an instance's frame left: the side word and whether it must be kept;
+/// after a collision, the particle in the world where the march stopped (fraction of the
+/// step, position, velocity: the collider's surface velocity added back), the collisions and
+/// the last of them; and how the march ended.
+struct FrameMarch {
+    side: u32,
+    required: bool,
+    moved: Option<(f32, Vec3, Vec3)>,
+    collisions: u32,
+    hit: Option<FrameHit>,
+    outcome: StepOutcome,
+}
+
+/// The side a particle at world `x` at fraction `u` has for instance `c` with no kept side:
+/// the label of the empty leaf it is in, the side of the mean plane in a surface leaf, front
+/// outside the root cube ([`initial_side`]).
+fn derived_side(inst: &Instance, view: &ProxyView<'_>, x: Vec3, u: f32) -> u32 {
+    initial_side(view, inst.pose_at(u).to_local(x).to_array())
+}
+
+/// Marches a particle at world `x` with world velocity `v` (gravity integrated), side word
+/// `side`, in instance `inst`'s frame from fraction `u0` to `u1` of the step, until a
+/// collision (`after` says how far past it). A static instance's frame is one transform; a
+/// moving one's is cut into [`substeps`] chords, each marched from the particle's world point
+/// at its start in the pose there to its world point at its end in the pose there.
+/// `collided`: the surface leaf it has just collided in and not left (see `march_after`).
+#[allow(clippy::too_many_arguments)]
+fn march_in_frame(
+    inst: &Instance,
+    view: &ProxyView<'_>,
+    x: Vec3,
+    v: Vec3,
+    u0: f32,
+    u1: f32,
+    mut side: u32,
+    params: &StepParams,
+    after: AfterHit,
+    mut collided: u32,
+) -> FrameMarch {
+    let dt = params.dt;
+    let fixed = inst.is_static();
+    let n = if fixed {
+        1
+    } else {
+        substeps(inst, view, v, u0, u1, dt)
+    };
+    let mut required = false;
+    let mut outcome = StepOutcome::Done;
+    for k in 0..n {
+        let ua = u0 + (u1 - u0) * (k as f32 / n as f32);
+        let ub = if k + 1 == n {
+            u1
+        } else {
+            u0 + (u1 - u0) * ((k + 1) as f32 / n as f32)
+        };
+        let h = (ub - ua) * dt;
+        if !(h > 0.0) {
+            continue;
+        }
+        let (pa, pb) = (inst.pose_at(ua), inst.pose_at(ub));
+        let la = pa.to_local(x + v * ((ua - u0) * dt));
+        let lv = if fixed {
+            pa.vector_to_local(v)
+        } else {
+            (pb.to_local(x + v * ((ub - u0) * dt)) - la) / h
+        };
+        let mut lp = Particle {
+            position: la.to_array(),
+            side,
+            velocity: lv.to_array(),
+            flags: 0,
+        };
+        let mut obs = HitObserver::new(after == AfterHit::Stop);
+        let mut hint = LeafHint::NONE;
+        let local = StepParams {
+            gravity: [0.0; 3],
+            dt: h,
+            ..*params
+        };
+        outcome = march_after(view, &mut lp, &local, &mut hint, &mut obs, collided);
+        collided = NO_LEAF;
+        side = lp.side;
+        required = side & SIDE_CAGE_MASK != 0
+            || hint == LeafHint::NONE
+            || hint.z_depth_label & LeafHint::SURFACE != 0;
+        if outcome == StepOutcome::Invalid || outcome == StepOutcome::BoundHit {
+            break;
+        }
+        if obs.count == 0 {
+            continue;
+        }
+        // Where the march stopped: at the hit, or at the chord's end.
+        let (u_end, p_end) = if after == AfterHit::Stop {
+            let u = (ua + (h - obs.remaining) / dt).min(ub);
+            (u, inst.pose_at(u))
+        } else {
+            (ub, pb)
+        };
+        let l_end = Vec3::from_array(lp.position);
+        // The collider's surface velocity at a local point, over this chord.
+        let surface = |l: Vec3| {
+            if fixed {
+                Vec3::ZERO
+            } else {
+                (pb.to_world(l) - pa.to_world(l)) / h
+            }
+        };
+        let u_hit = (ua + (h - obs.remaining) / dt).min(ub);
+        let ph = if after == AfterHit::Stop {
+            p_end
+        } else {
+            inst.pose_at(u_hit)
+        };
+        let hit = FrameHit {
+            u: u_hit,
+            x: ph.to_world(obs.x),
+            n: ph.normal_to_world(obs.n),
+            speed: (-obs.before.dot(obs.n) * ph.scale).max(0.0),
+            leaf: obs.leaf,
+            blocked: outcome == StepOutcome::Blocked,
+        };
+        let v_end = surface(l_end) + p_end.vector_to_world(Vec3::from_array(lp.velocity));
+        return FrameMarch {
+            side,
+            required: true,
+            moved: Some((u_end, p_end.to_world(l_end), v_end)),
+            collisions: obs.count,
+            hit: Some(hit),
+            outcome,
+        };
+    }
+    FrameMarch {
+        side,
+        required,
+        moved: None,
+        collisions: 0,
+        hit: None,
+        outcome,
+    }
+}
+
+/// Advances one particle by `params.dt` through a scene: gravity integrated in the world,
+/// then marched against every instance its path can meet, in each instance's frame (see the
+/// module documentation). `sides` is the particle's [`SceneSides`], `hit` receives the step's
+/// last collision ([`Hit::NONE`] when it had none). Allocates nothing.
+///
+/// A particle near one static instance whose pose is the identity steps exactly as
+/// [`crate::step_particle_hinted`] steps it against that proxy, bit for bit: a one-proxy static
+/// scene is the plain step.
+pub fn step_particle_scene(
+    scene: &SceneView<'_>,
+    p: &mut Particle,
+    sides: &mut SceneSides,
+    params: &StepParams,
+    hit: &mut Hit,
+) -> StepOutcome {
+    *hit = Hit::NONE;
+    let x0 = Vec3::from_array(p.position);
+    let v0 = Vec3::from_array(p.velocity);
+    let dt = params.dt;
+    let v = v0 + Vec3::from_array(params.gravity) * dt;
+    let reach = v.length() * dt;
+    if !x0.is_finite() || !v0.is_finite() || !reach.is_finite() || !(dt > 0.0) {
+        p.flags |= FLAG_INVALID;
+        return StepOutcome::Invalid;
+    }
+    // Every point the particle can reach against static colliders (no response speeds it
+    // up): the ball of radius `|v| dt` around its start.
+    let pad = 4.0 * ulp(x0.abs().max_element() + reach) + 1e-30;
+    let ball = Aabb {
+        min: x0 - (reach + pad),
+        max: x0 + (reach + pad),
+    };
+    let (mut count, mut first) = (0u32, 0u32);
+    scene.for_each_candidate(&ball, |c| {
+        if count == 0 {
+            first = c;
+        }
+        count += 1;
+    });
+    let status_kept = p.flags & FLAG_STATUS_MASK & !FLAG_SCENE_STATUS;
+    if count == 0 {
+        // Nothing to meet: the straight path (the march's operations for a miss).
+        p.position = (x0 + v * dt).to_array();
+        p.velocity = v.to_array();
+        p.side &= SIDE_MASK;
+        p.flags = status_kept | p.flags & !FLAG_STATUS_MASK;
+        for s in sides.slots.iter_mut() {
+            if *s != EMPTY_SLOT {
+                *s &= !SLOT_REQUIRED;
+            }
+        }
+        return StepOutcome::Done;
+    }
+    if count == 1 && scene.instances[first as usize].is_static() {
+        return step_near_one_static(scene, first, p, sides, params, hit);
+    }
+    step_in_rounds(scene, p, sides, params, hit)
+}
+
+/// [`step_particle_scene`] for a particle that can meet one static instance only: the whole
+/// step in its frame, with every rule of the march and the hint.
+fn step_near_one_static(
+    scene: &SceneView<'_>,
+    c: u32,
+    p: &mut Particle,
+    sides: &mut SceneSides,
+    params: &StepParams,
+    hit: &mut Hit,
+) -> StepOutcome {
+    let inst = &scene.instances[c as usize];
+    let view = &scene.proxies[inst.proxy as usize];
+    let pose = inst.start;
+    let identity = bytemuck::bytes_of(&pose) == bytemuck::bytes_of(&Pose::IDENTITY);
+    let x0 = Vec3::from_array(p.position);
+    let mut slots = sides.slots;
+    for s in slots.iter_mut() {
+        if *s != EMPTY_SLOT {
+            *s &= !SLOT_REQUIRED;
+        }
+    }
+    let side = match slot_side(&slots, c) {
+        Some(s) => s,
+        None => initial_side(view, pose.to_local(x0).to_array()),
+    };
+    let mut hint = if sides.hint_instance == c {
+        sides.hint
+    } else {
+        LeafHint::NONE
+    };
+    let mut lp = if identity {
+        Particle { side, ..*p }
+    } else {
+        Particle {
+            position: pose.to_local(x0).to_array(),
+            side,
+            velocity: pose
+                .vector_to_local(Vec3::from_array(p.velocity))
+                .to_array(),
+            flags: p.flags,
+        }
+    };
+    let local_params = if identity {
+        *params
+    } else {
+        StepParams {
+            gravity: pose
+                .vector_to_local(Vec3::from_array(params.gravity))
+                .to_array(),
+            ..*params
+        }
+    };
+    let mut obs = HitObserver::new(false);
+    let outcome = march(view, &mut lp, &local_params, &mut hint, &mut obs);
+    if outcome == StepOutcome::Invalid {
+        p.flags |= FLAG_INVALID;
+        return outcome;
+    }
+    let required = lp.side & SIDE_CAGE_MASK != 0
+        || hint == LeafHint::NONE
+        || hint.z_depth_label & LeafHint::SURFACE != 0;
+    let kept = commit(&mut slots, c, lp.side, required);
+    if identity {
+        *p = lp;
+    } else if obs.count == 0 && outcome == StepOutcome::Done {
+        // No collision: the straight world path, not its round trip through the frame.
+        let v = Vec3::from_array(p.velocity) + Vec3::from_array(params.gravity) * params.dt;
+        p.position = (x0 + v * params.dt).to_array();
+        p.velocity = v.to_array();
+        p.flags = lp.flags;
+    } else {
+        p.position = pose.to_world(Vec3::from_array(lp.position)).to_array();
+        p.velocity = pose
+            .vector_to_world(Vec3::from_array(lp.velocity))
+            .to_array();
+        p.flags = lp.flags;
+    }
+    if obs.count > 0 {
+        *hit = Hit {
+            instance: c as i32,
+            position: pose.to_world(obs.x).to_array(),
+            normal: pose.normal_to_world(obs.n).to_array(),
+            t: (params.dt - obs.remaining) / params.dt,
+            speed: (-obs.before.dot(obs.n) * pose.scale).max(0.0),
+        };
+    }
+    sides.slots = slots;
+    sides.hint = hint;
+    sides.hint_instance = c;
+    p.side = first_side(&slots, lp.side);
+    p.flags &= !(FLAG_CRUSHED | FLAG_SIDES_LOST);
+    if !kept {
+        p.flags |= FLAG_SIDES_LOST;
+    }
+    outcome
+}
+
+/// The side word [`Particle::side`] shows after a scene step: the first slot's.
+fn first_side(slots: &[u32; SIDE_SLOTS], otherwise: u32) -> u32 {
+    match slots.iter().find(|&&s| s != EMPTY_SLOT) {
+        Some(&s) => s & SLOT_SIDE_MASK,
+        None => otherwise,
+    }
+}
+
+/// [`step_particle_scene`] in rounds. A round takes the rest of the straight path: with one
+/// instance to meet, the whole of it in that instance's frame, up to the end of the first
+/// chord with a collision; with several, it probes each up to its first collision, takes the
+/// earliest, and brings every other's side up to that moment. The next round goes on from
+/// there with the new velocity.
+fn step_in_rounds(
+    scene: &SceneView<'_>,
+    p: &mut Particle,
+    sides: &mut SceneSides,
+    params: &StepParams,
+    hit: &mut Hit,
+) -> StepOutcome {
+    let dt = params.dt;
+    let mut x = Vec3::from_array(p.position);
+    let mut v = Vec3::from_array(p.velocity) + Vec3::from_array(params.gravity) * dt;
+    let mut u = 0.0f32;
+    let mut slots = sides.slots;
+    for s in slots.iter_mut() {
+        if *s != EMPTY_SLOT {
+            *s &= !SLOT_REQUIRED;
+        }
+    }
+    let mut status = 0u32;
+    let mut collisions = 0u32;
+    let mut lost = false;
+    // The instance and surface leaf of the last collision, which the next round starts in.
+    let mut last: Option<(u32, u32)> = None;
+    let side_for = |slots: &[u32; SIDE_SLOTS], c: u32, x: Vec3, u: f32| {
+        let inst = &scene.instances[c as usize];
+        slot_side(slots, c)
+            .unwrap_or_else(|| derived_side(inst, &scene.proxies[inst.proxy as usize], x, u))
+    };
+    let collided_in = |last: Option<(u32, u32)>, c: u32| match last {
+        Some((i, leaf)) if i == c => leaf,
+        _ => NO_LEAF,
+    };
+    let mut rounds = 0;
+    loop {
+        if rounds == MAX_ROUNDS {
+            // Pressed between colliders: at its last contact, moving with what it touched.
+            status |= FLAG_CRUSHED;
+            if let Some((c, _)) = last {
+                let inst = &scene.instances[c as usize];
+                let end = inst.end.to_world(inst.pose_at(u).to_local(x));
+                let rest = (1.0 - u) * dt;
+                v = if rest > 0.0 {
+                    (end - x) / rest
+                } else {
+                    Vec3::ZERO
+                };
+                x = end;
+            }
+            break;
+        }
+        rounds += 1;
+        let rest = (1.0 - u) * dt;
+        let end = x + v * rest;
+        let pad = 4.0 * ulp(x.abs().max(end.abs()).max_element()) + 1e-30;
+        let seg = Aabb {
+            min: x.min(end) - pad,
+            max: x.max(end) + pad,
+        };
+        let (mut count, mut only) = (0u32, 0u32);
+        scene.for_each_candidate(&seg, |c| {
+            if count == 0 {
+                only = c;
+            }
+            count += 1;
+        });
+        if count == 0 {
+            x = end;
+            break;
+        }
+        // The round's outcome: how far it went, and the collision it ended with.
+        let mut moved: Option<(f32, Vec3, Vec3)> = None;
+        let mut round_hit: Option<(u32, FrameHit, u32)> = None;
+        let mut bound = false;
+        let mut invalid = false;
+        if count == 1 {
+            let c = only;
+            let inst = &scene.instances[c as usize];
+            let view = &scene.proxies[inst.proxy as usize];
+            let side = side_for(&slots, c, x, u);
+            let m = march_in_frame(
+                inst,
+                view,
+                x,
+                v,
+                u,
+                1.0,
+                side,
+                params,
+                AfterHit::FinishChord,
+                collided_in(last, c),
+            );
+            invalid = m.outcome == StepOutcome::Invalid;
+            bound = m.outcome == StepOutcome::BoundHit;
+            lost |= !commit(&mut slots, c, m.side, m.required);
+            moved = m.moved;
+            if let Some(h) = m.hit {
+                round_hit = Some((c, h, m.collisions));
+            }
+        } else {
+            // The earliest first collision, ties to the first in the broad phase's order.
+            let mut best: Option<(f32, u32)> = None;
+            scene.for_each_candidate(&seg, |c| {
+                let inst = &scene.instances[c as usize];
+                let view = &scene.proxies[inst.proxy as usize];
+                let side = side_for(&slots, c, x, u);
+                let m = march_in_frame(
+                    inst,
+                    view,
+                    x,
+                    v,
+                    u,
+                    1.0,
+                    side,
+                    params,
+                    AfterHit::Stop,
+                    collided_in(last, c),
+                );
+                invalid |= m.outcome == StepOutcome::Invalid;
+                if let Some(h) = m.hit {
+                    if best.is_none_or(|(bu, _)| h.u < bu) {
+                        best = Some((h.u, c));
+                    }
+                }
+            });
+            let until = best.map_or(1.0, |(bu, _)| bu);
+            scene.for_each_candidate(&seg, |c| {
+                let inst = &scene.instances[c as usize];
+                let view = &scene.proxies[inst.proxy as usize];
+                let side = side_for(&slots, c, x, u);
+                let is_best = best.is_some_and(|(_, b)| b == c);
+                let m = march_in_frame(
+                    inst,
+                    view,
+                    x,
+                    v,
+                    u,
+                    if is_best { 1.0 } else { until },
+                    side,
+                    params,
+                    AfterHit::Stop,
+                    collided_in(last, c),
+                );
+                invalid |= m.outcome == StepOutcome::Invalid;
+                bound |= m.outcome == StepOutcome::BoundHit;
+                if is_best {
+                    moved = m.moved;
+                    if let Some(h) = m.hit {
+                        round_hit = Some((c, h, m.collisions));
+                    }
+                }
+                lost |= !commit(&mut slots, c, m.side, m.required);
+            });
+        }
+        if invalid {
+            p.flags |= FLAG_INVALID;
+            return StepOutcome::Invalid;
+        }
+        if bound {
+            // A march hit its leaf bound: the particle stays where this round started, a
+            // safe point (the step's start or a contact).
+            status |= FLAG_BOUND_HIT;
+            v = Vec3::ZERO;
+            break;
+        }
+        match (moved, round_hit) {
+            (Some((u_end, x_end, v_end)), Some((c, h, n))) => {
+                collisions += n;
+                if h.blocked {
+                    status |= FLAG_BLOCKED;
+                }
+                *hit = Hit {
+                    instance: c as i32,
+                    position: h.x.to_array(),
+                    normal: h.n.to_array(),
+                    t: h.u,
+                    speed: h.speed,
+                };
+                x = x_end;
+                v = v_end;
+                u = u_end;
+                last = Some((c, h.leaf));
+                if !(u < 1.0) {
+                    break;
+                }
+            }
+            _ => {
+                x = end;
+                break;
+            }
+        }
+    }
+    if !x.is_finite() || !v.is_finite() {
+        p.flags |= FLAG_INVALID;
+        return StepOutcome::Invalid;
+    }
+    p.position = x.to_array();
+    p.velocity = v.to_array();
+    p.side = first_side(&slots, p.side & SIDE_MASK);
+    if lost {
+        status |= FLAG_SIDES_LOST;
+    }
+    let count = (p.collisions() + collisions).min(MAX_COLLISIONS);
+    p.flags = (p.flags & FLAG_STATUS_MASK & !FLAG_SCENE_STATUS) | status | count << COLLISION_SHIFT;
+    sides.slots = slots;
+    sides.hint = LeafHint::NONE;
+    sides.hint_instance = NO_INSTANCE;
+    if status & FLAG_CRUSHED != 0 {
+        StepOutcome::BoundHit
+    } else if status & FLAG_BLOCKED != 0 {
+        StepOutcome::Blocked
+    } else {
+        StepOutcome::Done
+    }
+}

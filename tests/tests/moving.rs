@@ -1,0 +1,628 @@
+//! Moving and instanced colliders (`octoproxy_core::scene`, `octoproxy_cpu::Scene`): the scene
+//! step against exact ground truth in each instance's own frame, at speeds up to several
+//! times a collider's size per step; a one-proxy static scene against the plain step, bit for
+//! bit; hit records; crushing; and the scene validator on bad input.
+
+use glam::{Quat, Vec3};
+use octoproxy_core::scene::{
+    BroadNode, Instance, Pose, SceneError, SceneView, BROAD_INTERNAL, BROAD_LEAF, FLAG_CRUSHED,
+};
+use octoproxy_core::{
+    initial_side, step_particle_hinted, LeafHint, Particle, ProxyView, SceneSides, StepParams,
+};
+use octoproxy_cpu::ground_truth::GroundTruth;
+use octoproxy_cpu::io::Mesh;
+use octoproxy_cpu::scenes;
+use octoproxy_cpu::{bake, BuildParams, CpuBackend, MeshRef, Scene, SceneBuildError};
+
+use octoproxy_core::Backend;
+
+fn bake_mesh(mesh: &Mesh, dmax: u32) -> Vec<u32> {
+    let params = BuildParams {
+        dmax,
+        ..BuildParams::default()
+    };
+    bake(&[MeshRef::from(mesh)], &params, &()).expect("bakes").0
+}
+
+fn pose(t: [f32; 3], q: Quat, s: f32) -> Pose {
+    Pose {
+        translation: t,
+        scale: s,
+        rotation: q.normalize().to_array(),
+    }
+}
+
+/// Counts, after one scene step, the particles that are inside a closed instance's mesh
+/// deeper than one finest-leaf diagonal, in the instance's frame at the end pose. Every
+/// particle of these tests starts outside every mesh, so none may be inside at any step's
+/// end. Particles flagged crushed (pressed between two instances, left at their last contact
+/// with one) are counted in `crushed` and not checked.
+struct Check {
+    truths: Vec<GroundTruth>,
+    diagonals: Vec<f32>,
+}
+
+#[derive(Debug, Default)]
+struct Tally {
+    penetrations: usize,
+    crushed: usize,
+    collisions: u64,
+    /// The first few penetrations, for the failure message.
+    examples: Vec<String>,
+}
+
+impl Check {
+    fn new(meshes: &[&Mesh], proxies: &[Vec<u32>]) -> Self {
+        Self {
+            truths: meshes
+                .iter()
+                .map(|m| GroundTruth::new(&m.positions, &m.triangles))
+                .collect(),
+            diagonals: proxies
+                .iter()
+                .map(|w| ProxyView::new(w).unwrap().finest_leaf_size() * 3f32.sqrt())
+                .collect(),
+        }
+    }
+
+    fn step(&self, instances: &[Instance], before: &[Particle], after: &[Particle], t: &mut Tally) {
+        for (a, b) in before.iter().zip(after) {
+            t.collisions += (b.collisions() - a.collisions()) as u64;
+            if b.flags & FLAG_CRUSHED != 0 {
+                t.crushed += 1;
+                continue;
+            }
+            for inst in instances.iter().filter(|i| i.is_active()) {
+                let truth = &self.truths[inst.proxy as usize];
+                let l1 = inst.end.to_local(Vec3::from_array(b.position));
+                if !truth.is_inside(l1.to_array()) {
+                    continue;
+                }
+                let depth = truth.distance(l1.to_array());
+                if depth > self.diagonals[inst.proxy as usize] as f64 {
+                    t.penetrations += 1;
+                    if t.examples.len() < 4 {
+                        let l0 = inst.start.to_local(Vec3::from_array(a.position));
+                        t.examples.push(format!(
+                            "{} -> {} (local {l0} -> {l1}, depth {depth:.4}), before {a:?}, after {b:?}, instance {inst:?}",
+                            Vec3::from_array(a.position),
+                            Vec3::from_array(b.position)
+                        ));
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Particles on a jittered lattice in `[lo, hi]`, at rest, outside every given instance's
+/// mesh (in its start pose).
+fn lattice(lo: Vec3, hi: Vec3, n: u32, seed: u32) -> Vec<Particle> {
+    let mut out = Vec::new();
+    let mut r = seed.wrapping_mul(2_654_435_761).max(1);
+    let mut rnd = || {
+        r ^= r << 13;
+        r ^= r >> 17;
+        r ^= r << 5;
+        (r as f32) / (u32::MAX as f32)
+    };
+    for i in 0..n {
+        for j in 0..n {
+            for k in 0..n {
+                let f = Vec3::new(
+                    (i as f32 + rnd()) / n as f32,
+                    (j as f32 + rnd()) / n as f32,
+                    (k as f32 + rnd()) / n as f32,
+                );
+                out.push(Particle::new((lo + (hi - lo) * f).to_array(), [0.0; 3]));
+            }
+        }
+    }
+    out
+}
+
+fn outside_all(particles: Vec<Particle>, check: &Check, instances: &[Instance]) -> Vec<Particle> {
+    particles
+        .into_iter()
+        .filter(|p| {
+            instances.iter().all(|inst| {
+                let l = inst.start.to_local(Vec3::from_array(p.position));
+                let truth = &check.truths[inst.proxy as usize];
+                !truth.is_inside(l.to_array())
+                    && truth.distance(l.to_array())
+                        > 2.0 * check.diagonals[inst.proxy as usize] as f64
+            })
+        })
+        .collect()
+}
+
+fn params(gravity: [f32; 3]) -> StepParams {
+    StepParams {
+        gravity,
+        dt: 1.0 / 60.0,
+        restitution: 0.5,
+        friction: 0.1,
+        ..StepParams::default()
+    }
+}
+
+/// Runs `steps` scene steps, posing the instances with `poses(step, instance)` (the pose at
+/// the end of that step) before each; returns the tally.
+fn run(
+    meshes: &[&Mesh],
+    proxies: &[Vec<u32>],
+    placements: &[(u32, Pose)],
+    particles: Vec<Particle>,
+    steps: u32,
+    params: &StepParams,
+    poses: impl Fn(u32, u32) -> Pose,
+) -> (Tally, Vec<Particle>) {
+    let check = Check::new(meshes, proxies);
+    let mut scene = Scene::new();
+    for w in proxies {
+        scene.add_proxy(w.clone()).unwrap();
+    }
+    for &(proxy, p) in placements {
+        scene.add_instance(proxy, p).unwrap();
+    }
+    let particles = outside_all(particles, &check, scene.instances());
+    assert!(
+        particles.len() > 100,
+        "the lattice left {} particles",
+        particles.len()
+    );
+    let mut cpu = CpuBackend::new();
+    cpu.upload_particles(&particles).unwrap();
+    let mut tally = Tally::default();
+    let mut before = particles;
+    for step in 0..steps {
+        for i in 0..placements.len() as u32 {
+            scene.move_to(i, poses(step, i)).unwrap();
+        }
+        scene.prepare().unwrap();
+        let instances = scene.instances().to_vec();
+        cpu.step_scene(&mut scene, params, false).unwrap();
+        let after = cpu.particles().to_vec();
+        check.step(&instances, &before, &after, &mut tally);
+        before = after;
+    }
+    (tally, before)
+}
+
+#[test]
+fn a_box_translating_three_sizes_a_step_pushes_particles_and_none_tunnels() {
+    let cube = scenes::cube([-0.5; 3], [0.5; 3]);
+    let words = bake_mesh(&cube, 7);
+    let particles = lattice(
+        Vec3::new(-1.0, -1.0, -1.0),
+        Vec3::new(30.0, 1.0, 1.0),
+        24,
+        1,
+    );
+    // 3 units a step: three times the box's size, through particles at rest.
+    let (tally, after) = run(
+        &[&cube],
+        &[words],
+        &[(0, pose([-3.0, 0.0, 0.0], Quat::IDENTITY, 1.0))],
+        particles,
+        12,
+        &params([0.0; 3]),
+        |step, _| {
+            pose(
+                [-3.0 + 3.0 * (step + 1) as f32, 0.1, 0.0],
+                Quat::IDENTITY,
+                1.0,
+            )
+        },
+    );
+    assert_eq!(tally.penetrations, 0, "{tally:?}");
+    assert!(tally.collisions > 1000, "the box met particles: {tally:?}");
+    // Particles it met move ahead of it, in +x.
+    assert!(after.iter().filter(|p| p.velocity[0] > 100.0).count() > 500);
+}
+
+#[test]
+fn a_paddle_turning_fast_sweeps_particles_and_none_tunnels() {
+    let paddle = scenes::slab([0.0; 3], [2.0, 0.5, 0.12]);
+    let words = bake_mesh(&paddle, 8);
+    let particles = lattice(Vec3::new(-1.1, -0.3, -1.1), Vec3::new(1.1, 0.3, 1.1), 28, 2);
+    // 25 degrees a step about y: the paddle's tips move 0.44 a step, 3.6 times its thickness.
+    let (tally, _) = run(
+        &[&paddle],
+        &[words],
+        &[(0, Pose::IDENTITY)],
+        particles,
+        14,
+        &params([0.0; 3]),
+        |step, _| {
+            let a = (25.0f32 * (step + 1) as f32).to_radians();
+            pose([0.0; 3], Quat::from_rotation_y(a), 1.0)
+        },
+    );
+    assert_eq!(tally.penetrations, 0, "{tally:?}");
+    assert!(
+        tally.collisions > 500,
+        "the paddle met particles: {tally:?}"
+    );
+}
+
+#[test]
+fn a_sphere_growing_and_moving_pushes_particles_out_and_none_tunnels() {
+    let ball = scenes::uv_sphere([0.0; 3], 0.5, 24, 12);
+    let words = bake_mesh(&ball, 7);
+    let particles = lattice(Vec3::splat(-1.6), Vec3::splat(1.6), 22, 3);
+    let (tally, _) = run(
+        &[&ball],
+        &[words],
+        &[(0, pose([0.0; 3], Quat::IDENTITY, 0.5))],
+        particles,
+        10,
+        &params([0.0; 3]),
+        |step, _| {
+            let u = (step + 1) as f32;
+            pose(
+                [0.05 * u, 0.0, 0.0],
+                Quat::from_rotation_z(0.2 * u),
+                0.5 + 0.2 * u,
+            )
+        },
+    );
+    assert_eq!(tally.penetrations, 0, "{tally:?}");
+    assert!(tally.collisions > 300, "{tally:?}");
+}
+
+#[test]
+fn rain_on_a_grid_of_instances_half_of_them_moving_never_crosses_a_surface() {
+    let cube = scenes::cube([-0.4; 3], [0.4; 3]);
+    let ball = scenes::uv_sphere([0.0; 3], 0.45, 16, 8);
+    let proxies = vec![bake_mesh(&cube, 6), bake_mesh(&ball, 6)];
+    let mut placements = Vec::new();
+    for i in 0..3 {
+        for k in 0..3 {
+            placements.push((
+                (i + k) % 2,
+                pose([i as f32 * 1.5, 0.0, k as f32 * 1.5], Quat::IDENTITY, 1.0),
+            ));
+        }
+    }
+    let base = placements.clone();
+    let particles = lattice(Vec3::new(-0.8, 0.6, -0.8), Vec3::new(3.8, 2.5, 3.8), 26, 4);
+    let (tally, _) = run(
+        &[&cube, &ball],
+        &proxies,
+        &placements,
+        particles,
+        40,
+        &params([0.0, -30.0, 0.0]),
+        |step, i| {
+            let (_, p) = base[i as usize];
+            if i % 2 == 1 {
+                let u = (step + 1) as f32;
+                let mut t = p.translation;
+                t[1] += 0.3 * (0.4 * u).sin();
+                pose(
+                    t,
+                    Quat::from_rotation_y(0.15 * u) * Quat::from_rotation_x(0.1 * u),
+                    1.0,
+                )
+            } else {
+                p
+            }
+        },
+    );
+    assert_eq!(tally.penetrations, 0, "{tally:?}");
+    assert!(tally.collisions > 2000, "{tally:?}");
+}
+
+#[test]
+fn a_one_proxy_scene_at_the_identity_steps_as_the_plain_step_bit_for_bit() {
+    let mesh = scenes::merge(&[
+        scenes::uv_sphere([0.0, 0.0, 0.0], 0.6, 20, 10),
+        scenes::slab([0.0, -0.8, 0.0], [3.0, 0.1, 3.0]),
+    ]);
+    let words = bake_mesh(&mesh, 7);
+    let view = ProxyView::new(&words).unwrap();
+    let mut particles = lattice(Vec3::new(-1.4, -0.7, -1.4), Vec3::new(1.4, 1.5, 1.4), 20, 5);
+    for (k, p) in particles.iter_mut().enumerate() {
+        p.side = initial_side(&view, p.position);
+        p.velocity = [
+            ((k % 7) as f32 - 3.0) * 0.5,
+            0.0,
+            ((k % 5) as f32 - 2.0) * 0.5,
+        ];
+    }
+    let params = params([0.0, -9.81, 0.0]);
+    let mut plain = particles.clone();
+    let mut hints = vec![LeafHint::NONE; plain.len()];
+    let mut scene = Scene::new();
+    scene.add_proxy(words.clone()).unwrap();
+    scene.add_instance(0, Pose::IDENTITY).unwrap();
+    let mut cpu = CpuBackend::new();
+    cpu.upload_particles(&particles).unwrap();
+    let sides: Vec<SceneSides> = particles
+        .iter()
+        .map(|p| {
+            let mut s = SceneSides::EMPTY;
+            s.set_side(0, p.side);
+            s
+        })
+        .collect();
+    cpu.set_scene_sides(&sides).unwrap();
+    for step in 0..90 {
+        for (p, h) in plain.iter_mut().zip(&mut hints) {
+            step_particle_hinted(&view, p, &params, h);
+        }
+        cpu.step_scene(&mut scene, &params, false).unwrap();
+        for (k, (a, b)) in plain.iter().zip(cpu.particles()).enumerate() {
+            assert_eq!(
+                bytemuck::bytes_of(a),
+                bytemuck::bytes_of(b),
+                "particle {k} after step {step}: plain {a:?}, scene {b:?}"
+            );
+        }
+    }
+    assert!(plain.iter().map(|p| p.collisions()).sum::<u32>() > 1000);
+}
+
+#[test]
+fn hits_say_where_when_and_how_fast_a_particle_met_a_moving_floor() {
+    let floor = scenes::slab([0.0; 3], [2.0, 0.2, 2.0]);
+    let words = bake_mesh(&floor, 7);
+    let mut scene = Scene::new();
+    scene.add_proxy(words).unwrap();
+    scene.add_instance(0, Pose::IDENTITY).unwrap();
+    // A particle falling at 6 units/s onto a floor rising at 3 units/s: contact in the step,
+    // at 9 units/s relative, on the floor's top face (y = 0.1 in its frame).
+    let dt = 0.05;
+    let mut cpu = CpuBackend::new();
+    cpu.upload_particles(&[Particle::new([0.1, 0.5, 0.0], [0.0, -6.0, 0.0])])
+        .unwrap();
+    let p = StepParams {
+        gravity: [0.0; 3],
+        dt,
+        restitution: 1.0,
+        friction: 0.0,
+        ..StepParams::default()
+    };
+    let mut steps = 0;
+    loop {
+        let y = 3.0 * dt * (steps + 1) as f32;
+        scene
+            .move_to(0, pose([0.0, y, 0.0], Quat::IDENTITY, 1.0))
+            .unwrap();
+        cpu.step_scene(&mut scene, &p, true).unwrap();
+        steps += 1;
+        let h = cpu.hits()[0];
+        if h.instance >= 0 {
+            assert_eq!(h.instance, 0);
+            assert!(h.t > 0.0 && h.t <= 1.0, "{h:?}");
+            // The floor's top at the hit's time, within a leaf.
+            let top = 0.1 + 3.0 * dt * (steps as f32 - 1.0 + h.t);
+            let leaf = 4.0 / 128.0;
+            assert!((h.position[1] - top).abs() < leaf, "{h:?}, top {top}");
+            assert!(
+                Vec3::from_array(h.normal).abs_diff_eq(Vec3::Y, 1e-3),
+                "{h:?}"
+            );
+            assert!((h.speed - 9.0).abs() < 0.05, "{h:?}");
+            // Elastic against a floor moving up at 3: it leaves at 3 + 9 = 12 up.
+            let v = cpu.particles()[0].velocity[1];
+            assert!((v - 12.0).abs() < 0.05, "velocity {v}");
+            break;
+        }
+        assert!(steps < 20, "no hit");
+    }
+    // The next step: no hit.
+    cpu.step_scene(&mut scene, &p, true).unwrap();
+    assert_eq!(cpu.hits()[0].instance, -1);
+}
+
+#[test]
+fn a_particle_pressed_between_converging_walls_is_flagged_and_never_pushed_through() {
+    let wall = scenes::slab([0.0; 3], [0.1, 1.0, 1.0]);
+    let words = bake_mesh(&wall, 7);
+    let mut scene = Scene::new();
+    scene.add_proxy(words.clone()).unwrap();
+    scene
+        .add_instance(0, pose([-0.3, 0.0, 0.0], Quat::IDENTITY, 1.0))
+        .unwrap();
+    scene
+        .add_instance(0, pose([0.3, 0.0, 0.0], Quat::IDENTITY, 1.0))
+        .unwrap();
+    let check = Check::new(&[&wall], &[words]);
+    let particles = vec![Particle::new([0.0, 0.0, 0.0], [0.0; 3])];
+    let mut cpu = CpuBackend::new();
+    cpu.upload_particles(&particles).unwrap();
+    let mut tally = Tally::default();
+    let mut before = particles;
+    let p = params([0.0; 3]);
+    // The walls (0.1 thick) close from 0.6 apart at 1.5 units a second, until they overlap
+    // by half their thickness: no point between them is outside both.
+    for step in 0..11 {
+        let x = 0.3 - 0.025 * (step + 1) as f32;
+        scene
+            .move_to(0, pose([-x, 0.0, 0.0], Quat::IDENTITY, 1.0))
+            .unwrap();
+        scene
+            .move_to(1, pose([x, 0.0, 0.0], Quat::IDENTITY, 1.0))
+            .unwrap();
+        scene.prepare().unwrap();
+        let instances = scene.instances().to_vec();
+        cpu.step_scene(&mut scene, &p, false).unwrap();
+        let after = cpu.particles().to_vec();
+        check.step(&instances, &before, &after, &mut tally);
+        before = after;
+    }
+    assert_eq!(tally.penetrations, 0, "{tally:?}");
+    assert!(tally.crushed > 0, "the walls met: {tally:?}");
+}
+
+fn tiny_scene() -> (Vec<u32>, Vec<Instance>) {
+    let words = bake_mesh(&scenes::cube([-0.5; 3], [0.5; 3]), 5);
+    let instances = vec![
+        Instance::new(0, Pose::IDENTITY, Pose::IDENTITY),
+        Instance::new(
+            0,
+            pose([3.0, 0.0, 0.0], Quat::IDENTITY, 1.0),
+            pose([3.0, 0.0, 0.0], Quat::IDENTITY, 1.0),
+        ),
+    ];
+    (words, instances)
+}
+
+fn broad_of(views: &[ProxyView<'_>], instances: &mut [Instance]) -> Vec<BroadNode> {
+    let b0 = instances[0].swept_box(&views[0]);
+    let b1 = instances[1].swept_box(&views[0]);
+    instances[0].leaf = 1;
+    instances[1].leaf = 2;
+    let node = |b: octoproxy_core::Aabb, index, kind| BroadNode {
+        min: b.min.to_array(),
+        index,
+        max: b.max.to_array(),
+        kind,
+    };
+    let all = octoproxy_core::Aabb {
+        min: b0.min.min(b1.min),
+        max: b0.max.max(b1.max),
+    };
+    vec![
+        node(all, 2, BROAD_INTERNAL),
+        node(b0, 0, BROAD_LEAF),
+        node(b1, 1, BROAD_LEAF),
+    ]
+}
+
+#[test]
+fn the_scene_validator_names_what_is_wrong() {
+    let (words, mut instances) = tiny_scene();
+    let views = [ProxyView::new(&words).unwrap()];
+    let nodes = broad_of(&views, &mut instances);
+    assert!(SceneView::new(&views, &instances, &nodes).is_ok());
+    let err = |instances: &[Instance], nodes: &[BroadNode]| {
+        SceneView::new(&views, instances, nodes).unwrap_err()
+    };
+
+    let mut bad = instances.clone();
+    bad[1].start.translation[0] = f32::NAN;
+    assert_eq!(err(&bad, &nodes), SceneError::BadPose { instance: 1 });
+    let mut bad = instances.clone();
+    bad[0].end.rotation = [0.0, 0.0, 0.5, 0.5];
+    assert_eq!(err(&bad, &nodes), SceneError::BadPose { instance: 0 });
+    let mut bad = instances.clone();
+    bad[0].proxy = 7;
+    assert_eq!(
+        err(&bad, &nodes),
+        SceneError::BadProxy {
+            instance: 0,
+            proxy: 7
+        }
+    );
+    let mut bad = instances.clone();
+    bad[1].half_turn = 0.5;
+    assert_eq!(err(&bad, &nodes), SceneError::BadTurn { instance: 1 });
+    // Moved without rebuilding the broad phase: its box no longer holds the instance.
+    let mut bad = instances.clone();
+    bad[1].end.translation[0] = 9.0;
+    bad[1] = Instance {
+        leaf: 2,
+        ..Instance::new(0, bad[1].start, bad[1].end)
+    };
+    assert_eq!(err(&bad, &nodes), SceneError::BroadBoxTooSmall { node: 2 });
+    // A cycle, a second child out of range, a leaf naming the wrong instance, one missing.
+    let mut n = nodes.clone();
+    n[0].index = 0;
+    assert_eq!(err(&instances, &n), SceneError::BadBroadPhase { node: 0 });
+    let mut n = nodes.clone();
+    n[0].index = 3;
+    assert_eq!(err(&instances, &n), SceneError::BadBroadPhase { node: 0 });
+    let mut n = nodes.clone();
+    n[2].index = 0;
+    assert_eq!(
+        err(&instances, &n),
+        SceneError::NotInBroadPhase { instance: 0 }
+    );
+    assert_eq!(
+        err(&instances, &nodes[1..2]),
+        SceneError::NotInBroadPhase { instance: 0 }
+    );
+    assert_eq!(
+        err(&instances, &[]),
+        SceneError::NotInBroadPhase { instance: 0 }
+    );
+    // Hidden (scale 0) or removed instances must not be in it; then an empty one is right.
+    let mut hidden = instances.clone();
+    hidden[0].end.scale = 0.0;
+    assert_eq!(
+        err(&hidden, &nodes),
+        SceneError::NotInBroadPhase { instance: 0 }
+    );
+    hidden[1].flags = 0;
+    assert!(SceneView::new(&views, &hidden, &[]).is_ok());
+    // Too far out for f32 to resolve a leaf.
+    let far = pose([3.0e7, 0.0, 0.0], Quat::IDENTITY, 1.0);
+    let far = vec![Instance {
+        leaf: 1,
+        ..Instance::new(0, far, far)
+    }];
+    let fb = far[0].swept_box(&views[0]);
+    let fnode = vec![BroadNode {
+        min: fb.min.to_array(),
+        index: 0,
+        max: fb.max.to_array(),
+        kind: BROAD_LEAF,
+    }];
+    let mut f = far.clone();
+    f[0].leaf = 0;
+    assert_eq!(err(&f, &fnode), SceneError::TooFarOut { instance: 0 });
+}
+
+#[test]
+fn the_host_scene_keeps_indices_and_refuses_too_many_overlapping_shells() {
+    let cube = scenes::cube([-0.5; 3], [0.5; 3]);
+    let mut scene = Scene::new();
+    scene.add_proxy(bake_mesh(&cube, 5)).unwrap();
+    let a = scene.add_instance(0, Pose::IDENTITY).unwrap();
+    let b = scene
+        .add_instance(0, pose([2.0, 0.0, 0.0], Quat::IDENTITY, 1.0))
+        .unwrap();
+    scene.remove(a).unwrap();
+    let c = scene.add_instance(0, Pose::IDENTITY).unwrap();
+    assert_eq!((a, b, c), (0, 1, 2), "a removed index is not reused");
+    assert!(matches!(
+        scene.move_to(a, Pose::IDENTITY),
+        Err(SceneBuildError::Removed(0))
+    ));
+    assert!(matches!(
+        scene.move_to(9, Pose::IDENTITY),
+        Err(SceneBuildError::NoSuchInstance(9))
+    ));
+    let bad = Pose {
+        scale: -1.0,
+        ..Pose::IDENTITY
+    };
+    assert!(matches!(
+        scene.move_to(b, bad),
+        Err(SceneBuildError::BadPose { instance: 1, .. })
+    ));
+    scene.prepare().unwrap();
+    // Nine boxes on one spot: more shells at one point than a particle keeps sides for.
+    for _ in 0..8 {
+        scene
+            .add_instance(0, pose([0.01, 0.0, 0.0], Quat::IDENTITY, 1.0))
+            .unwrap();
+    }
+    match scene.prepare() {
+        Err(SceneBuildError::TooManyOverlapping { instances }) => {
+            assert!(
+                instances.len() > 8 && instances.contains(&2),
+                "{instances:?}"
+            );
+            assert!(
+                !instances.contains(&0) && !instances.contains(&1),
+                "{instances:?}"
+            );
+        }
+        other => panic!("expected too many overlapping, got {other:?}"),
+    }
+}

@@ -971,8 +971,9 @@ struct FrameHit {
 enum AfterHit {
     /// It stops at the first collision (probing several instances for the earliest).
     Stop,
-    /// The chord with the collisions is marched to its end (one instance only); the frame
-    /// march ends there.
+    /// Every collision of the chord is taken, and the chord marched to its end; the frame
+    /// march ends there (one static instance alone within the particle's reach: its one
+    /// chord is the rest of the step).
     FinishChord,
 }
 
@@ -1058,9 +1059,7 @@ fn march_in_frame(
         outcome = march_after(view, &mut lp, &local, &mut hint, &mut obs, collided);
         collided = NO_LEAF;
         side = lp.side;
-        required = side & SIDE_CAGE_MASK != 0
-            || hint == LeafHint::NONE
-            || hint.z_depth_label & LeafHint::SURFACE != 0;
+        required = must_keep(view, &lp, hint);
         if outcome == StepOutcome::Invalid || outcome == StepOutcome::BoundHit {
             break;
         }
@@ -1234,9 +1233,7 @@ fn step_near_one_static(
         p.flags |= FLAG_INVALID;
         return outcome;
     }
-    let required = lp.side & SIDE_CAGE_MASK != 0
-        || hint == LeafHint::NONE
-        || hint.z_depth_label & LeafHint::SURFACE != 0;
+    let required = must_keep(view, &lp, hint);
     let kept = commit(&mut slots, c, lp.side, required);
     if identity {
         *p = lp;
@@ -1271,6 +1268,17 @@ fn step_near_one_static(
         p.flags |= FLAG_SIDES_LOST;
     }
     outcome
+}
+
+/// Whether a particle's side for an instance must be kept after a march in its frame that
+/// left it as `lp` (local) with `hint`: caged, or in the root cube and not known to be in an
+/// empty leaf (whose label is its side).
+fn must_keep(view: &ProxyView<'_>, lp: &Particle, hint: LeafHint) -> bool {
+    let root = view.root_aabb();
+    let l = Vec3::from_array(lp.position);
+    let in_root = l.cmpge(root.min).all() && l.cmple(root.max).all();
+    lp.side & SIDE_CAGE_MASK != 0
+        || in_root && (hint == LeafHint::NONE || hint.z_depth_label & LeafHint::SURFACE != 0)
 }
 
 /// The side word [`Particle::side`] shows after a scene step: the first slot's.
@@ -1339,18 +1347,36 @@ fn step_in_rounds(
         let rest = (1.0 - u) * dt;
         let end = x + v * rest;
         let pad = 4.0 * ulp(x.abs().max(end.abs()).max_element()) + 1e-30;
+        // Against static colliders a particle stays within `|v| rest` of where it is (no
+        // response speeds it up): with one static instance there, the whole rest of the step
+        // is marched in its frame.
+        let reach = v.length() * rest + pad;
+        let ball = Aabb {
+            min: x - reach,
+            max: x + reach,
+        };
+        let (mut near, mut only) = (0u32, 0u32);
+        scene.for_each_candidate(&ball, |c| {
+            if near == 0 {
+                only = c;
+            }
+            near += 1;
+        });
+        let one_static = near == 1 && scene.instances[only as usize].is_static();
         let seg = Aabb {
             min: x.min(end) - pad,
             max: x.max(end) + pad,
         };
-        let (mut count, mut only) = (0u32, 0u32);
-        scene.for_each_candidate(&seg, |c| {
-            if count == 0 {
-                only = c;
-            }
-            count += 1;
-        });
-        if count == 0 {
+        let mut count = 0u32;
+        if !one_static {
+            scene.for_each_candidate(&seg, |c| {
+                if count == 0 {
+                    only = c;
+                }
+                count += 1;
+            });
+        }
+        if near == 0 || (!one_static && count == 0) {
             x = end;
             break;
         }
@@ -1359,11 +1385,18 @@ fn step_in_rounds(
         let mut round_hit: Option<(u32, FrameHit, u32)> = None;
         let mut bound = false;
         let mut invalid = false;
-        if count == 1 {
+        if one_static || count == 1 {
+            // One instance: its march is the round (to the end of the step for a static one
+            // alone in reach, else to its first collision, where the next round looks again).
             let c = only;
             let inst = &scene.instances[c as usize];
             let view = &scene.proxies[inst.proxy as usize];
             let side = side_for(&slots, c, x, u);
+            let after = if one_static {
+                AfterHit::FinishChord
+            } else {
+                AfterHit::Stop
+            };
             let m = march_in_frame(
                 inst,
                 view,
@@ -1373,7 +1406,7 @@ fn step_in_rounds(
                 1.0,
                 side,
                 params,
-                AfterHit::FinishChord,
+                after,
                 collided_in(last, c),
             );
             invalid = m.outcome == StepOutcome::Invalid;

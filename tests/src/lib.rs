@@ -6,4 +6,5 @@
 pub mod baselines;
 pub mod fuzz;
 pub mod meshes;
+pub mod moving;
 pub mod starts;

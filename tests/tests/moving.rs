@@ -5,176 +5,15 @@
 
 use glam::{Quat, Vec3};
 use octoproxy_core::scene::{
-    BroadNode, Instance, Pose, SceneError, SceneView, BROAD_INTERNAL, BROAD_LEAF, FLAG_CRUSHED,
+    BroadNode, Instance, Pose, SceneError, SceneView, BROAD_INTERNAL, BROAD_LEAF,
 };
 use octoproxy_core::{
-    initial_side, step_particle_hinted, LeafHint, Particle, ProxyView, SceneSides, StepParams,
+    initial_side, step_particle_hinted, Backend, LeafHint, Particle, ProxyView, SceneSides,
+    StepParams,
 };
-use octoproxy_cpu::ground_truth::GroundTruth;
-use octoproxy_cpu::io::Mesh;
 use octoproxy_cpu::scenes;
-use octoproxy_cpu::{bake, BuildParams, CpuBackend, MeshRef, Scene, SceneBuildError};
-
-use octoproxy_core::Backend;
-
-fn bake_mesh(mesh: &Mesh, dmax: u32) -> Vec<u32> {
-    let params = BuildParams {
-        dmax,
-        ..BuildParams::default()
-    };
-    bake(&[MeshRef::from(mesh)], &params, &()).expect("bakes").0
-}
-
-fn pose(t: [f32; 3], q: Quat, s: f32) -> Pose {
-    Pose {
-        translation: t,
-        scale: s,
-        rotation: q.normalize().to_array(),
-    }
-}
-
-/// Counts, after one scene step, the particles that are inside a closed instance's mesh
-/// deeper than one finest-leaf diagonal, in the instance's frame at the end pose. Every
-/// particle of these tests starts outside every mesh, so none may be inside at any step's
-/// end. A particle with no collision in the step went straight in the world: its path in each
-/// instance's frame (the pose at each moment, lerp and slerp) is checked too, in chords whose
-/// crossings with the mesh are exact, and where a chord crosses, point by point every half
-/// leaf diagonal: that is where a fast particle tunnelling through a thin collider would
-/// show, ending outside on the other side. Particles flagged crushed (pressed between two
-/// instances, left at their last contact with one) are counted in `crushed` and not checked.
-struct Check {
-    truths: Vec<GroundTruth>,
-    diagonals: Vec<f32>,
-}
-
-#[derive(Debug, Default)]
-struct Tally {
-    penetrations: usize,
-    crushed: usize,
-    collisions: u64,
-    /// The first few penetrations, for the failure message.
-    examples: Vec<String>,
-}
-
-impl Check {
-    fn new(meshes: &[&Mesh], proxies: &[Vec<u32>]) -> Self {
-        Self {
-            truths: meshes
-                .iter()
-                .map(|m| GroundTruth::new(&m.positions, &m.triangles))
-                .collect(),
-            diagonals: proxies
-                .iter()
-                .map(|w| ProxyView::new(w).unwrap().finest_leaf_size() * 3f32.sqrt())
-                .collect(),
-        }
-    }
-
-    fn step(&self, instances: &[Instance], before: &[Particle], after: &[Particle], t: &mut Tally) {
-        for (a, b) in before.iter().zip(after) {
-            t.collisions += (b.collisions() - a.collisions()) as u64;
-            if b.flags & FLAG_CRUSHED != 0 {
-                t.crushed += 1;
-                continue;
-            }
-            let straight = b.collisions() == a.collisions();
-            for inst in instances.iter().filter(|i| i.is_active()) {
-                let truth = &self.truths[inst.proxy as usize];
-                let diagonal = self.diagonals[inst.proxy as usize] as f64;
-                let l1 = inst.end.to_local(Vec3::from_array(b.position));
-                let deep = |l: Vec3| truth.is_inside(l.to_array()) && truth.distance(l.to_array()) > diagonal;
-                let mut found = deep(l1).then_some((l1, 1.0f32));
-                if found.is_none() && straight {
-                    found = self.deepest_on_path(inst, a, b, &deep);
-                }
-                if let Some((l, at)) = found {
-                    t.penetrations += 1;
-                    if t.examples.len() < 4 {
-                        let l0 = inst.start.to_local(Vec3::from_array(a.position));
-                        t.examples.push(format!(
-                            "{} -> {} (local {l0} -> {l1}; deep at {l}, {at:.3} of the step), before {a:?}, after {b:?}, instance {inst:?}",
-                            Vec3::from_array(a.position),
-                            Vec3::from_array(b.position)
-                        ));
-                    }
-                }
-            }
-        }
-    }
-
-    /// A point of the straight world path `a -> b`, in `inst`'s frame, that `deep` says is
-    /// too deep, and the fraction of the step where it is.
-    fn deepest_on_path(
-        &self,
-        inst: &Instance,
-        a: &Particle,
-        b: &Particle,
-        deep: &dyn Fn(Vec3) -> bool,
-    ) -> Option<(Vec3, f32)> {
-        let (x0, x1) = (Vec3::from_array(a.position), Vec3::from_array(b.position));
-        let truth = &self.truths[inst.proxy as usize];
-        let step = self.diagonals[inst.proxy as usize] * 0.5;
-        let at = |t: f32| inst.pose_at(t).to_local(x0 + (x1 - x0) * t);
-        const CHORDS: u32 = 64;
-        for j in 0..CHORDS {
-            let (ta, tb) = (j as f32 / CHORDS as f32, (j + 1) as f32 / CHORDS as f32);
-            let (la, lb) = (at(ta), at(tb));
-            if truth.segment_crossings(la.to_array(), lb.to_array()) == 0 {
-                continue;
-            }
-            let n = ((lb - la).length() / step).ceil().max(1.0) as u32;
-            for k in 0..=n {
-                let t = ta + (tb - ta) * k as f32 / n as f32;
-                let l = at(t);
-                if deep(l) {
-                    return Some((l, t));
-                }
-            }
-        }
-        None
-    }
-}
-
-/// Particles on a jittered lattice in `[lo, hi]`, at rest, outside every given instance's
-/// mesh (in its start pose).
-fn lattice(lo: Vec3, hi: Vec3, n: u32, seed: u32) -> Vec<Particle> {
-    let mut out = Vec::new();
-    let mut r = seed.wrapping_mul(2_654_435_761).max(1);
-    let mut rnd = || {
-        r ^= r << 13;
-        r ^= r >> 17;
-        r ^= r << 5;
-        (r as f32) / (u32::MAX as f32)
-    };
-    for i in 0..n {
-        for j in 0..n {
-            for k in 0..n {
-                let f = Vec3::new(
-                    (i as f32 + rnd()) / n as f32,
-                    (j as f32 + rnd()) / n as f32,
-                    (k as f32 + rnd()) / n as f32,
-                );
-                out.push(Particle::new((lo + (hi - lo) * f).to_array(), [0.0; 3]));
-            }
-        }
-    }
-    out
-}
-
-fn outside_all(particles: Vec<Particle>, check: &Check, instances: &[Instance]) -> Vec<Particle> {
-    particles
-        .into_iter()
-        .filter(|p| {
-            instances.iter().all(|inst| {
-                let l = inst.start.to_local(Vec3::from_array(p.position));
-                let truth = &check.truths[inst.proxy as usize];
-                !truth.is_inside(l.to_array())
-                    && truth.distance(l.to_array())
-                        > 2.0 * check.diagonals[inst.proxy as usize] as f64
-            })
-        })
-        .collect()
-}
+use octoproxy_cpu::{CpuBackend, Scene, SceneBuildError};
+use octoproxy_tests::moving::{bake_mesh, lattice, pose, random_scene, run, SceneCheck, Tally};
 
 fn params(gravity: [f32; 3]) -> StepParams {
     StepParams {
@@ -184,49 +23,6 @@ fn params(gravity: [f32; 3]) -> StepParams {
         friction: 0.1,
         ..StepParams::default()
     }
-}
-
-/// Runs `steps` scene steps, posing the instances with `poses(step, instance)` (the pose at
-/// the end of that step) before each; returns the tally.
-fn run(
-    meshes: &[&Mesh],
-    proxies: &[Vec<u32>],
-    placements: &[(u32, Pose)],
-    particles: Vec<Particle>,
-    steps: u32,
-    params: &StepParams,
-    poses: impl Fn(u32, u32) -> Pose,
-) -> (Tally, Vec<Particle>) {
-    let check = Check::new(meshes, proxies);
-    let mut scene = Scene::new();
-    for w in proxies {
-        scene.add_proxy(w.clone()).unwrap();
-    }
-    for &(proxy, p) in placements {
-        scene.add_instance(proxy, p).unwrap();
-    }
-    let particles = outside_all(particles, &check, scene.instances());
-    assert!(
-        particles.len() > 100,
-        "the lattice left {} particles",
-        particles.len()
-    );
-    let mut cpu = CpuBackend::new();
-    cpu.upload_particles(&particles).unwrap();
-    let mut tally = Tally::default();
-    let mut before = particles;
-    for step in 0..steps {
-        for i in 0..placements.len() as u32 {
-            scene.move_to(i, poses(step, i)).unwrap();
-        }
-        scene.prepare().unwrap();
-        let instances = scene.instances().to_vec();
-        cpu.step_scene(&mut scene, params, false).unwrap();
-        let after = cpu.particles().to_vec();
-        check.step(&instances, &before, &after, &mut tally);
-        before = after;
-    }
-    (tally, before)
 }
 
 #[test]
@@ -254,7 +50,8 @@ fn a_box_translating_three_sizes_a_step_pushes_particles_and_none_tunnels() {
                 1.0,
             )
         },
-    );
+    )
+    .expect("the scene is valid");
     assert_eq!(tally.penetrations, 0, "{tally:?}");
     assert!(tally.collisions > 1000, "the box met particles: {tally:?}");
     // Particles it met move ahead of it, in +x.
@@ -278,7 +75,8 @@ fn a_paddle_turning_fast_sweeps_particles_and_none_tunnels() {
             let a = (25.0f32 * (step + 1) as f32).to_radians();
             pose([0.0; 3], Quat::from_rotation_y(a), 1.0)
         },
-    );
+    )
+    .expect("the scene is valid");
     assert_eq!(tally.penetrations, 0, "{tally:?}");
     assert!(
         tally.collisions > 500,
@@ -306,7 +104,8 @@ fn a_sphere_growing_and_moving_pushes_particles_out_and_none_tunnels() {
                 0.5 + 0.2 * u,
             )
         },
-    );
+    )
+    .expect("the scene is valid");
     assert_eq!(tally.penetrations, 0, "{tally:?}");
     assert!(tally.collisions > 300, "{tally:?}");
 }
@@ -349,7 +148,8 @@ fn rain_on_a_grid_of_instances_half_of_them_moving_never_crosses_a_surface() {
                 p
             }
         },
-    );
+    )
+    .expect("the scene is valid");
     assert_eq!(tally.penetrations, 0, "{tally:?}");
     assert!(tally.collisions > 2000, "{tally:?}");
 }
@@ -469,7 +269,7 @@ fn a_particle_pressed_between_converging_walls_is_flagged_and_never_pushed_throu
     scene
         .add_instance(0, pose([0.3, 0.0, 0.0], Quat::IDENTITY, 1.0))
         .unwrap();
-    let check = Check::new(&[&wall], &[words]);
+    let check = SceneCheck::new(&[&wall], &[words]);
     let particles = vec![Particle::new([0.0, 0.0, 0.0], [0.0; 3])];
     let mut cpu = CpuBackend::new();
     cpu.upload_particles(&particles).unwrap();
@@ -664,4 +464,22 @@ fn the_host_scene_keeps_indices_and_refuses_too_many_overlapping_shells() {
         }
         other => panic!("expected too many overlapping, got {other:?}"),
     }
+}
+
+#[test]
+fn random_scenes_of_moving_turning_and_scaling_instances_never_let_a_particle_through() {
+    let mut total = Tally::default();
+    let mut ran = 0;
+    for seed in 1..=6 {
+        let r = random_scene(seed, 8, 6, 0.5, 30.0, 12, 12);
+        if r.refused {
+            continue;
+        }
+        ran += 1;
+        assert_eq!(r.tally.penetrations, 0, "seed {seed}: {r:?}");
+        total.collisions += r.tally.collisions;
+        total.particle_steps += r.tally.particle_steps;
+    }
+    assert!(ran >= 4, "only {ran} scenes ran");
+    assert!(total.collisions > 1000, "{total:?}");
 }

@@ -42,7 +42,7 @@ use crate::math;
 use crate::particle::*;
 use crate::query::{Aabb, NO_LEAF};
 use crate::step::{
-    initial_side, march, march_after, LeafHint, MarchObserver, StepOutcome, StepParams,
+    initial_side, march, march_after, pinch, LeafHint, MarchObserver, StepOutcome, StepParams,
 };
 use crate::view::{ulp, ProxyView};
 
@@ -56,9 +56,13 @@ pub const FLAG_SIDES_LOST: u32 = 1 << 4;
 /// The status flags a scene step recomputes, the static step's included.
 pub const FLAG_SCENE_STATUS: u32 = FLAG_STEP_STATUS | FLAG_CRUSHED | FLAG_SIDES_LOST;
 
-/// Rounds of collisions with different instances one step may take before the particle is
-/// taken as crushed ([`FLAG_CRUSHED`]).
+/// Rounds of collisions with several instances in reach one step may take before the
+/// particle is taken as crushed ([`FLAG_CRUSHED`]).
 pub const MAX_ROUNDS: u32 = 16;
+/// Collisions one step may take in all (a particle carried by a turning instance collides
+/// once a chord); past them the particle stays at its last contact, moving with the instance,
+/// flagged [`FLAG_BOUND_HIT`].
+pub const MAX_CONTACTS: u32 = 4 * MAX_ROUNDS + MAX_SUBSTEPS / 4;
 /// Chords a particle's path may be cut into against one turning or scaling instance in one
 /// step ([`substeps`]).
 pub const MAX_SUBSTEPS: u32 = 1024;
@@ -1316,6 +1320,9 @@ fn step_in_rounds(
     let mut lost = false;
     // The instance and surface leaf of the last collision, which the next round starts in.
     let mut last: Option<(u32, u32)> = None;
+    // The last collision between static instances, for the pinch rule across instances: its
+    // point, normal, and whether it pinched.
+    let mut last_static: Option<(Vec3, Vec3, bool)> = None;
     let side_for = |slots: &[u32; SIDE_SLOTS], c: u32, x: Vec3, u: f32| {
         let inst = &scene.instances[c as usize];
         slot_side(slots, c)
@@ -1325,11 +1332,18 @@ fn step_in_rounds(
         Some((i, leaf)) if i == c => leaf,
         _ => NO_LEAF,
     };
-    let mut rounds = 0;
+    // Rounds with several instances in reach (pressed between them past `MAX_ROUNDS`), and
+    // every round (a particle carried by one turning instance collides once a chord; past
+    // `MAX_CONTACTS` the step ends as if the leaf bound were hit).
+    let (mut rounds, mut contacts) = (0u32, 0u32);
     loop {
-        if rounds == MAX_ROUNDS {
-            // Pressed between colliders: at its last contact, moving with what it touched.
-            status |= FLAG_CRUSHED;
+        if rounds == MAX_ROUNDS || contacts == MAX_CONTACTS {
+            // At its last contact, moving with what it touched.
+            status |= if rounds == MAX_ROUNDS {
+                FLAG_CRUSHED
+            } else {
+                FLAG_BOUND_HIT
+            };
             if let Some((c, _)) = last {
                 let inst = &scene.instances[c as usize];
                 let end = inst.end.to_world(inst.pose_at(u).to_local(x));
@@ -1343,7 +1357,7 @@ fn step_in_rounds(
             }
             break;
         }
-        rounds += 1;
+        contacts += 1;
         let rest = (1.0 - u) * dt;
         let end = x + v * rest;
         let pad = 4.0 * ulp(x.abs().max(end.abs()).max_element()) + 1e-30;
@@ -1379,6 +1393,9 @@ fn step_in_rounds(
         if near == 0 || (!one_static && count == 0) {
             x = end;
             break;
+        }
+        if count > 1 {
+            rounds += 1;
         }
         // The round's outcome: how far it went, and the collision it ended with.
         let mut moved: Option<(f32, Vec3, Vec3)> = None;
@@ -1499,6 +1516,24 @@ fn step_in_rounds(
                 v = v_end;
                 u = u_end;
                 last = Some((c, h.leaf));
+                // The pinch rule across static instances (a crease where two parts meet):
+                // a collision next to the last one whose response still points into the last
+                // surface keeps only the velocity along both; pinched again, it stops.
+                if scene.instances[c as usize].is_static() && !h.blocked {
+                    let inst = &scene.instances[c as usize];
+                    let view = &scene.proxies[inst.proxy as usize];
+                    let reach = view.finest_leaf_size() * inst.start.scale * 2.0;
+                    let mut pinched = false;
+                    if let Some((px, pn, was)) = last_static {
+                        if (h.x - px).length() <= reach && v.dot(pn) < 0.0 {
+                            v = if was { Vec3::ZERO } else { pinch(v, h.n, pn) };
+                            pinched = true;
+                        }
+                    }
+                    last_static = Some((h.x, h.n, pinched));
+                } else {
+                    last_static = None;
+                }
                 if !(u < 1.0) {
                     break;
                 }

@@ -1329,7 +1329,7 @@ fn step_in_rounds(
             .unwrap_or_else(|| derived_side(inst, &scene.proxies[inst.proxy as usize], x, u))
     };
     let collided_in = |last: Option<(u32, u32)>, c: u32| match last {
-        Some((i, leaf)) if i == c => leaf,
+        Some((i, leaf)) if i == c && scene.instances[c as usize].is_static() => leaf,
         _ => NO_LEAF,
     };
     // Rounds with several instances in reach (pressed between them past `MAX_ROUNDS`), and

@@ -329,7 +329,7 @@ pub fn random_scene(
                 rng.range(0.0, region * 0.5),
                 rng.range(0.0, region),
             ),
-            q0: Quat::from_axis_angle(rng.unit_vector(), rng.range(0.0, 6.28)),
+            q0: Quat::from_axis_angle(rng.unit_vector(), rng.range(0.0, std::f32::consts::TAU)),
             s0: rng.range(0.6, 1.4),
             velocity,
             axis: rng.unit_vector(),

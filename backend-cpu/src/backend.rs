@@ -1,9 +1,9 @@
 //! [`CpuBackend`]: the core step run over particles in parallel with rayon.
 
-use octoproxy_core::scene::{FLAG_CRUSHED, FLAG_SIDES_LOST};
+use octoproxy_core::scene::{step_plain, FLAG_CRUSHED, FLAG_SIDES_LOST, SLOT_INSTANCE_SHIFT};
 use octoproxy_core::{
     step_particle_hinted, step_particle_scene, Backend, FormatError, Hit, LeafHint, OwnedProxy,
-    Particle, SceneSides, StepParams,
+    Particle, SceneHint, SceneSides, SceneSlots, StepParams,
 };
 
 use crate::scene::{Scene, SceneBuildError};
@@ -43,8 +43,10 @@ pub struct CpuBackend {
     /// Each particle's last leaf, so that its next step starts there (core's
     /// [`LeafHint`]); reset when the proxy or the particles are replaced.
     hints: Vec<LeafHint>,
-    /// Each particle's sides for the instances of a scene ([`CpuBackend::step_scene`]).
-    scene_sides: Vec<SceneSides>,
+    /// Each particle's sides for the instances of a scene ([`CpuBackend::step_scene`]), in
+    /// core's two parts: the hint and first slot every step reads, and the other slots.
+    scene_hints: Vec<SceneHint>,
+    scene_slots: Vec<SceneSlots>,
     /// Each particle's last collision in its last scene step, when asked for.
     hits: Vec<Hit>,
     use_lut: bool,
@@ -79,8 +81,12 @@ impl CpuBackend {
     }
 
     /// Each particle's sides for a scene's instances, in upload order.
-    pub fn scene_sides(&self) -> &[SceneSides] {
-        &self.scene_sides
+    pub fn scene_sides(&self) -> Vec<SceneSides> {
+        self.scene_hints
+            .iter()
+            .zip(&self.scene_slots)
+            .map(|(h, s)| SceneSides::join(h, s))
+            .collect()
     }
 
     /// Replaces the particles' scene sides (a restart, or starting sides from the meshes).
@@ -91,7 +97,14 @@ impl CpuBackend {
                 got: sides.len(),
             });
         }
-        self.scene_sides.copy_from_slice(sides);
+        for ((h, s), sides) in self
+            .scene_hints
+            .iter_mut()
+            .zip(&mut self.scene_slots)
+            .zip(sides)
+        {
+            (*h, *s) = sides.split();
+        }
         Ok(())
     }
 
@@ -114,7 +127,8 @@ impl CpuBackend {
         params.validate()?;
         let Self {
             particles,
-            scene_sides,
+            scene_hints,
+            scene_slots,
             hits: hit_buf,
             ..
         } = self;
@@ -122,32 +136,47 @@ impl CpuBackend {
             hit_buf.resize(particles.len(), Hit::NONE);
         }
         let report = scene.with_view(|view| {
-            let step = |(p, s): (&mut Particle, &mut SceneSides), h: &mut Hit| {
-                step_particle_scene(view, p, s, params, h);
+            // The report is counted in the same pass as the step.
+            type State<'a> = ((&'a mut Particle, &'a mut SceneHint), &'a mut SceneSlots);
+            let plain = view.plain_proxy();
+            let step = |((p, sh), ss): State<'_>, h: Option<&mut Hit>| {
+                match plain {
+                    Some((c, proxy))
+                        if sh.first_slot >> SLOT_INSTANCE_SHIFT == c && sh.hint_instance == c =>
+                    {
+                        step_plain(proxy, c, p, sh, params, h);
+                    }
+                    _ => {
+                        step_particle_scene(view, p, sh, ss, params, h);
+                    }
+                }
+                (
+                    (p.flags & FLAG_CRUSHED != 0) as usize,
+                    (p.flags & FLAG_SIDES_LOST != 0) as usize,
+                )
             };
-            if hits {
+            let add = |a: (usize, usize), b: (usize, usize)| (a.0 + b.0, a.1 + b.1);
+            let (crushed, sides_lost) = if hits {
                 particles
                     .par_iter_mut()
-                    .zip(scene_sides.par_iter_mut())
+                    .zip(scene_hints.par_iter_mut())
+                    .zip(scene_slots.par_iter_mut())
                     .zip(hit_buf.par_iter_mut())
                     .with_min_len(1024)
-                    .for_each(|(ps, h)| step(ps, h));
+                    .map(|(ps, h)| step(ps, Some(h)))
+                    .reduce(|| (0, 0), add)
             } else {
                 particles
                     .par_iter_mut()
-                    .zip(scene_sides.par_iter_mut())
+                    .zip(scene_hints.par_iter_mut())
+                    .zip(scene_slots.par_iter_mut())
                     .with_min_len(1024)
-                    .for_each(|ps| step(ps, &mut Hit::default()));
-            }
+                    .map(|ps| step(ps, None))
+                    .reduce(|| (0, 0), add)
+            };
             SceneStepReport {
-                crushed: particles
-                    .iter()
-                    .filter(|p| p.flags & FLAG_CRUSHED != 0)
-                    .count(),
-                sides_lost: particles
-                    .iter()
-                    .filter(|p| p.flags & FLAG_SIDES_LOST != 0)
-                    .count(),
+                crushed,
+                sides_lost,
             }
         })?;
         scene.hold();
@@ -193,8 +222,12 @@ impl Backend for CpuBackend {
         self.particles.extend_from_slice(particles);
         self.hints.clear();
         self.hints.resize(particles.len(), LeafHint::NONE);
-        self.scene_sides.clear();
-        self.scene_sides.resize(particles.len(), SceneSides::EMPTY);
+        self.scene_hints.clear();
+        self.scene_hints
+            .resize(particles.len(), SceneHint::default());
+        self.scene_slots.clear();
+        self.scene_slots
+            .resize(particles.len(), SceneSlots::default());
         self.hits.clear();
         Ok(())
     }

@@ -42,7 +42,8 @@ use crate::math;
 use crate::particle::*;
 use crate::query::{Aabb, NO_LEAF};
 use crate::step::{
-    initial_side, march, march_after, pinch, LeafHint, MarchObserver, StepOutcome, StepParams,
+    initial_side, march_after, pinch, step_hinted_observed, step_particle_hinted, LeafHint,
+    MarchObserver, StepOutcome, StepParams,
 };
 use crate::view::{ulp, ProxyView};
 
@@ -196,6 +197,12 @@ impl Pose {
     }
 }
 
+/// A pose's bits, to compare poses bit for bit in a few vector operations.
+#[inline(always)]
+fn pose_words(p: &Pose) -> [u32; 8] {
+    bytemuck::cast(*p)
+}
+
 /// Half the angle between two unit quaternions' rotations as slerp takes it (the shorter
 /// way): `acos |a · b|`, in `[0, π/2]`. The host computes it once per pose pair
 /// ([`Instance::new`]); the step reads it from the instance, so both backends use the same
@@ -251,8 +258,9 @@ impl Instance {
     }
 
     /// Whether it does not move in this step (the two poses are the same bits).
+    #[inline(always)]
     pub fn is_static(&self) -> bool {
-        bytemuck::bytes_of(&self.start) == bytemuck::bytes_of(&self.end)
+        pose_words(&self.start) == pose_words(&self.end)
     }
 
     /// Its pose at fraction `u` of the step: translation and scale interpolated linearly,
@@ -517,6 +525,9 @@ pub struct SceneView<'a> {
     proxies: &'a [ProxyView<'a>],
     instances: &'a [Instance],
     nodes: &'a [BroadNode],
+    /// The one active instance, when the scene is one static instance at the identity pose:
+    /// the plain step.
+    plain: Option<u32>,
 }
 
 impl core::fmt::Debug for SceneView<'_> {
@@ -595,6 +606,7 @@ impl<'a> SceneView<'a> {
                 proxies,
                 instances,
                 nodes,
+                plain: None,
             });
         }
         // Depth first, with an explicit stack of (node, end of its range, depth).
@@ -662,11 +674,28 @@ impl<'a> SceneView<'a> {
                 instance: missing.unwrap_or(0) as u32,
             });
         }
+        let plain = if active == 1 && nodes.len() == 1 {
+            let c = nodes[0].index;
+            let inst = &instances[c as usize];
+            let identity = pose_words(&inst.start) == pose_words(&Pose::IDENTITY);
+            (inst.is_static() && identity).then_some(c)
+        } else {
+            None
+        };
         Ok(Self {
             proxies,
             instances,
             nodes,
+            plain,
         })
+    }
+
+    /// The one instance and its proxy when the scene is one static instance at the identity
+    /// pose: its particles take the plain step ([`step_plain`]).
+    #[inline(always)]
+    pub fn plain_proxy(&self) -> Option<(u32, &ProxyView<'a>)> {
+        let c = self.plain?;
+        Some((c, &self.proxies[self.instances[c as usize].proxy as usize]))
     }
 
     /// The proxies.
@@ -736,18 +765,58 @@ pub const NO_INSTANCE: u32 = u32::MAX;
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Pod, Zeroable)]
 pub struct SceneSides {
-    /// Slots: [`EMPTY_SLOT`], or `instance << SLOT_INSTANCE_SHIFT`, [`SLOT_REQUIRED`] and the
-    /// side word.
-    pub slots: [u32; SIDE_SLOTS],
     /// The leaf the last step ended in, in the proxy of [`Self::hint_instance`].
     pub hint: LeafHint,
     /// The instance the hint is for, or [`NO_INSTANCE`].
     pub hint_instance: u32,
+    /// Slots: [`EMPTY_SLOT`], or `instance << SLOT_INSTANCE_SHIFT`, [`SLOT_REQUIRED`] and the
+    /// side word. (The hint and the first slot come first: a one-proxy scene reads 16 bytes.)
+    pub slots: [u32; SIDE_SLOTS],
     /// Zero.
     pub _pad: u32,
 }
 
 const _: () = assert!(core::mem::size_of::<SceneSides>() == 48);
+
+/// The part of a particle's [`SceneSides`] every scene step reads: the hint and the first
+/// slot. A one-proxy static scene reads only this, 16 bytes (the plain step reads its 8-byte
+/// hint); the other slots are [`SceneSlots`], in a buffer of their own.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Pod, Zeroable)]
+pub struct SceneHint {
+    /// [`SceneSides::hint`].
+    pub hint: LeafHint,
+    /// [`SceneSides::hint_instance`].
+    pub hint_instance: u32,
+    /// [`SceneSides::slots`]`[0]`.
+    pub first_slot: u32,
+}
+
+const _: () = assert!(core::mem::size_of::<SceneHint>() == 16);
+
+/// The rest of a particle's [`SceneSides`]: slots 1 to 7. 32 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Pod, Zeroable)]
+pub struct SceneSlots {
+    /// [`SceneSides::slots`]`[1..]`.
+    pub slots: [u32; SIDE_SLOTS - 1],
+    /// Zero.
+    pub _pad: u32,
+}
+
+const _: () = assert!(core::mem::size_of::<SceneSlots>() == 32);
+
+impl Default for SceneHint {
+    fn default() -> Self {
+        SceneSides::EMPTY.split().0
+    }
+}
+
+impl Default for SceneSlots {
+    fn default() -> Self {
+        SceneSides::EMPTY.split().1
+    }
+}
 
 impl Default for SceneSides {
     fn default() -> Self {
@@ -758,11 +827,41 @@ impl Default for SceneSides {
 impl SceneSides {
     /// No sides, no hint.
     pub const EMPTY: SceneSides = SceneSides {
-        slots: [EMPTY_SLOT; SIDE_SLOTS],
         hint: LeafHint::NONE,
         hint_instance: NO_INSTANCE,
+        slots: [EMPTY_SLOT; SIDE_SLOTS],
         _pad: 0,
     };
+
+    /// The two parts the step reads, each in a buffer of its own.
+    pub fn split(&self) -> (SceneHint, SceneSlots) {
+        let mut rest = [EMPTY_SLOT; SIDE_SLOTS - 1];
+        rest.copy_from_slice(&self.slots[1..]);
+        (
+            SceneHint {
+                hint: self.hint,
+                hint_instance: self.hint_instance,
+                first_slot: self.slots[0],
+            },
+            SceneSlots {
+                slots: rest,
+                _pad: 0,
+            },
+        )
+    }
+
+    /// The sides from their two parts.
+    pub fn join(hint: &SceneHint, slots: &SceneSlots) -> Self {
+        let mut all = [EMPTY_SLOT; SIDE_SLOTS];
+        all[0] = hint.first_slot;
+        all[1..].copy_from_slice(&slots.slots);
+        SceneSides {
+            hint: hint.hint,
+            hint_instance: hint.hint_instance,
+            slots: all,
+            _pad: 0,
+        }
+    }
 
     /// The side word kept for `instance`, if any.
     pub fn side_of(&self, instance: u32) -> Option<u32> {
@@ -1122,13 +1221,82 @@ fn march_in_frame(
 
 /// Advances one particle by `params.dt` through a scene: gravity integrated in the world,
 /// then marched against every instance its path can meet, in each instance's frame (see the
-/// module documentation). `sides` is the particle's [`SceneSides`], `hit` receives the step's
-/// last collision ([`Hit::NONE`] when it had none). Allocates nothing.
+/// module documentation). `hint` and `slots` are the particle's [`SceneSides`] in their two
+/// parts ([`SceneSides::split`]); `hit`, when asked for,
+/// receives the step's last collision ([`Hit::NONE`] when it had none). Allocates nothing.
 ///
 /// A particle near one static instance whose pose is the identity steps exactly as
 /// [`crate::step_particle_hinted`] steps it against that proxy, bit for bit: a one-proxy static
 /// scene is the plain step.
+#[inline(always)]
 pub fn step_particle_scene(
+    scene: &SceneView<'_>,
+    p: &mut Particle,
+    hint: &mut SceneHint,
+    slots: &mut SceneSlots,
+    params: &StepParams,
+    hit: Option<&mut Hit>,
+) -> StepOutcome {
+    if let Some((c, view)) = scene.plain_proxy() {
+        if hint.first_slot >> SLOT_INSTANCE_SHIFT == c && hint.hint_instance == c {
+            return step_plain(view, c, p, hint, params, hit);
+        }
+    }
+    let mut unused = Hit::NONE;
+    let mut sides = SceneSides::join(hint, slots);
+    let outcome =
+        step_particle_scene_general(scene, p, &mut sides, params, hit.unwrap_or(&mut unused));
+    (*hint, *slots) = sides.split();
+    outcome
+}
+
+/// A one-proxy static scene at the identity ([`SceneView::plain_proxy`]: instance `c` of
+/// proxy `view`), for a particle whose first slot and hint are that instance's (the caller
+/// checks: `hint.first_slot >> SLOT_INSTANCE_SHIFT == c && hint.hint_instance == c`; else
+/// [`step_particle_scene`]): the plain step on the slot's side word, what the general path
+/// does for it too, without its queries and copies. A backend calls it in its own loop with
+/// the proxy hoisted out, as the plain step is called.
+#[inline(always)]
+pub fn step_plain(
+    view: &ProxyView<'_>,
+    c: u32,
+    p: &mut Particle,
+    sides: &mut SceneHint,
+    params: &StepParams,
+    hit: Option<&mut Hit>,
+) -> StepOutcome {
+    p.side = sides.first_slot & SLOT_SIDE_MASK;
+    let outcome = match hit {
+        None => step_particle_hinted(view, p, params, &mut sides.hint),
+        Some(hit) => {
+            let mut obs = HitObserver::new(false);
+            let outcome = step_hinted_observed(view, p, params, &mut sides.hint, &mut obs);
+            *hit = if obs.count > 0 {
+                Hit {
+                    instance: c as i32,
+                    position: obs.x.to_array(),
+                    normal: obs.n.to_array(),
+                    t: (params.dt - obs.remaining) / params.dt,
+                    speed: (-obs.before.dot(obs.n)).max(0.0),
+                }
+            } else {
+                Hit::NONE
+            };
+            outcome
+        }
+    };
+    if outcome == StepOutcome::Invalid {
+        return outcome;
+    }
+    let required = must_keep(view, p, sides.hint);
+    sides.first_slot = c << SLOT_INSTANCE_SHIFT | if required { SLOT_REQUIRED } else { 0 } | p.side;
+    p.flags &= !(FLAG_CRUSHED | FLAG_SIDES_LOST);
+    outcome
+}
+
+/// [`step_particle_scene`] for every particle and scene.
+#[inline(never)]
+fn step_particle_scene_general(
     scene: &SceneView<'_>,
     p: &mut Particle,
     sides: &mut SceneSides,
@@ -1192,7 +1360,7 @@ fn step_near_one_static(
     let inst = &scene.instances[c as usize];
     let view = &scene.proxies[inst.proxy as usize];
     let pose = inst.start;
-    let identity = bytemuck::bytes_of(&pose) == bytemuck::bytes_of(&Pose::IDENTITY);
+    let identity = pose_words(&pose) == pose_words(&Pose::IDENTITY);
     let x0 = Vec3::from_array(p.position);
     let mut slots = sides.slots;
     for s in slots.iter_mut() {
@@ -1232,7 +1400,7 @@ fn step_near_one_static(
         }
     };
     let mut obs = HitObserver::new(false);
-    let outcome = march(view, &mut lp, &local_params, &mut hint, &mut obs);
+    let outcome = step_hinted_observed(view, &mut lp, &local_params, &mut hint, &mut obs);
     if outcome == StepOutcome::Invalid {
         p.flags |= FLAG_INVALID;
         return outcome;

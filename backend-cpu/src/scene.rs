@@ -12,6 +12,43 @@
 //!
 //! **Indices** are stable: [`Scene::add_instance`] always appends, and a removed instance
 //! keeps its index, inactive, so no index is reused.
+//!
+//! # Example
+//!
+//! A box baked once and placed twice: one still, one sweeping through particles at rest at
+//! twice its size a step. No particle tunnels through it; those it meets are batted ahead, and
+//! their hit records say where and how fast.
+//!
+//! ```
+//! use octoproxy_core::{Backend, Particle, Pose, StepParams};
+//! use octoproxy_cpu::{bake, scenes, BuildParams, CpuBackend, MeshRef, Scene};
+//!
+//! let cube = scenes::cube([-0.5; 3], [0.5; 3]);
+//! let (words, _) = bake(&[MeshRef::from(&cube)], &BuildParams { dmax: 6, ..Default::default() }, &())?;
+//! let mut scene = Scene::new();
+//! let proxy = scene.add_proxy(words)?;
+//! let at = |x: f32| Pose { translation: [x, 0.0, 0.0], ..Pose::IDENTITY };
+//! scene.add_instance(proxy, at(-8.0))?; // still, out of the way
+//! let paddle = scene.add_instance(proxy, at(-2.0))?;
+//!
+//! // A row of particles at rest along the box's path.
+//! let particles: Vec<Particle> = (0..40).map(|i| Particle::new([i as f32 * 0.25, 0.0, 0.0], [0.0; 3])).collect();
+//! let mut cpu = CpuBackend::new();
+//! cpu.upload_particles(&particles)?;
+//! let params = StepParams { gravity: [0.0; 3], dt: 0.05, restitution: 1.0, friction: 0.0, ..Default::default() };
+//! let mut hits = 0;
+//! for step in 1..=6 {
+//!     // Two units a step: the box's end pose for this step; its start is where it was.
+//!     scene.move_to(paddle, at(-2.0 + 2.0 * step as f32))?;
+//!     cpu.step_scene(&mut scene, &params, true)?;
+//!     hits += cpu.hits().iter().filter(|h| h.instance == paddle as i32).count();
+//! }
+//! // Every particle ahead of the box's face: none passed through it.
+//! let face = -2.0 + 2.0 * 6.0 + 0.5;
+//! assert!(cpu.particles().iter().all(|p| p.position[0] >= face - 0.05));
+//! assert!(hits >= 40, "{hits} hits");
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
 
 use glam::Vec3;
 use octoproxy_core::scene::{

@@ -100,6 +100,14 @@ fn fuzz_penetration_corpus_and_sweep() {
 }
 
 #[test]
+fn fuzz_moving_corpus_and_sweep() {
+    let corpus = run_corpus("moving", fuzz::moving);
+    assert!(corpus >= 3, "the moving corpus has {corpus} files");
+    let swept = run_sweep("moving", fuzz::moving, 200, 1024, 6);
+    assert_eq!(swept, 200);
+}
+
+#[test]
 fn fuzz_mesh_files_corpus_and_sweep() {
     let corpus = run_corpus("mesh_files", fuzz::mesh_files);
     assert!(corpus >= 3, "the mesh_files corpus has {corpus} files");

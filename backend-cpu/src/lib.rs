@@ -73,7 +73,7 @@ pub mod sides;
 
 pub use backend::{CpuBackend, CpuError, SceneStepReport};
 pub use bake::{bake, BuildError, BuildParams, BuildProgress, BuildReport, MeshRef};
-pub use scene::{Scene, SceneBuildError};
+pub use scene::{starting_scene_sides, Scene, SceneBuildError};
 pub use sides::{starting_sides, CageCounts, Sides, StartCounts};
 
 /// The README's examples, compiled and run as doctests.

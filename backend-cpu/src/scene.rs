@@ -439,3 +439,55 @@ fn build_node(items: &mut [(u32, Aabb)], nodes: &mut Vec<BroadNode>) -> Aabb {
     };
     Aabb { min, max }
 }
+
+/// Starting sides for particles in a scene, from each instance's own mesh: for every active
+/// instance whose surface leaf a particle starts in (in the instance's frame at its start
+/// pose), the side of the mesh there by [the rule of starting sides](crate::sides), and its
+/// cage when it starts strictly inside a solid leaf. Elsewhere the empty leaf's label is the
+/// side, and the step takes it from there. `sides[proxy]` prepares proxy `proxy`'s meshes
+/// ([`Sides::new`] on what was baked into it). Returns each particle's [`SceneSides`] and how
+/// many sides came from a mesh.
+pub fn starting_scene_sides(
+    scene: &Scene,
+    sides: &[crate::Sides],
+    particles: &[octoproxy_core::Particle],
+) -> (Vec<octoproxy_core::SceneSides>, usize) {
+    use octoproxy_core::{LeafKind, SceneSides};
+    use rayon::prelude::*;
+    let views: Vec<ProxyView<'_>> = scene.proxies.iter().map(|p| p.view()).collect();
+    let out: Vec<(SceneSides, usize)> = particles
+        .par_iter()
+        .map(|p| {
+            let mut s = SceneSides::EMPTY;
+            let mut from_mesh = 0;
+            let x = Vec3::from_array(p.position);
+            if !x.is_finite() {
+                return (s, 0);
+            }
+            for (k, inst) in scene.instances.iter().enumerate() {
+                let (Some(view), Some(mesh)) = (
+                    views.get(inst.proxy as usize),
+                    sides.get(inst.proxy as usize),
+                ) else {
+                    continue;
+                };
+                if !inst.is_active() {
+                    continue;
+                }
+                let l = inst.start.to_local(x);
+                let in_surface = view
+                    .locate_leaf(l)
+                    .is_some_and(|leaf| leaf.kind == LeafKind::Surface);
+                if in_surface {
+                    let side = mesh.side(l.to_array()) | mesh.cage(view, l.to_array());
+                    if s.set_side(k as u32, side) {
+                        from_mesh += 1;
+                    }
+                }
+            }
+            (s, from_mesh)
+        })
+        .collect();
+    let count = out.iter().map(|(_, n)| n).sum();
+    (out.into_iter().map(|(s, _)| s).collect(), count)
+}

@@ -483,3 +483,61 @@ fn random_scenes_of_moving_turning_and_scaling_instances_never_let_a_particle_th
     assert!(ran >= 4, "only {ran} scenes ran");
     assert!(total.collisions > 1000, "{total:?}");
 }
+
+#[test]
+fn particles_starting_in_an_instances_shell_take_their_side_from_its_mesh_and_keep_it() {
+    use octoproxy_cpu::{starting_scene_sides, MeshRef, Sides};
+    let cube = scenes::cube([-0.5; 3], [0.5; 3]);
+    let words = bake_mesh(&cube, 6);
+    let leaf = ProxyView::new(&words).unwrap().finest_leaf_size();
+    let mut scene = Scene::new();
+    scene.add_proxy(words.clone()).unwrap();
+    let start = pose([1.0, 0.0, 0.0], Quat::from_rotation_y(0.3), 1.2);
+    scene.add_instance(0, start).unwrap();
+    // Particles a fraction of a leaf inside and outside the top face, in the world.
+    let mut particles = Vec::new();
+    for i in 0..200 {
+        let f = (i as f32 + 0.5) / 200.0;
+        let depth = if i % 2 == 0 { -0.3 } else { 0.3 } * leaf;
+        let l = Vec3::new(-0.4 + 0.8 * f, 0.5 + depth, 0.4 - 0.8 * f);
+        particles.push(Particle::new(start.to_world(l).to_array(), [0.0; 3]));
+    }
+    let sides = [Sides::new(&[MeshRef::from(&cube)])];
+    let (scene_sides, from_mesh) = starting_scene_sides(&scene, &sides, &particles);
+    assert!(from_mesh > 150, "{from_mesh} sides from the mesh");
+    for (i, s) in scene_sides.iter().enumerate() {
+        if let Some(side) = s.side_of(0) {
+            assert_eq!(side & 1, if i % 2 == 0 { 1 } else { 0 }, "particle {i}");
+        }
+    }
+    // Stepped under gravity while the box rises and turns: the ones inside stay inside, the
+    // others outside (exact winding numbers in the box's frame at every step's end).
+    let check = SceneCheck::new(&[&cube], &[words]);
+    let mut cpu = CpuBackend::new();
+    cpu.upload_particles(&particles).unwrap();
+    cpu.set_scene_sides(&scene_sides).unwrap();
+    let params = params([0.0, -9.81, 0.0]);
+    let mut before = particles.clone();
+    for step in 1..=30 {
+        let p = pose(
+            [1.0, 0.02 * step as f32, 0.0],
+            Quat::from_rotation_y(0.3 + 0.05 * step as f32),
+            1.2,
+        );
+        scene.move_to(0, p).unwrap();
+        scene.prepare().unwrap();
+        let inst = scene.instances()[0];
+        cpu.step_scene(&mut scene, &params, false).unwrap();
+        let after = cpu.particles().to_vec();
+        for (i, (a, b)) in before.iter().zip(&after).enumerate() {
+            let l = inst.end.to_local(Vec3::from_array(b.position));
+            let inside = check.truths[0].is_inside(l.to_array());
+            let far = check.truths[0].distance(l.to_array()) > check.diagonals[0] as f64;
+            assert!(
+                !far || inside == (i % 2 == 0),
+                "particle {i} at step {step}: {a:?} -> {b:?}, local {l}"
+            );
+        }
+        before = after;
+    }
+}

@@ -541,3 +541,65 @@ fn particles_starting_in_an_instances_shell_take_their_side_from_its_mesh_and_ke
         before = after;
     }
 }
+
+#[test]
+fn a_hidden_or_removed_instance_lets_particles_pass_and_a_shown_one_stops_them() {
+    let floor = scenes::slab([0.0; 3], [2.0, 0.2, 2.0]);
+    let mut scene = Scene::new();
+    scene.add_proxy(bake_mesh(&floor, 6)).unwrap();
+    let shown = scene.add_instance(0, Pose::IDENTITY).unwrap();
+    let hidden = scene
+        .add_instance(
+            0,
+            Pose {
+                translation: [0.0, -1.0, 0.0],
+                scale: 0.0,
+                ..Pose::IDENTITY
+            },
+        )
+        .unwrap();
+    let removed = scene
+        .add_instance(0, pose([0.0, -2.0, 0.0], Quat::IDENTITY, 1.0))
+        .unwrap();
+    scene.remove(removed).unwrap();
+    // Particles falling from above the shown floor, and from between it and the others.
+    let mut particles: Vec<Particle> = (0..50)
+        .map(|i| Particle::new([-0.8 + 0.032 * i as f32, 0.5, 0.0], [0.0; 3]))
+        .collect();
+    particles
+        .extend((0..50).map(|i| Particle::new([-0.8 + 0.032 * i as f32, -0.5, 0.0], [0.0; 3])));
+    let mut cpu = CpuBackend::new();
+    cpu.upload_particles(&particles).unwrap();
+    let params = params([0.0, -9.81, 0.0]);
+    for _ in 0..90 {
+        cpu.step_scene(&mut scene, &params, false).unwrap();
+    }
+    let out = cpu.particles();
+    assert!(
+        out[..50].iter().all(|p| p.position[1] > 0.05),
+        "the shown floor holds them"
+    );
+    assert!(
+        out[50..].iter().all(|p| p.position[1] < -2.5),
+        "the hidden and removed ones do not"
+    );
+    // Shown again (scale 1 at both ends of the step) under them, it holds what falls onto it.
+    let lowest = out[50..]
+        .iter()
+        .map(|p| p.position[1])
+        .fold(f32::INFINITY, f32::min);
+    let at = pose([0.0, lowest - 1.0, 0.0], Quat::IDENTITY, 1.0);
+    scene.set_motion(hidden, at, at).unwrap();
+    // They land at 15 units a second and bounce (restitution 0.5) for about 3 seconds.
+    for _ in 0..400 {
+        cpu.step_scene(&mut scene, &params, false).unwrap();
+    }
+    let top = lowest - 1.0 + 0.1;
+    let out = cpu.particles();
+    assert!(
+        out[50..].iter().all(|p| (p.position[1] - top).abs() < 0.05),
+        "they rest on its top at {top}: {:?}",
+        &out[50..52]
+    );
+    let _ = shown;
+}

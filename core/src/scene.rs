@@ -962,9 +962,56 @@ impl Default for Hit {
     }
 }
 
+/// Receives the straight pieces of a particle's world path in a scene step, with the
+/// fractions of the step at their ends ([`step_particle_scene_traced`]; `()` receives nothing).
+pub trait PathTrace {
+    /// The particle moved from `a` at fraction `ua` of the step to `b` at `ub`.
+    fn piece(&mut self, a: Vec3, b: Vec3, ua: f32, ub: f32);
+}
+
+impl PathTrace for () {
+    #[inline(always)]
+    fn piece(&mut self, _: Vec3, _: Vec3, _: f32, _: f32) {}
+}
+
+impl<F: FnMut(Vec3, Vec3, f32, f32)> PathTrace for F {
+    #[inline(always)]
+    fn piece(&mut self, a: Vec3, b: Vec3, ua: f32, ub: f32) {
+        self(a, b, ua, ub)
+    }
+}
+
+/// A static instance's march traced into the world: its pose, the fraction of the step the
+/// march starts at and how much of the step it spans, the step's length in seconds, and the
+/// particle's speed (local units per second) and fraction of the step now, which each piece
+/// advances by its length over the speed and each collision sets exactly.
+#[derive(Clone, Copy)]
+struct FrameTrace {
+    pose: Pose,
+    start: f32,
+    span: f32,
+    dt: f32,
+    speed: f32,
+    now: f32,
+}
+
+impl FrameTrace {
+    fn new(pose: Pose, start: f32, end: f32, dt: f32, v: Vec3) -> Self {
+        Self {
+            pose,
+            start,
+            span: end - start,
+            dt,
+            speed: v.length(),
+            now: start,
+        }
+    }
+}
+
 /// The observer of a march in an instance's frame: the last collision (`stop`: the first,
-/// and the march stops there).
-struct HitObserver {
+/// and the march stops there), and, for a static instance, the march's pieces in the world
+/// (`frame`), less the jumps back that the shell rule and the leaf bound make (not travelled).
+struct HitObserver<'t, T: PathTrace> {
     stop: bool,
     count: u32,
     x: Vec3,
@@ -973,10 +1020,13 @@ struct HitObserver {
     after: Vec3,
     remaining: f32,
     leaf: u32,
+    trace: &'t mut T,
+    frame: Option<FrameTrace>,
+    jump_next: bool,
 }
 
-impl HitObserver {
-    fn new(stop: bool) -> Self {
+impl<'t, T: PathTrace> HitObserver<'t, T> {
+    fn new(stop: bool, trace: &'t mut T, frame: Option<FrameTrace>) -> Self {
         Self {
             stop,
             count: 0,
@@ -986,15 +1036,38 @@ impl HitObserver {
             after: Vec3::ZERO,
             remaining: 0.0,
             leaf: NO_LEAF,
+            trace,
+            frame,
+            jump_next: false,
         }
     }
 }
 
-impl MarchObserver for HitObserver {
+impl<T: PathTrace> MarchObserver for HitObserver<'_, T> {
     #[inline(always)]
-    fn piece(&mut self, _: Vec3, _: Vec3) {}
+    fn piece(&mut self, a: Vec3, b: Vec3) {
+        if let Some(f) = self.frame.as_mut() {
+            if core::mem::take(&mut self.jump_next) {
+                return;
+            }
+            let seconds = if f.speed > 0.0 {
+                (b - a).length() / f.speed
+            } else {
+                0.0
+            };
+            let then = (f.now + seconds / f.dt).min(f.start + f.span);
+            self.trace
+                .piece(f.pose.to_world(a), f.pose.to_world(b), f.now, then);
+            f.now = then;
+        }
+    }
     #[inline(always)]
-    fn branch(&mut self, _: crate::step::MarchBranch) {}
+    fn branch(&mut self, b: crate::step::MarchBranch) {
+        use crate::step::MarchBranch;
+        if matches!(b, MarchBranch::ShellBlock | MarchBranch::LeafBoundInShell) {
+            self.jump_next = true;
+        }
+    }
     #[inline(always)]
     fn hit(
         &mut self,
@@ -1006,14 +1079,13 @@ impl MarchObserver for HitObserver {
         leaf: u32,
     ) -> bool {
         self.count += 1;
-        (
-            self.x,
-            self.n,
-            self.before,
-            self.after,
-            self.remaining,
-            self.leaf,
-        ) = (x, n, before, after, remaining, leaf);
+        (self.x, self.n, self.before, self.after) = (x, n, before, after);
+        (self.remaining, self.leaf) = (remaining, leaf);
+        if let Some(f) = self.frame.as_mut() {
+            // `remaining` is of the march's time, which spans `span` of the step.
+            f.now = f.start + f.span - remaining / f.dt;
+            f.speed = after.length();
+        }
         self.stop
     }
 }
@@ -1118,6 +1190,7 @@ fn march_in_frame(
     params: &StepParams,
     after: AfterHit,
     mut collided: u32,
+    trace: &mut impl PathTrace,
 ) -> FrameMarch {
     let dt = params.dt;
     let fixed = inst.is_static();
@@ -1152,7 +1225,10 @@ fn march_in_frame(
             velocity: lv.to_array(),
             flags: 0,
         };
-        let mut obs = HitObserver::new(after == AfterHit::Stop);
+        // A static instance's pieces are the march's, through its pose; a moving one's are
+        // traced by the rounds, straight in the world up to the collision it stops at.
+        let frame = fixed.then(|| FrameTrace::new(pa, ua, ub, dt, lv));
+        let mut obs = HitObserver::new(after == AfterHit::Stop, &mut *trace, frame);
         let mut hint = LeafHint::NONE;
         let local = StepParams {
             gravity: [0.0; 3],
@@ -1244,8 +1320,35 @@ pub fn step_particle_scene(
     }
     let mut unused = Hit::NONE;
     let mut sides = SceneSides::join(hint, slots);
-    let outcome =
-        step_particle_scene_general(scene, p, &mut sides, params, hit.unwrap_or(&mut unused));
+    let outcome = step_particle_scene_general(
+        scene,
+        p,
+        &mut sides,
+        params,
+        hit.unwrap_or(&mut unused),
+        &mut (),
+    );
+    (*hint, *slots) = sides.split();
+    outcome
+}
+
+/// [`step_particle_scene`], telling `trace` every straight piece of the particle's world path
+/// with the fractions of the step at its ends, for ground-truth checks of the path in each
+/// instance's frame. Pieces within a static instance's march are the march's (less the jumps
+/// back of the shell rule and the leaf bound, which the particle does not travel); a round
+/// against moving instances is one piece, straight in the world up to its contact. The same
+/// bits as [`step_particle_scene`].
+pub fn step_particle_scene_traced(
+    scene: &SceneView<'_>,
+    p: &mut Particle,
+    hint: &mut SceneHint,
+    slots: &mut SceneSlots,
+    params: &StepParams,
+    hit: &mut Hit,
+    trace: &mut impl FnMut(Vec3, Vec3, f32, f32),
+) -> StepOutcome {
+    let mut sides = SceneSides::join(hint, slots);
+    let outcome = step_particle_scene_general(scene, p, &mut sides, params, hit, trace);
     (*hint, *slots) = sides.split();
     outcome
 }
@@ -1269,7 +1372,8 @@ pub fn step_plain(
     let outcome = match hit {
         None => step_particle_hinted(view, p, params, &mut sides.hint),
         Some(hit) => {
-            let mut obs = HitObserver::new(false);
+            let mut untraced = ();
+            let mut obs = HitObserver::new(false, &mut untraced, None);
             let outcome = step_hinted_observed(view, p, params, &mut sides.hint, &mut obs);
             *hit = if obs.count > 0 {
                 Hit {
@@ -1296,12 +1400,13 @@ pub fn step_plain(
 
 /// [`step_particle_scene`] for every particle and scene.
 #[inline(never)]
-fn step_particle_scene_general(
+fn step_particle_scene_general<T: PathTrace>(
     scene: &SceneView<'_>,
     p: &mut Particle,
     sides: &mut SceneSides,
     params: &StepParams,
     hit: &mut Hit,
+    trace: &mut T,
 ) -> StepOutcome {
     *hit = Hit::NONE;
     let x0 = Vec3::from_array(p.position);
@@ -1330,6 +1435,7 @@ fn step_particle_scene_general(
     let status_kept = p.flags & FLAG_STATUS_MASK & !FLAG_SCENE_STATUS;
     if count == 0 {
         // Nothing to meet: the straight path (the march's operations for a miss).
+        trace.piece(x0, x0 + v * dt, 0.0, 1.0);
         p.position = (x0 + v * dt).to_array();
         p.velocity = v.to_array();
         p.side &= SIDE_MASK;
@@ -1342,20 +1448,21 @@ fn step_particle_scene_general(
         return StepOutcome::Done;
     }
     if count == 1 && scene.instances[first as usize].is_static() {
-        return step_near_one_static(scene, first, p, sides, params, hit);
+        return step_near_one_static(scene, first, p, sides, params, hit, trace);
     }
-    step_in_rounds(scene, p, sides, params, hit)
+    step_in_rounds(scene, p, sides, params, hit, trace)
 }
 
 /// [`step_particle_scene`] for a particle that can meet one static instance only: the whole
 /// step in its frame, with every rule of the march and the hint.
-fn step_near_one_static(
+fn step_near_one_static<T: PathTrace>(
     scene: &SceneView<'_>,
     c: u32,
     p: &mut Particle,
     sides: &mut SceneSides,
     params: &StepParams,
     hit: &mut Hit,
+    trace: &mut T,
 ) -> StepOutcome {
     let inst = &scene.instances[c as usize];
     let view = &scene.proxies[inst.proxy as usize];
@@ -1399,7 +1506,10 @@ fn step_near_one_static(
             ..*params
         }
     };
-    let mut obs = HitObserver::new(false);
+    let v_start =
+        Vec3::from_array(lp.velocity) + Vec3::from_array(local_params.gravity) * local_params.dt;
+    let frame = FrameTrace::new(pose, 0.0, 1.0, params.dt, v_start);
+    let mut obs = HitObserver::new(false, trace, Some(frame));
     let outcome = step_hinted_observed(view, &mut lp, &local_params, &mut hint, &mut obs);
     if outcome == StepOutcome::Invalid {
         p.flags |= FLAG_INVALID;
@@ -1466,12 +1576,13 @@ fn first_side(slots: &[u32; SIDE_SLOTS], otherwise: u32) -> u32 {
 /// chord with a collision; with several, it probes each up to its first collision, takes the
 /// earliest, and brings every other's side up to that moment. The next round goes on from
 /// there with the new velocity.
-fn step_in_rounds(
+fn step_in_rounds<T: PathTrace>(
     scene: &SceneView<'_>,
     p: &mut Particle,
     sides: &mut SceneSides,
     params: &StepParams,
     hit: &mut Hit,
+    trace: &mut T,
 ) -> StepOutcome {
     let dt = params.dt;
     let mut x = Vec3::from_array(p.position);
@@ -1521,6 +1632,7 @@ fn step_in_rounds(
                 } else {
                     Vec3::ZERO
                 };
+                trace.piece(x, end, u, 1.0);
                 x = end;
             }
             break;
@@ -1559,6 +1671,7 @@ fn step_in_rounds(
             });
         }
         if near == 0 || (!one_static && count == 0) {
+            trace.piece(x, end, u, 1.0);
             x = end;
             break;
         }
@@ -1582,18 +1695,43 @@ fn step_in_rounds(
             } else {
                 AfterHit::Stop
             };
-            let m = march_in_frame(
-                inst,
-                view,
-                x,
-                v,
-                u,
-                1.0,
-                side,
-                params,
-                after,
-                collided_in(last, c),
-            );
+            // A static instance's march traces its own pieces; a moving one's path is straight
+            // in the world up to where it stops.
+            let fixed = inst.is_static();
+            let collided = collided_in(last, c);
+            let m = if fixed {
+                march_in_frame(
+                    inst,
+                    view,
+                    x,
+                    v,
+                    u,
+                    1.0,
+                    side,
+                    params,
+                    after,
+                    collided,
+                    &mut *trace,
+                )
+            } else {
+                march_in_frame(
+                    inst,
+                    view,
+                    x,
+                    v,
+                    u,
+                    1.0,
+                    side,
+                    params,
+                    after,
+                    collided,
+                    &mut (),
+                )
+            };
+            if !fixed && m.outcome != StepOutcome::BoundHit {
+                let (ue, xe) = m.moved.map_or((1.0, end), |(ue, xe, _)| (ue, xe));
+                trace.piece(x, xe, u, ue);
+            }
             invalid = m.outcome == StepOutcome::Invalid;
             bound = m.outcome == StepOutcome::BoundHit;
             lost |= !commit(&mut slots, c, m.side, m.required);
@@ -1619,6 +1757,7 @@ fn step_in_rounds(
                     params,
                     AfterHit::Stop,
                     collided_in(last, c),
+                    &mut (),
                 );
                 invalid |= m.outcome == StepOutcome::Invalid;
                 if let Some(h) = m.hit {
@@ -1633,18 +1772,38 @@ fn step_in_rounds(
                 let view = &scene.proxies[inst.proxy as usize];
                 let side = side_for(&slots, c, x, u);
                 let is_best = best.is_some_and(|(_, b)| b == c);
-                let m = march_in_frame(
-                    inst,
-                    view,
-                    x,
-                    v,
-                    u,
-                    if is_best { 1.0 } else { until },
-                    side,
-                    params,
-                    AfterHit::Stop,
-                    collided_in(last, c),
-                );
+                let to = if is_best { 1.0 } else { until };
+                let collided = collided_in(last, c);
+                // The path is the best instance's march: its pieces when it is static.
+                let m = if is_best && inst.is_static() {
+                    march_in_frame(
+                        inst,
+                        view,
+                        x,
+                        v,
+                        u,
+                        to,
+                        side,
+                        params,
+                        AfterHit::Stop,
+                        collided,
+                        &mut *trace,
+                    )
+                } else {
+                    march_in_frame(
+                        inst,
+                        view,
+                        x,
+                        v,
+                        u,
+                        to,
+                        side,
+                        params,
+                        AfterHit::Stop,
+                        collided,
+                        &mut (),
+                    )
+                };
                 invalid |= m.outcome == StepOutcome::Invalid;
                 bound |= m.outcome == StepOutcome::BoundHit;
                 if is_best {
@@ -1655,6 +1814,15 @@ fn step_in_rounds(
                 }
                 lost |= !commit(&mut slots, c, m.side, m.required);
             });
+            match best {
+                None => trace.piece(x, end, u, 1.0),
+                Some((_, b)) if !scene.instances[b as usize].is_static() && !bound => {
+                    if let Some((ue, xe, _)) = moved {
+                        trace.piece(x, xe, u, ue);
+                    }
+                }
+                _ => {}
+            }
         }
         if invalid {
             p.flags |= FLAG_INVALID;

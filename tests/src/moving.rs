@@ -60,12 +60,26 @@ impl SceneCheck {
         }
     }
 
-    /// Checks one step of `before -> after` against `instances` (their poses in that step).
+    /// Checks one step of `before -> after` against `instances` (their poses in that step):
+    /// every step's end, and the straight path of a particle with no collision.
     pub fn step(
         &self,
         instances: &[Instance],
         before: &[Particle],
         after: &[Particle],
+        t: &mut Tally,
+    ) {
+        self.step_with_pieces(instances, before, after, None, t)
+    }
+
+    /// [`SceneCheck::step`] with every particle's path as `step_particle_scene_traced` gives
+    /// it: every piece of every path is followed in every instance's frame.
+    pub fn step_with_pieces(
+        &self,
+        instances: &[Instance],
+        before: &[Particle],
+        after: &[Particle],
+        pieces: Option<&[Vec<Piece>]>,
         t: &mut Tally,
     ) {
         let mut crushed = self.crushed.borrow_mut();
@@ -89,15 +103,30 @@ impl SceneCheck {
                     truth.is_inside(l.to_array()) && truth.distance(l.to_array()) > diagonal
                 };
                 let mut found = deep(l1).then_some((l1, 1.0f32));
-                if found.is_none() && straight {
-                    found = self.deepest_on_path(inst, a, b, &deep);
+                match pieces {
+                    Some(pieces) => {
+                        for &(pa, pb, ua, ub) in &pieces[k] {
+                            if found.is_some() {
+                                break;
+                            }
+                            found = self.deepest_on_piece(inst, pa, pb, ua, ub, &deep);
+                        }
+                    }
+                    None if found.is_none() && straight => {
+                        let (x0, x1) = (Vec3::from_array(a.position), Vec3::from_array(b.position));
+                        found = self.deepest_on_piece(inst, x0, x1, 0.0, 1.0, &deep);
+                    }
+                    None => {}
                 }
                 if let Some((l, at)) = found {
                     t.penetrations += 1;
                     if t.examples.len() < 4 {
                         let l0 = inst.start.to_local(Vec3::from_array(a.position));
+                        let path = pieces
+                            .map(|p| format!(", pieces {:?}", p[k]))
+                            .unwrap_or_default();
                         t.examples.push(format!(
-                            "{} -> {} (local {l0} -> {l1}; deep at {l}, {at:.3} of the step), before {a:?}, after {b:?}, instance {inst:?}",
+                            "{} -> {} (local {l0} -> {l1}; deep at {l}, {at:.3} of the step), before {a:?}, after {b:?}, instance {inst:?}{path}",
                             Vec3::from_array(a.position),
                             Vec3::from_array(b.position)
                         ));
@@ -107,22 +136,28 @@ impl SceneCheck {
         }
     }
 
-    /// A point of the straight world path `a -> b`, in `inst`'s frame, that `deep` says is
-    /// too deep, and the fraction of the step where it is.
-    fn deepest_on_path(
+    /// A point of the straight world piece `x0 -> x1`, travelled from fraction `u0` to `u1`
+    /// of the step, in `inst`'s frame (its pose at each moment), that `deep` says is too deep,
+    /// and the fraction of the step where it is.
+    fn deepest_on_piece(
         &self,
         inst: &Instance,
-        a: &Particle,
-        b: &Particle,
+        x0: Vec3,
+        x1: Vec3,
+        u0: f32,
+        u1: f32,
         deep: &dyn Fn(Vec3) -> bool,
     ) -> Option<(Vec3, f32)> {
-        let (x0, x1) = (Vec3::from_array(a.position), Vec3::from_array(b.position));
         let truth = &self.truths[inst.proxy as usize];
         let step = self.diagonals[inst.proxy as usize] * 0.5;
-        let at = |t: f32| inst.pose_at(t).to_local(x0 + (x1 - x0) * t);
-        const CHORDS: u32 = 64;
-        for j in 0..CHORDS {
-            let (ta, tb) = (j as f32 / CHORDS as f32, (j + 1) as f32 / CHORDS as f32);
+        let at = |t: f32| {
+            inst.pose_at(u0 + (u1 - u0) * t)
+                .to_local(x0 + (x1 - x0) * t)
+        };
+        let chords: u32 = if inst.is_static() { 1 } else { 64 };
+        let chords_f = chords as f32;
+        for j in 0..chords {
+            let (ta, tb) = (j as f32 / chords_f, (j + 1) as f32 / chords_f);
             let (la, lb) = (at(ta), at(tb));
             if truth.segment_crossings(la.to_array(), lb.to_array()) == 0 {
                 continue;
@@ -132,12 +167,47 @@ impl SceneCheck {
                 let t = ta + (tb - ta) * k as f32 / n as f32;
                 let l = at(t);
                 if deep(l) {
-                    return Some((l, t));
+                    return Some((l, u0 + (u1 - u0) * t));
                 }
             }
         }
         None
     }
+}
+
+/// A straight piece of a world path: from, to, and the fractions of the step at its ends.
+pub type Piece = (Vec3, Vec3, f32, f32);
+
+/// Every particle's pieces of one scene step by `step_particle_scene_traced`, from the state
+/// `before` (particles and sides), checked to give the very bits `after` that the backend gave.
+pub fn traced_pieces(
+    view: &octoproxy_core::SceneView<'_>,
+    before: &[Particle],
+    sides: &[octoproxy_core::SceneSides],
+    after: &[Particle],
+    params: &StepParams,
+) -> Vec<Vec<Piece>> {
+    use rayon::prelude::*;
+    before
+        .par_iter()
+        .zip(sides)
+        .zip(after)
+        .map(|((p, s), expected)| {
+            let mut q = *p;
+            let (mut h, mut sl) = s.split();
+            let mut pieces = Vec::new();
+            let mut hit = octoproxy_core::Hit::NONE;
+            octoproxy_core::step_particle_scene_traced(view, &mut q, &mut h, &mut sl, params, &mut hit, &mut |a, b, ua, ub| {
+                pieces.push((a, b, ua, ub))
+            });
+            assert_eq!(
+                bytemuck::bytes_of(&q),
+                bytemuck::bytes_of(expected),
+                "the traced scene step differs from the backend's: {p:?} -> {q:?} traced, {expected:?} stepped"
+            );
+            pieces
+        })
+        .collect()
 }
 
 /// Particles on a jittered lattice in `[lo, hi]`, at rest, outside every given instance's
@@ -205,7 +275,8 @@ pub fn pose(t: [f32; 3], q: Quat, s: f32) -> Pose {
 }
 
 /// Runs `steps` scene steps on the CPU, posing every instance with `poses(step, instance)`
-/// (its pose at the end of that step) before each, and checks every step.
+/// (its pose at the end of that step) before each, and checks every step: every piece of
+/// every path (`step_particle_scene_traced`, which must give the backend's bits).
 #[allow(clippy::too_many_arguments)]
 pub fn run(
     meshes: &[&Mesh],
@@ -235,13 +306,23 @@ pub fn run(
         }
         scene.prepare()?;
         let instances = scene.instances().to_vec();
+        let sides = cpu.scene_sides();
         cpu.step_scene(&mut scene, params, false)
             .map_err(|e| match e {
                 octoproxy_cpu::CpuError::Scene(s) => s,
                 other => panic!("{other}"),
             })?;
         let after = cpu.particles().to_vec();
-        check.step(&instances, &before, &after, &mut tally);
+        // The poses of the step just taken (the backend holds them at their ends after it).
+        let mut replay = scene.clone();
+        for (i, inst) in instances.iter().enumerate() {
+            if inst.flags & octoproxy_core::scene::INSTANCE_LIVE != 0 {
+                replay.set_motion(i as u32, inst.start, inst.end)?;
+            }
+        }
+        let pieces =
+            replay.with_view(|view| traced_pieces(view, &before, &sides, &after, params))?;
+        check.step_with_pieces(&instances, &before, &after, Some(&pieces), &mut tally);
         before = after;
     }
     Ok((tally, before))

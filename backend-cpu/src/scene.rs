@@ -445,8 +445,8 @@ fn build_node(items: &mut [(u32, Aabb)], nodes: &mut Vec<BroadNode>) -> Aabb {
 /// pose), the side of the mesh there by [the rule of starting sides](crate::sides), and its
 /// cage when it starts strictly inside a solid leaf. Elsewhere the empty leaf's label is the
 /// side, and the step takes it from there. `sides[proxy]` prepares proxy `proxy`'s meshes
-/// ([`Sides::new`] on what was baked into it). Returns each particle's [`SceneSides`] and how
-/// many sides came from a mesh.
+/// ([`crate::Sides::new`] on what was baked into it). Returns each particle's
+/// [`octoproxy_core::SceneSides`] and how many sides came from a mesh.
 pub fn starting_scene_sides(
     scene: &Scene,
     sides: &[crate::Sides],

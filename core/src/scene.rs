@@ -713,6 +713,20 @@ impl<'a> SceneView<'a> {
         self.nodes
     }
 
+    /// How many active instances' swept boxes meet `b`, and the first of them in the broad
+    /// phase's order (0 when none).
+    #[inline(always)]
+    fn count_candidates(&self, b: &Aabb) -> (u32, u32) {
+        let (mut count, mut first) = (0u32, 0u32);
+        self.for_each_candidate(b, |c| {
+            if count == 0 {
+                first = c;
+            }
+            count += 1;
+        });
+        (count, first)
+    }
+
     /// Calls `f` with every active instance whose swept box meets `b`, in the broad phase's
     /// depth-first order (the order ties between instances are broken in).
     #[inline(always)]
@@ -865,10 +879,7 @@ impl SceneSides {
 
     /// The side word kept for `instance`, if any.
     pub fn side_of(&self, instance: u32) -> Option<u32> {
-        self.slots
-            .iter()
-            .find(|&&s| s != EMPTY_SLOT && s >> SLOT_INSTANCE_SHIFT == instance)
-            .map(|&s| s & SLOT_SIDE_MASK)
+        slot_side(&self.slots, instance)
     }
 
     /// Sets the side word for `instance` (a starting side, from the mesh or a file), kept as
@@ -917,6 +928,16 @@ fn commit(slots: &mut [u32; SIDE_SLOTS], instance: u32, side: u32, required: boo
         // No room for a side that may be derived again: dropping it loses nothing.
         _ => !required,
     }
+}
+
+/// `slots` with none required: a step starts so, and marks again the ones it must keep.
+fn optional(mut slots: [u32; SIDE_SLOTS]) -> [u32; SIDE_SLOTS] {
+    for s in slots.iter_mut() {
+        if *s != EMPTY_SLOT {
+            *s &= !SLOT_REQUIRED;
+        }
+    }
+    slots
 }
 
 fn slot_side(slots: &[u32; SIDE_SLOTS], instance: u32) -> Option<u32> {
@@ -1039,6 +1060,23 @@ impl<'t, T: PathTrace> HitObserver<'t, T> {
             trace,
             frame,
             jump_next: false,
+        }
+    }
+}
+
+impl<T: PathTrace> HitObserver<'_, T> {
+    /// The hit record of a march over a whole step of `dt` seconds in instance `c`'s frame
+    /// at static `pose` ([`Hit::NONE`] when it had no collision).
+    fn record(&self, c: u32, pose: &Pose, dt: f32) -> Hit {
+        if self.count == 0 {
+            return Hit::NONE;
+        }
+        Hit {
+            instance: c as i32,
+            position: pose.to_world(self.x).to_array(),
+            normal: pose.normal_to_world(self.n).to_array(),
+            t: (dt - self.remaining) / dt,
+            speed: (-self.before.dot(self.n) * pose.scale).max(0.0),
         }
     }
 }
@@ -1375,17 +1413,7 @@ pub fn step_plain(
             let mut untraced = ();
             let mut obs = HitObserver::new(false, &mut untraced, None);
             let outcome = step_hinted_observed(view, p, params, &mut sides.hint, &mut obs);
-            *hit = if obs.count > 0 {
-                Hit {
-                    instance: c as i32,
-                    position: obs.x.to_array(),
-                    normal: obs.n.to_array(),
-                    t: (params.dt - obs.remaining) / params.dt,
-                    speed: (-obs.before.dot(obs.n)).max(0.0),
-                }
-            } else {
-                Hit::NONE
-            };
+            *hit = obs.record(c, &Pose::IDENTITY, params.dt);
             outcome
         }
     };
@@ -1425,13 +1453,7 @@ fn step_particle_scene_general<T: PathTrace>(
         min: x0 - (reach + pad),
         max: x0 + (reach + pad),
     };
-    let (mut count, mut first) = (0u32, 0u32);
-    scene.for_each_candidate(&ball, |c| {
-        if count == 0 {
-            first = c;
-        }
-        count += 1;
-    });
+    let (count, first) = scene.count_candidates(&ball);
     let status_kept = p.flags & FLAG_STATUS_MASK & !FLAG_SCENE_STATUS;
     if count == 0 {
         // Nothing to meet: the straight path (the march's operations for a miss).
@@ -1440,11 +1462,7 @@ fn step_particle_scene_general<T: PathTrace>(
         p.velocity = v.to_array();
         p.side &= SIDE_MASK;
         p.flags = status_kept | p.flags & !FLAG_STATUS_MASK;
-        for s in sides.slots.iter_mut() {
-            if *s != EMPTY_SLOT {
-                *s &= !SLOT_REQUIRED;
-            }
-        }
+        sides.slots = optional(sides.slots);
         return StepOutcome::Done;
     }
     if count == 1 && scene.instances[first as usize].is_static() {
@@ -1469,12 +1487,7 @@ fn step_near_one_static<T: PathTrace>(
     let pose = inst.start;
     let identity = pose_words(&pose) == pose_words(&Pose::IDENTITY);
     let x0 = Vec3::from_array(p.position);
-    let mut slots = sides.slots;
-    for s in slots.iter_mut() {
-        if *s != EMPTY_SLOT {
-            *s &= !SLOT_REQUIRED;
-        }
-    }
+    let mut slots = optional(sides.slots);
     let side = match slot_side(&slots, c) {
         Some(s) => s,
         None => initial_side(view, pose.to_local(x0).to_array()),
@@ -1532,15 +1545,7 @@ fn step_near_one_static<T: PathTrace>(
             .to_array();
         p.flags = lp.flags;
     }
-    if obs.count > 0 {
-        *hit = Hit {
-            instance: c as i32,
-            position: pose.to_world(obs.x).to_array(),
-            normal: pose.normal_to_world(obs.n).to_array(),
-            t: (params.dt - obs.remaining) / params.dt,
-            speed: (-obs.before.dot(obs.n) * pose.scale).max(0.0),
-        };
-    }
+    *hit = obs.record(c, &pose, params.dt);
     sides.slots = slots;
     sides.hint = hint;
     sides.hint_instance = c;
@@ -1588,12 +1593,7 @@ fn step_in_rounds<T: PathTrace>(
     let mut x = Vec3::from_array(p.position);
     let mut v = Vec3::from_array(p.velocity) + Vec3::from_array(params.gravity) * dt;
     let mut u = 0.0f32;
-    let mut slots = sides.slots;
-    for s in slots.iter_mut() {
-        if *s != EMPTY_SLOT {
-            *s &= !SLOT_REQUIRED;
-        }
-    }
+    let mut slots = optional(sides.slots);
     let mut status = 0u32;
     let mut collisions = 0u32;
     let mut lost = false;
@@ -1649,13 +1649,7 @@ fn step_in_rounds<T: PathTrace>(
             min: x - reach,
             max: x + reach,
         };
-        let (mut near, mut only) = (0u32, 0u32);
-        scene.for_each_candidate(&ball, |c| {
-            if near == 0 {
-                only = c;
-            }
-            near += 1;
-        });
+        let (near, mut only) = scene.count_candidates(&ball);
         let one_static = near == 1 && scene.instances[only as usize].is_static();
         let seg = Aabb {
             min: x.min(end) - pad,
@@ -1663,12 +1657,7 @@ fn step_in_rounds<T: PathTrace>(
         };
         let mut count = 0u32;
         if !one_static {
-            scene.for_each_candidate(&seg, |c| {
-                if count == 0 {
-                    only = c;
-                }
-                count += 1;
-            });
+            (count, only) = scene.count_candidates(&seg);
         }
         if near == 0 || (!one_static && count == 0) {
             trace.piece(x, end, u, 1.0);

@@ -1,12 +1,14 @@
 //! [`CpuBackend`]: the core step run over particles in parallel with rayon.
 
+use std::sync::atomic::{AtomicU64, Ordering};
+
 use octoproxy_core::scene::{step_plain, FLAG_CRUSHED, FLAG_SIDES_LOST, SLOT_INSTANCE_SHIFT};
 use octoproxy_core::{
-    step_particle_hinted, step_particle_scene, Backend, FormatError, Hit, LeafHint, OwnedProxy,
-    Particle, SceneHint, SceneSides, SceneSlots, StepParams,
+    step_particle_hinted, step_particle_scene, Backend, BroadNode, EventCount, FormatError, Hit,
+    HitEvent, HitEvents, Instance, LeafHint, OwnedProxy, Particle, ProxyView, SceneError,
+    SceneHint, SceneSides, SceneSlots, SceneStepReport, SceneView, StepParams,
 };
 
-use crate::scene::{Scene, SceneBuildError};
 use rayon::prelude::*;
 
 /// What the CPU backend can report.
@@ -16,26 +18,35 @@ pub enum CpuError {
     /// The proxy did not validate.
     #[error("invalid proxy: {0}")]
     Format(#[from] FormatError),
+    /// A scene proxy did not validate.
+    #[error("scene proxy {index}: {source}")]
+    SceneProxy {
+        /// Its index.
+        index: usize,
+        /// Why.
+        source: FormatError,
+    },
     /// Stepping before a proxy was uploaded.
     #[error("no proxy uploaded")]
     NoProxy,
     /// Step parameters out of range.
     #[error("invalid step parameters: {0}")]
     Params(#[from] octoproxy_core::ParamError),
-    /// The scene did not validate.
+    /// The scene did not validate against the scene proxies held.
     #[error("invalid scene: {0}")]
-    Scene(#[from] SceneBuildError),
-    /// `download_particles` was given a slice of the wrong length.
+    Scene(#[from] SceneError),
+    /// A slice of the wrong length.
     #[error("expected room for {expected} particles, got {got}")]
     LengthMismatch {
-        /// Particles held.
+        /// Particles held (or the event capacity).
         expected: usize,
         /// Length given.
         got: usize,
     },
 }
 
-/// Steps particles on the CPU, in parallel over particles. Stepping allocates nothing.
+/// Steps particles on the CPU, in parallel over particles. Stepping allocates nothing (but
+/// for the events it records, when asked to).
 #[derive(Debug, Default)]
 pub struct CpuBackend {
     proxy: Option<OwnedProxy>,
@@ -43,22 +54,76 @@ pub struct CpuBackend {
     /// Each particle's last leaf, so that its next step starts there (core's
     /// [`LeafHint`]); reset when the proxy or the particles are replaced.
     hints: Vec<LeafHint>,
-    /// Each particle's sides for the instances of a scene ([`CpuBackend::step_scene`]), in
-    /// core's two parts: the hint and first slot every step reads, and the other slots.
+    /// A scene's proxies ([`Backend::upload_scene_proxies`]) and their key.
+    scene_proxies: Vec<OwnedProxy>,
+    scene_key: Option<u64>,
+    /// Each particle's sides for the instances of a scene, in core's two parts: the hint and
+    /// first slot every step reads, and the other slots.
     scene_hints: Vec<SceneHint>,
     scene_slots: Vec<SceneSlots>,
     /// Each particle's last collision in its last scene step, when asked for.
     hits: Vec<Hit>,
+    /// Scene steps since the particles were uploaded, and what they did since last taken.
+    scene_steps: u32,
+    report: SceneStepReport,
+    /// The event buffer: its capacity, the events held, and those lost since last taken.
+    event_capacity: usize,
+    events: Vec<HitEvent>,
+    events_lost: u64,
     use_lut: bool,
 }
 
-/// What one scene step did, over all particles.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct SceneStepReport {
-    /// Particles pressed between colliders and left at their last contact (`FLAG_CRUSHED`).
-    pub crushed: usize,
-    /// Particles in more shells than they keep sides for (`FLAG_SIDES_LOST`).
-    pub sides_lost: usize,
+/// The event sink of one particle's step on the CPU: events go to the thread's own list, up
+/// to the capacity over all threads (a shared count reserves each place), and are counted as
+/// lost past it.
+struct CpuEvents<'a> {
+    step: u32,
+    particle: u32,
+    reserved: &'a AtomicU64,
+    capacity: u64,
+    out: &'a mut Vec<HitEvent>,
+    lost: &'a mut u64,
+}
+
+impl HitEvents for CpuEvents<'_> {
+    fn hit(&mut self, hit: &Hit) {
+        if self.reserved.fetch_add(1, Ordering::Relaxed) < self.capacity {
+            self.out.push(HitEvent {
+                step: self.step,
+                particle: self.particle,
+                hit: *hit,
+            });
+        } else {
+            *self.lost += 1;
+        }
+    }
+}
+
+/// One particle's scene step: the plain step where the scene is one static proxy at the
+/// identity and the particle's state is that instance's, else the scene step. The counts of
+/// the report it adds to (crushed, sides lost).
+#[inline(always)]
+fn step_one(
+    view: &SceneView<'_>,
+    p: &mut Particle,
+    sh: &mut SceneHint,
+    ss: &mut SceneSlots,
+    params: &StepParams,
+    hit: Option<&mut Hit>,
+    events: &mut impl HitEvents,
+) -> (u64, u64) {
+    match view.plain_proxy() {
+        Some((c, proxy)) if sh.first_slot >> SLOT_INSTANCE_SHIFT == c && sh.hint_instance == c => {
+            step_plain(proxy, c, p, sh, params, hit, events);
+        }
+        _ => {
+            step_particle_scene(view, p, sh, ss, params, hit, events);
+        }
+    }
+    (
+        (p.flags & FLAG_CRUSHED != 0) as u64,
+        (p.flags & FLAG_SIDES_LOST != 0) as u64,
+    )
 }
 
 impl CpuBackend {
@@ -89,98 +154,87 @@ impl CpuBackend {
             .collect()
     }
 
-    /// Replaces the particles' scene sides (a restart, or starting sides from the meshes).
-    pub fn set_scene_sides(&mut self, sides: &[SceneSides]) -> Result<(), CpuError> {
-        if sides.len() != self.particles.len() {
-            return Err(CpuError::LengthMismatch {
-                expected: self.particles.len(),
-                got: sides.len(),
-            });
-        }
-        for ((h, s), sides) in self
-            .scene_hints
-            .iter_mut()
-            .zip(&mut self.scene_slots)
-            .zip(sides)
-        {
-            (*h, *s) = sides.split();
-        }
-        Ok(())
-    }
-
-    /// Each particle's last collision in the last scene step taken with hits on.
+    /// Each particle's last collision in the last scene step taken with hits.
     pub fn hits(&self) -> &[Hit] {
         &self.hits
     }
 
-    /// One step of every particle through `scene`, moving each instance from its start pose
-    /// to its end pose (see [`Scene`]); afterwards every instance holds its end pose
-    /// ([`Scene::hold`]). With `hits`, [`CpuBackend::hits`] holds each particle's last
-    /// collision of the step. A scene of one proxy placed once at the identity steps exactly
-    /// as [`Backend::step`] steps that proxy.
-    pub fn step_scene(
+    /// The scene step of every particle, with `E` the events' sink (`()` for none).
+    fn step_scene_with(
         &mut self,
-        scene: &mut Scene,
+        view: &SceneView<'_>,
         params: &StepParams,
         hits: bool,
-    ) -> Result<SceneStepReport, CpuError> {
-        params.validate()?;
+    ) -> (u64, u64) {
+        let add = |a: (u64, u64), b: (u64, u64)| (a.0 + b.0, a.1 + b.1);
+        let particles_len = self.particles.len();
         let Self {
             particles,
             scene_hints,
             scene_slots,
             hits: hit_buf,
+            events,
+            events_lost,
+            event_capacity,
+            scene_steps,
             ..
         } = self;
-        if hits {
-            hit_buf.resize(particles.len(), Hit::NONE);
-        }
-        let report = scene.with_view(|view| {
-            // The report is counted in the same pass as the step.
-            type State<'a> = ((&'a mut Particle, &'a mut SceneHint), &'a mut SceneSlots);
-            let plain = view.plain_proxy();
-            let step = |((p, sh), ss): State<'_>, h: Option<&mut Hit>| {
-                match plain {
-                    Some((c, proxy))
-                        if sh.first_slot >> SLOT_INSTANCE_SHIFT == c && sh.hint_instance == c =>
-                    {
-                        step_plain(proxy, c, p, sh, params, h);
-                    }
-                    _ => {
-                        step_particle_scene(view, p, sh, ss, params, h);
-                    }
-                }
-                (
-                    (p.flags & FLAG_CRUSHED != 0) as usize,
-                    (p.flags & FLAG_SIDES_LOST != 0) as usize,
+        let states = particles
+            .par_iter_mut()
+            .zip(scene_hints.par_iter_mut())
+            .zip(scene_slots.par_iter_mut());
+        if *event_capacity > 0 {
+            // Every collision, to per-thread lists joined afterwards.
+            let reserved = AtomicU64::new(events.len() as u64);
+            let capacity = *event_capacity as u64;
+            let step = *scene_steps;
+            // (A hit record to fill only when asked for; the buffer is there either way.)
+            hit_buf.resize(particles_len, Hit::NONE);
+            let (counts, lists, lost) = states
+                .zip(hit_buf.par_iter_mut())
+                .enumerate()
+                .with_min_len(1024)
+                .fold(
+                    || ((0u64, 0u64), Vec::new(), 0u64),
+                    |(counts, mut out, mut lost), (i, (((p, sh), ss), h))| {
+                        let mut sink = CpuEvents {
+                            step,
+                            particle: i as u32,
+                            reserved: &reserved,
+                            capacity,
+                            out: &mut out,
+                            lost: &mut lost,
+                        };
+                        let h = if hits { Some(h) } else { None };
+                        let c = step_one(view, p, sh, ss, params, h, &mut sink);
+                        (add(counts, c), out, lost)
+                    },
                 )
-            };
-            let add = |a: (usize, usize), b: (usize, usize)| (a.0 + b.0, a.1 + b.1);
-            let (crushed, sides_lost) = if hits {
-                particles
-                    .par_iter_mut()
-                    .zip(scene_hints.par_iter_mut())
-                    .zip(scene_slots.par_iter_mut())
-                    .zip(hit_buf.par_iter_mut())
-                    .with_min_len(1024)
-                    .map(|(ps, h)| step(ps, Some(h)))
-                    .reduce(|| (0, 0), add)
-            } else {
-                particles
-                    .par_iter_mut()
-                    .zip(scene_hints.par_iter_mut())
-                    .zip(scene_slots.par_iter_mut())
-                    .with_min_len(1024)
-                    .map(|ps| step(ps, None))
-                    .reduce(|| (0, 0), add)
-            };
-            SceneStepReport {
-                crushed,
-                sides_lost,
+                .map(|(c, out, lost)| (c, vec![out], lost))
+                .reduce(
+                    || ((0, 0), Vec::new(), 0),
+                    |(ca, mut la, xa), (cb, lb, xb)| {
+                        la.extend(lb);
+                        (add(ca, cb), la, xa + xb)
+                    },
+                );
+            for list in lists {
+                events.extend(list);
             }
-        })?;
-        scene.hold();
-        Ok(report)
+            *events_lost += lost;
+            counts
+        } else if hits {
+            states
+                .zip(hit_buf.par_iter_mut())
+                .with_min_len(1024)
+                .map(|(((p, sh), ss), h)| step_one(view, p, sh, ss, params, Some(h), &mut ()))
+                .reduce(|| (0, 0), add)
+        } else {
+            states
+                .with_min_len(1024)
+                .map(|((p, sh), ss)| step_one(view, p, sh, ss, params, None, &mut ()))
+                .reduce(|| (0, 0), add)
+        }
     }
 
     /// The floor: steps the particles `steps` times with integration only (the step's
@@ -220,6 +274,9 @@ impl Backend for CpuBackend {
     fn upload_particles(&mut self, particles: &[Particle]) -> Result<(), CpuError> {
         self.particles.clear();
         self.particles.extend_from_slice(particles);
+        self.scene_steps = 0;
+        self.events.clear();
+        self.events_lost = 0;
         self.hints.clear();
         self.hints.resize(particles.len(), LeafHint::NONE);
         self.scene_hints.clear();
@@ -269,6 +326,124 @@ impl Backend for CpuBackend {
                 .for_each(|(p, hint)| {
                     step_particle_hinted(&view, p, params, hint);
                 });
+        }
+        Ok(())
+    }
+
+    fn upload_scene_proxies(&mut self, key: u64, proxies: &[&[u32]]) -> Result<(), CpuError> {
+        let owned = proxies
+            .iter()
+            .enumerate()
+            .map(|(index, words)| {
+                OwnedProxy::new(words.to_vec())
+                    .map_err(|source| CpuError::SceneProxy { index, source })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        self.scene_proxies = owned;
+        self.scene_key = Some(key);
+        // Hints belong to the proxies that made them.
+        self.scene_hints
+            .iter_mut()
+            .for_each(|h| (h.hint, h.hint_instance) = (LeafHint::NONE, u32::MAX));
+        Ok(())
+    }
+
+    fn scene_proxies_key(&self) -> Option<u64> {
+        self.scene_key
+    }
+
+    fn step_scene(
+        &mut self,
+        instances: &[Instance],
+        broad: &[BroadNode],
+        params: &StepParams,
+        hits: bool,
+    ) -> Result<(), CpuError> {
+        params.validate()?;
+        let proxies = std::mem::take(&mut self.scene_proxies);
+        let views: Vec<ProxyView<'_>> = proxies.iter().map(|p| p.view()).collect();
+        let result = SceneView::new(&views, instances, broad).map(|view| {
+            if hits {
+                self.hits.resize(self.particles.len(), Hit::NONE);
+            }
+            self.step_scene_with(&view, params, hits)
+        });
+        drop(views);
+        self.scene_proxies = proxies;
+        let (crushed, sides_lost) = result?;
+        self.report.crushed += crushed;
+        self.report.sides_lost += sides_lost;
+        self.scene_steps = self.scene_steps.wrapping_add(1);
+        Ok(())
+    }
+
+    fn take_scene_report(&mut self) -> Result<SceneStepReport, CpuError> {
+        Ok(std::mem::take(&mut self.report))
+    }
+
+    fn download_hits(&mut self, out: &mut [Hit]) -> Result<(), CpuError> {
+        if out.len() != self.particles.len() {
+            return Err(CpuError::LengthMismatch {
+                expected: self.particles.len(),
+                got: out.len(),
+            });
+        }
+        if self.hits.len() == out.len() {
+            out.copy_from_slice(&self.hits);
+        } else {
+            out.fill(Hit::NONE);
+        }
+        Ok(())
+    }
+
+    fn set_event_capacity(&mut self, capacity: usize) -> Result<(), CpuError> {
+        self.event_capacity = capacity;
+        self.events = Vec::with_capacity(capacity.min(1 << 20));
+        self.events_lost = 0;
+        Ok(())
+    }
+
+    fn take_events(&mut self, out: &mut [HitEvent]) -> Result<EventCount, CpuError> {
+        if out.len() < self.event_capacity {
+            return Err(CpuError::LengthMismatch {
+                expected: self.event_capacity,
+                got: out.len(),
+            });
+        }
+        let stored = self.events.len();
+        out[..stored].copy_from_slice(&self.events);
+        self.events.clear();
+        let lost = std::mem::take(&mut self.events_lost);
+        Ok(EventCount { stored, lost })
+    }
+
+    fn download_scene_sides(&mut self, out: &mut [SceneSides]) -> Result<(), CpuError> {
+        if out.len() != self.particles.len() {
+            return Err(CpuError::LengthMismatch {
+                expected: self.particles.len(),
+                got: out.len(),
+            });
+        }
+        for ((o, h), s) in out.iter_mut().zip(&self.scene_hints).zip(&self.scene_slots) {
+            *o = SceneSides::join(h, s);
+        }
+        Ok(())
+    }
+
+    fn upload_scene_sides(&mut self, sides: &[SceneSides]) -> Result<(), CpuError> {
+        if sides.len() != self.particles.len() {
+            return Err(CpuError::LengthMismatch {
+                expected: self.particles.len(),
+                got: sides.len(),
+            });
+        }
+        for ((h, s), sides) in self
+            .scene_hints
+            .iter_mut()
+            .zip(&mut self.scene_slots)
+            .zip(sides)
+        {
+            (*h, *s) = sides.split();
         }
         Ok(())
     }

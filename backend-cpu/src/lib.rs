@@ -8,7 +8,7 @@
 //! - [`sides`]: exact starting sides from the mesh ([`starting_sides`], beside [`bake()`]).
 //! - [`ground_truth`], [`harness`], [`scenes`]: checking a scene the way the tests do: exact
 //!   winding numbers and segment crossings, the penetration harness, procedural meshes.
-//! - [`Scene`]: proxies placed by moving instances, stepped by [`CpuBackend::step_scene`].
+//! - [`Scene`]: proxies placed by moving instances, stepped by [`Scene::step`] on any backend.
 //! - [`CpuBackend`]: the core step over particles with rayon, behind the core `Backend` trait.
 //!
 //! # Example
@@ -71,9 +71,10 @@ pub mod scene;
 pub mod scenes;
 pub mod sides;
 
-pub use backend::{CpuBackend, CpuError, SceneStepReport};
+pub use backend::{CpuBackend, CpuError};
+pub use octoproxy_core::SceneStepReport;
 pub use bake::{bake, BuildError, BuildParams, BuildProgress, BuildReport, MeshRef};
-pub use scene::{starting_scene_sides, Scene, SceneBuildError};
+pub use scene::{starting_scene_sides, Scene, SceneBuildError, SceneStepError};
 pub use sides::{starting_sides, CageCounts, Sides, StartCounts};
 
 /// The README's examples, compiled and run as doctests.

@@ -7,7 +7,7 @@
 //! the pose it will have at its end. [`Scene::move_to`] sets the end and keeps the start
 //! where the last step left the instance; [`Scene::set_motion`] sets both (a cut, a
 //! teleport); after a step, [`Scene::hold`] makes every end the next start (what
-//! [`crate::CpuBackend::step_scene`] does itself). A multi-step run is one call per step, with
+//! [`Scene::step`] does itself). A multi-step run is one call per step, with
 //! the poses for that step set before it: the caller samples its animation at step ends.
 //!
 //! **Indices** are stable: [`Scene::add_instance`] always appends, and a removed instance
@@ -40,7 +40,7 @@
 //! for step in 1..=6 {
 //!     // Two units a step: the box's end pose for this step; its start is where it was.
 //!     scene.move_to(paddle, at(-2.0 + 2.0 * step as f32))?;
-//!     cpu.step_scene(&mut scene, &params, true)?;
+//!     scene.step(&mut cpu, &params, true)?;
 //!     hits += cpu.hits().iter().filter(|h| h.instance == paddle as i32).count();
 //! }
 //! // Every particle ahead of the box's face: none passed through it.
@@ -55,7 +55,7 @@ use octoproxy_core::scene::{
     BroadNode, Instance, Pose, SceneError, SceneView, BROAD_INTERNAL, BROAD_LEAF, INSTANCE_LIVE,
     MAX_INSTANCES, SIDE_SLOTS,
 };
-use octoproxy_core::{Aabb, FormatError, OwnedProxy, ProxyView};
+use octoproxy_core::{Aabb, Backend, FormatError, OwnedProxy, ProxyView, StepParams};
 
 /// What can go wrong with a scene.
 #[derive(Debug, thiserror::Error)]
@@ -103,9 +103,29 @@ pub enum SceneBuildError {
     },
 }
 
+/// What [`Scene::step`] can report: the scene's own errors, or the backend's.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum SceneStepError<E: std::error::Error + 'static> {
+    /// The scene did not prepare (see [`Scene::prepare`]).
+    #[error(transparent)]
+    Scene(#[from] SceneBuildError),
+    /// The backend failed.
+    #[error(transparent)]
+    Backend(E),
+}
+
+/// A number no other scene of this process has, for [`Scene::proxies_key`].
+fn next_scene_id() -> u64 {
+    static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
+    NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+}
+
 /// Proxies and the instances that place them, with the broad phase over them.
-#[derive(Clone, Debug, Default)]
+#[derive(Debug)]
 pub struct Scene {
+    /// This scene's number in the process (a clone gets its own).
+    id: u64,
     proxies: Vec<OwnedProxy>,
     /// Per proxy: the box of its surface leaves grown by one finest leaf (its shell), in the
     /// proxy's frame.
@@ -145,10 +165,74 @@ pub fn normalize_rotation(q: [f32; 4]) -> Option<[f32; 4]> {
     Some(q.map(|c| (c as f64 / len) as f32))
 }
 
+impl Default for Scene {
+    fn default() -> Self {
+        Self {
+            id: next_scene_id(),
+            proxies: Vec::new(),
+            shells: Vec::new(),
+            instances: Vec::new(),
+            nodes: Vec::new(),
+            dirty: false,
+        }
+    }
+}
+
+impl Clone for Scene {
+    fn clone(&self) -> Self {
+        Self {
+            id: next_scene_id(),
+            proxies: self.proxies.clone(),
+            shells: self.shells.clone(),
+            instances: self.instances.clone(),
+            nodes: self.nodes.clone(),
+            dirty: self.dirty,
+        }
+    }
+}
+
 impl Scene {
     /// An empty scene.
     pub fn new() -> Self {
         Self::default()
+    }
+
+    /// A key no other set of proxies in this process has: this scene's number and how many
+    /// proxies it holds (proxies are only ever added). A backend holding proxies under this
+    /// key holds these ([`Backend::upload_scene_proxies`]).
+    pub fn proxies_key(&self) -> u64 {
+        self.id << 32 | self.proxies.len() as u64
+    }
+
+    /// Gives `backend` this scene's proxies, unless it holds them already.
+    pub fn upload_proxies<B: Backend>(&self, backend: &mut B) -> Result<(), B::Error> {
+        let key = self.proxies_key();
+        if backend.scene_proxies_key() == Some(key) {
+            return Ok(());
+        }
+        let words: Vec<&[u32]> = self.proxies.iter().map(|p| p.words()).collect();
+        backend.upload_scene_proxies(key, &words)
+    }
+
+    /// One step of `backend`'s particles through the scene: it prepares the scene (the
+    /// broad phase, the checks), gives the backend the proxies if it does not hold them,
+    /// steps (each instance from its start pose to its end pose; with `hits`, each
+    /// particle's last collision is kept), and then holds every instance at its end pose
+    /// ([`Scene::hold`]), ready for the next [`Scene::move_to`].
+    pub fn step<B: Backend>(
+        &mut self,
+        backend: &mut B,
+        params: &StepParams,
+        hits: bool,
+    ) -> Result<(), SceneStepError<B::Error>> {
+        self.prepare()?;
+        self.upload_proxies(backend)
+            .map_err(SceneStepError::Backend)?;
+        backend
+            .step_scene(&self.instances, &self.nodes, params, hits)
+            .map_err(SceneStepError::Backend)?;
+        self.hold();
+        Ok(())
     }
 
     /// Adds a proxy (validated here) and returns its index.

@@ -5,7 +5,10 @@ use std::sync::mpsc;
 use std::sync::{Arc, Mutex};
 
 use bytemuck::{Pod, Zeroable};
-use octoproxy_core::{Backend, FormatError, LeafHint, ParamError, Particle, ProxyView, StepParams};
+use octoproxy_core::{
+    Backend, BroadNode, EventCount, FormatError, Hit, HitEvent, Instance, LeafHint, ParamError,
+    Particle, ProxyView, SceneError, SceneSides, SceneStepReport, StepParams,
+};
 
 use crate::shader::{self, WORKGROUP_SIZE};
 
@@ -47,8 +50,8 @@ pub struct RunParams {
 pub struct ChunkParams {
     /// Particles in the chunk.
     pub count: u32,
-    /// Padding.
-    pub _pad0: u32,
+    /// The index of the chunk's first particle among all the particles.
+    pub first: u32,
     /// Padding.
     pub _pad1: u32,
     /// Padding.
@@ -108,28 +111,41 @@ pub enum WgpuError {
     /// A caller's particle buffer cannot be used as given.
     #[error("particle buffer: {0}")]
     BadBuffer(String),
+    /// A scene proxy did not validate.
+    #[error("scene proxy {index}: {source}")]
+    SceneProxy {
+        /// Its index.
+        index: usize,
+        /// Why.
+        source: FormatError,
+    },
+    /// The scene did not validate against the scene proxies held.
+    #[error("invalid scene: {0}")]
+    Scene(#[from] SceneError),
 }
 
 /// The pipelines, layouts and uniform buffers: built once per backend, reused every step.
 #[derive(Debug)]
-struct Kernel {
+pub(crate) struct Kernel {
     layout: wgpu::BindGroupLayout,
     step: wgpu::ComputePipeline,
     integrate: wgpu::ComputePipeline,
-    params: wgpu::Buffer,
+    pub(crate) params: wgpu::Buffer,
     run: wgpu::Buffer,
 }
 
 /// A run of particles bound as one storage binding.
 #[derive(Debug)]
-struct Chunk {
-    buffer: wgpu::Buffer,
-    offset: u64,
-    count: u32,
-    params: wgpu::Buffer,
+pub(crate) struct Chunk {
+    pub(crate) buffer: wgpu::Buffer,
+    pub(crate) offset: u64,
+    pub(crate) count: u32,
+    pub(crate) params: wgpu::Buffer,
     /// The chunk's particles' `LeafHint`s (8 bytes each), kept between steps.
     hints: wgpu::Buffer,
     bind_group: Option<wgpu::BindGroup>,
+    /// The chunk's particles' scene state, made at the first scene step.
+    pub(crate) scene: Option<crate::scene::ChunkScene>,
 }
 
 /// Steps particles on a GPU through wgpu. Particles stay on the GPU between steps; they are
@@ -140,20 +156,22 @@ struct Chunk {
 /// [`WgpuBackend::use_particle_buffer`].
 #[derive(Debug)]
 pub struct WgpuBackend {
-    device: wgpu::Device,
-    queue: wgpu::Queue,
+    pub(crate) device: wgpu::Device,
+    pub(crate) queue: wgpu::Queue,
     description: String,
     software: bool,
-    kernel: Kernel,
+    pub(crate) kernel: Kernel,
     proxy: Option<wgpu::Buffer>,
-    chunks: Vec<Chunk>,
-    count: usize,
+    pub(crate) chunks: Vec<Chunk>,
+    pub(crate) count: usize,
     external: bool,
     chunk_particles: u32,
-    fold_width: u32,
-    use_lut: bool,
+    pub(crate) fold_width: u32,
+    pub(crate) use_lut: bool,
     lost: Arc<Mutex<Option<String>>>,
     uncaptured: Arc<Mutex<Option<String>>>,
+    /// The scene kernel and its buffers ([`Backend::step_scene`]).
+    pub(crate) scene: crate::scene::SceneGpu,
 }
 
 fn lock(m: &Mutex<Option<String>>) -> std::sync::MutexGuard<'_, Option<String>> {
@@ -194,6 +212,10 @@ impl WgpuBackend {
                 max_storage_buffer_binding_size: limits.max_storage_buffer_binding_size,
                 max_buffer_size: limits.max_buffer_size,
                 max_compute_workgroups_per_dimension: limits.max_compute_workgroups_per_dimension,
+                // The scene kernel binds 7 storage buffers (the plain one 3).
+                max_storage_buffers_per_shader_stage: limits
+                    .max_storage_buffers_per_shader_stage
+                    .min(crate::scene::SCENE_STORAGE_BUFFERS.max(4)),
                 ..wgpu::Limits::downlevel_defaults()
             },
             ..Default::default()
@@ -326,6 +348,7 @@ impl WgpuBackend {
             use_lut: true,
             lost,
             uncaptured,
+            scene: Default::default(),
         })
     }
 
@@ -428,17 +451,19 @@ impl WgpuBackend {
                 buffer.clone(),
                 offset + start as u64 * PARTICLE_BYTES,
                 n as u32,
+                start as u32,
             ));
             start += n;
         }
         self.chunks = chunks;
         self.count = count;
         self.external = true;
+        self.forget_scene_particles();
         self.bind();
         Ok(())
     }
 
-    fn chunk(&self, buffer: wgpu::Buffer, offset: u64, count: u32) -> Chunk {
+    fn chunk(&self, buffer: wgpu::Buffer, offset: u64, count: u32, first: u32) -> Chunk {
         let params = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("octoproxy chunk params"),
             size: core::mem::size_of::<ChunkParams>() as u64,
@@ -447,6 +472,7 @@ impl WgpuBackend {
         });
         let values = ChunkParams {
             count,
+            first,
             ..Default::default()
         };
         self.queue
@@ -465,7 +491,16 @@ impl WgpuBackend {
             params,
             hints,
             bind_group: None,
+            scene: None,
         }
+    }
+
+    /// New particles: no scene sides, hits or events, and the scene steps count from 0.
+    fn forget_scene_particles(&mut self) {
+        for chunk in &mut self.chunks {
+            chunk.scene = None;
+        }
+        self.scene.reset_particles(&self.queue);
     }
 
     /// Forgets every particle's leaf hint (a hint belongs to the proxy that made it).
@@ -536,7 +571,7 @@ impl WgpuBackend {
         }
     }
 
-    fn check_health(&self) -> Result<(), WgpuError> {
+    pub(crate) fn check_health(&self) -> Result<(), WgpuError> {
         if let Some(message) = lock(&self.lost).clone() {
             return Err(WgpuError::DeviceLost(message));
         }
@@ -544,6 +579,58 @@ impl WgpuBackend {
             return Err(WgpuError::Gpu(message));
         }
         Ok(())
+    }
+
+    /// Copies `size` bytes at `offset` of each buffer back to the host, in one submission and
+    /// one wait. Sizes must be multiples of 4.
+    pub(crate) fn read_back(
+        &self,
+        parts: &[(&wgpu::Buffer, u64, u64)],
+    ) -> Result<Vec<Vec<u8>>, WgpuError> {
+        let scope = ErrorScope::push(&self.device);
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        let mut staging = Vec::with_capacity(parts.len());
+        for &(source, offset, size) in parts {
+            let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("octoproxy read-back"),
+                size: size.max(4),
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            if size > 0 {
+                encoder.copy_buffer_to_buffer(source, offset, &buffer, 0, size);
+            }
+            staging.push(buffer);
+        }
+        self.queue.submit([encoder.finish()]);
+        let (tx, rx) = mpsc::channel();
+        for (i, buffer) in staging.iter().enumerate() {
+            let tx = tx.clone();
+            buffer.map_async(wgpu::MapMode::Read, .., move |result| {
+                let _ = tx.send((i, result));
+            });
+        }
+        drop(tx);
+        self.wait()?;
+        scope.pop().map_err(WgpuError::Gpu)?;
+        let mut mapped = 0;
+        for (i, result) in rx.iter() {
+            result.map_err(|e| WgpuError::Gpu(format!("read-back of part {i}: {e}")))?;
+            mapped += 1;
+        }
+        if mapped != staging.len() {
+            return Err(WgpuError::Gpu("read-back did not complete".into()));
+        }
+        let mut out = Vec::with_capacity(parts.len());
+        for (&(_, _, size), buffer) in parts.iter().zip(&staging) {
+            let view = buffer
+                .get_mapped_range(..)
+                .map_err(|e| WgpuError::Gpu(e.to_string()))?;
+            out.push(view[..size as usize].to_vec());
+            drop(view);
+            buffer.unmap();
+        }
+        Ok(out)
     }
 
     /// Waits until all submitted work is done.
@@ -614,14 +701,14 @@ impl WgpuBackend {
 /// Validation, out-of-memory and internal error scopes around a piece of work, popped
 /// together. Fields drop in declaration order, so an early return pops them innermost
 /// first too, as wgpu requires.
-struct ErrorScope {
+pub(crate) struct ErrorScope {
     internal: wgpu::ErrorScopeGuard,
     memory: wgpu::ErrorScopeGuard,
     validation: wgpu::ErrorScopeGuard,
 }
 
 impl ErrorScope {
-    fn push(device: &wgpu::Device) -> Self {
+    pub(crate) fn push(device: &wgpu::Device) -> Self {
         let validation = device.push_error_scope(wgpu::ErrorFilter::Validation);
         let memory = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
         let internal = device.push_error_scope(wgpu::ErrorFilter::Internal);
@@ -632,7 +719,7 @@ impl ErrorScope {
         }
     }
 
-    fn pop(self) -> Result<(), String> {
+    pub(crate) fn pop(self) -> Result<(), String> {
         // Innermost first.
         let internal = pollster::block_on(self.internal.pop());
         let memory = pollster::block_on(self.memory.pop());
@@ -717,7 +804,7 @@ impl Backend for WgpuBackend {
                     .all(|(c, part)| c.count as usize == part.len());
             if !same_layout {
                 let mut chunks = Vec::new();
-                for part in particles.chunks(cap) {
+                for (k, part) in particles.chunks(cap).enumerate() {
                     let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
                         label: Some("octoproxy particles"),
                         size: part.len() as u64 * PARTICLE_BYTES,
@@ -726,7 +813,7 @@ impl Backend for WgpuBackend {
                             | wgpu::BufferUsages::COPY_SRC,
                         mapped_at_creation: false,
                     });
-                    chunks.push(self.chunk(buffer, 0, part.len() as u32));
+                    chunks.push(self.chunk(buffer, 0, part.len() as u32, (k * cap) as u32));
                 }
                 self.chunks = chunks;
                 self.count = particles.len();
@@ -740,6 +827,7 @@ impl Backend for WgpuBackend {
         // Not needed for correctness (a step checks that a particle is inside its hinted
         // leaf), but new particles start with no history.
         self.clear_hints();
+        self.forget_scene_particles();
         scope.pop().map_err(WgpuError::Gpu)
     }
 
@@ -763,49 +851,17 @@ impl Backend for WgpuBackend {
                 "reading it back needs COPY_SRC usage".into(),
             ));
         }
-        let scope = ErrorScope::push(&self.device);
-        let mut encoder = self.device.create_command_encoder(&Default::default());
-        let mut staging = Vec::with_capacity(self.chunks.len());
-        for chunk in &self.chunks {
-            let size = chunk.count as u64 * PARTICLE_BYTES;
-            let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("octoproxy read-back"),
-                size,
-                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            });
-            encoder.copy_buffer_to_buffer(&chunk.buffer, chunk.offset, &buffer, 0, size);
-            staging.push(buffer);
-        }
-        self.queue.submit([encoder.finish()]);
-        let (tx, rx) = mpsc::channel();
-        for (i, buffer) in staging.iter().enumerate() {
-            let tx = tx.clone();
-            buffer.map_async(wgpu::MapMode::Read, .., move |result| {
-                let _ = tx.send((i, result));
-            });
-        }
-        drop(tx);
-        self.wait()?;
-        scope.pop().map_err(WgpuError::Gpu)?;
-        let mut mapped = 0;
-        for (i, result) in rx.iter() {
-            result.map_err(|e| WgpuError::Gpu(format!("read-back of chunk {i}: {e}")))?;
-            mapped += 1;
-        }
-        if mapped != staging.len() {
-            return Err(WgpuError::Gpu("read-back did not complete".into()));
-        }
+        let parts: Vec<_> = self
+            .chunks
+            .iter()
+            .map(|c| (&c.buffer, c.offset, c.count as u64 * PARTICLE_BYTES))
+            .collect();
         let mut start = 0;
-        for (chunk, buffer) in self.chunks.iter().zip(&staging) {
-            let view = buffer
-                .get_mapped_range(..)
-                .map_err(|e| WgpuError::Gpu(e.to_string()))?;
+        for (chunk, bytes) in self.chunks.iter().zip(self.read_back(&parts)?) {
             let n = chunk.count as usize;
-            out[start..start + n].copy_from_slice(bytemuck::cast_slice(&view));
+            bytemuck::cast_slice_mut::<Particle, u8>(&mut out[start..start + n])
+                .copy_from_slice(&bytes);
             start += n;
-            drop(view);
-            buffer.unmap();
         }
         Ok(())
     }
@@ -820,5 +876,47 @@ impl Backend for WgpuBackend {
 
     fn finish(&mut self) -> Result<(), WgpuError> {
         self.wait()
+    }
+
+    fn upload_scene_proxies(&mut self, key: u64, proxies: &[&[u32]]) -> Result<(), WgpuError> {
+        self.upload_scene_proxies_gpu(key, proxies)
+    }
+
+    fn scene_proxies_key(&self) -> Option<u64> {
+        self.scene_proxies_key_gpu()
+    }
+
+    fn step_scene(
+        &mut self,
+        instances: &[Instance],
+        broad: &[BroadNode],
+        params: &StepParams,
+        hits: bool,
+    ) -> Result<(), WgpuError> {
+        self.step_scene_gpu(instances, broad, params, hits)
+    }
+
+    fn take_scene_report(&mut self) -> Result<SceneStepReport, WgpuError> {
+        self.take_scene_report_gpu()
+    }
+
+    fn download_hits(&mut self, out: &mut [Hit]) -> Result<(), WgpuError> {
+        self.download_hits_gpu(out)
+    }
+
+    fn set_event_capacity(&mut self, capacity: usize) -> Result<(), WgpuError> {
+        self.set_event_capacity_gpu(capacity)
+    }
+
+    fn take_events(&mut self, out: &mut [HitEvent]) -> Result<EventCount, WgpuError> {
+        self.take_events_gpu(out)
+    }
+
+    fn download_scene_sides(&mut self, out: &mut [SceneSides]) -> Result<(), WgpuError> {
+        self.download_scene_sides_gpu(out)
+    }
+
+    fn upload_scene_sides(&mut self, sides: &[SceneSides]) -> Result<(), WgpuError> {
+        self.upload_scene_sides_gpu(sides)
     }
 }

@@ -22,10 +22,12 @@
 #![warn(missing_docs)]
 
 mod backend;
+mod scene;
 pub mod shader;
 
 pub use backend::{
     ChunkParams, RunParams, WgpuBackend, WgpuError, DEFAULT_CHUNK_PARTICLES, HINT_BYTES,
     PARTICLE_BYTES, STEPS_PER_SUBMIT,
 };
+pub use scene::{SceneParams, OUT_HEADER_WORDS as SCENE_OUT_HEADER_WORDS, SCENE_STORAGE_BUFFERS};
 pub use wgpu;

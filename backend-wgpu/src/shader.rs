@@ -3,22 +3,42 @@
 //!
 //! The `.wgsl` files beside this module mirror core's modules: `format.wgsl` (node records,
 //! header, `decode_normal`, `grid_plane`), `query.wgsl` (`locate_inside` and its helpers),
-//! `step.wgsl` (`step_particle_hinted`, its settles and the march's steps) and `kernel.wgsl`
-//! (the entry points). Every function has a Rust twin or a stated reason for none; the
-//! table is in `tests/wgsl.rs`.
+//! `step.wgsl` (`step_particle_hinted`, its settles and the march's steps), `pose.wgsl`,
+//! `observe.wgsl` and `scene.wgsl` (scenes: poses, the march's observer, the scene step), and
+//! the entry points. They make two modules: the plain kernel ([`FILES`], whose march observes
+//! nothing: `observe_none.wgsl`) and the scene kernel ([`SCENE_FILES`]). Every function has a
+//! Rust twin or a stated reason for none; the table is in `tests/wgsl.rs`.
 
 use octoproxy_core::format::{self, header};
+use octoproxy_core::scene::{self as sc, BROAD_LEAF, SIDE_SLOTS};
 use octoproxy_core::*;
 
 /// Invocations per workgroup.
 pub const WORKGROUP_SIZE: u32 = 64;
 
-/// The hand-written WGSL files in the order they are joined, each with its name.
-pub const FILES: [(&str, &str); 4] = [
-    ("format.wgsl", include_str!("wgsl/format.wgsl")),
-    ("query.wgsl", include_str!("wgsl/query.wgsl")),
-    ("step.wgsl", include_str!("wgsl/step.wgsl")),
+const FORMAT: (&str, &str) = ("format.wgsl", include_str!("wgsl/format.wgsl"));
+const QUERY: (&str, &str) = ("query.wgsl", include_str!("wgsl/query.wgsl"));
+const STEP: (&str, &str) = ("step.wgsl", include_str!("wgsl/step.wgsl"));
+
+/// The plain kernel's hand-written WGSL files in the order they are joined, each with its name.
+pub const FILES: [(&str, &str); 5] = [
+    FORMAT,
+    QUERY,
+    ("observe_none.wgsl", include_str!("wgsl/observe_none.wgsl")),
+    STEP,
     ("kernel.wgsl", include_str!("wgsl/kernel.wgsl")),
+];
+
+/// The scene kernel's files, in the order they are joined: the plain kernel's step with the
+/// scene step around it, and an observer that records hits and events.
+pub const SCENE_FILES: [(&str, &str); 7] = [
+    FORMAT,
+    QUERY,
+    ("pose.wgsl", include_str!("wgsl/pose.wgsl")),
+    ("observe.wgsl", include_str!("wgsl/observe.wgsl")),
+    STEP,
+    ("scene.wgsl", include_str!("wgsl/scene.wgsl")),
+    ("scene_kernel.wgsl", include_str!("wgsl/scene_kernel.wgsl")),
 ];
 
 /// A constant shared by Rust and WGSL.
@@ -52,6 +72,7 @@ pub fn shared_constants() -> Vec<(&'static str, SharedValue)> {
         ("HEADER_LUT_DEPTH", h(header::LUT_DEPTH)),
         ("HEADER_LUT_OFFSET", h(header::LUT_OFFSET)),
         ("HEADER_TREE_DEPTH", h(header::TREE_DEPTH)),
+        ("HEADER_DMAX", h(header::DMAX)),
         ("HEADER_ROOT_MIN", h(header::ROOT_MIN)),
         ("HEADER_ROOT_SIZE", h(header::ROOT_SIZE)),
         ("MAX_DEPTH", U32(MAX_DEPTH)),
@@ -111,6 +132,37 @@ pub fn shared_constants() -> Vec<(&'static str, SharedValue)> {
         ("HINT_RECORD_DEPTH_SHIFT", U32(LeafHint::RECORD_DEPTH_SHIFT)),
         ("HINT_RECORD_MASK", U32(LeafHint::RECORD_MASK)),
         ("WORKGROUP_SIZE", U32(WORKGROUP_SIZE)),
+        ("NO_INSTANCE", U32(sc::NO_INSTANCE)),
+        (
+            "INSTANCE_WORDS",
+            U32((core::mem::size_of::<Instance>() / 4) as u32),
+        ),
+        (
+            "BROAD_NODE_WORDS",
+            U32((core::mem::size_of::<BroadNode>() / 4) as u32),
+        ),
+        ("BROAD_LEAF", U32(BROAD_LEAF)),
+        ("BROAD_STACK", U32(sc::MAX_BROAD_DEPTH + 1)),
+        ("SIDE_SLOTS", U32(SIDE_SLOTS as u32)),
+        ("EMPTY_SLOT", U32(sc::EMPTY_SLOT)),
+        ("SLOT_SIDE_MASK", U32(sc::SLOT_SIDE_MASK)),
+        ("SLOT_REQUIRED", U32(sc::SLOT_REQUIRED)),
+        ("SLOT_INSTANCE_SHIFT", U32(sc::SLOT_INSTANCE_SHIFT)),
+        ("MAX_ROUNDS", U32(sc::MAX_ROUNDS)),
+        ("MAX_CONTACTS", U32(sc::MAX_CONTACTS)),
+        ("MAX_STALLS", U32(sc::MAX_STALLS)),
+        ("MAX_SUBSTEPS", U32(sc::MAX_SUBSTEPS)),
+        ("SUBSTEP_MARGIN", F32(sc::SUBSTEP_MARGIN)),
+        ("SIN_POLY_C11", F32(sc::SIN_POLY[0])),
+        ("SIN_POLY_C9", F32(sc::SIN_POLY[1])),
+        ("SIN_POLY_C7", F32(sc::SIN_POLY[2])),
+        ("SIN_POLY_C5", F32(sc::SIN_POLY[3])),
+        ("SIN_POLY_C3", F32(sc::SIN_POLY[4])),
+        ("SLERP_LINEAR_BELOW", F32(sc::SLERP_LINEAR_BELOW)),
+        ("PATH_PAD", F32(sc::PATH_PAD)),
+        ("FLAG_CRUSHED", U32(sc::FLAG_CRUSHED)),
+        ("FLAG_SIDES_LOST", U32(sc::FLAG_SIDES_LOST)),
+        ("FLAG_SCENE_STATUS", U32(sc::FLAG_SCENE_STATUS)),
     ]
 }
 
@@ -130,15 +182,25 @@ pub fn constants_wgsl() -> String {
     out
 }
 
-/// The whole shader: the constants, then [`FILES`] in order.
+/// The plain kernel's whole shader: the constants, then [`FILES`] in order.
 pub fn source() -> String {
     source_upto(FILES.len())
 }
 
+/// The scene kernel's whole shader: the constants, then [`SCENE_FILES`] in order.
+pub fn scene_source() -> String {
+    join(&SCENE_FILES, SCENE_FILES.len())
+}
+
 /// The constants and the first `n` of [`FILES`] (each file needs only those before it).
 pub fn source_upto(n: usize) -> String {
+    join(&FILES, n)
+}
+
+/// The constants and the first `n` of `files`.
+pub fn join(files: &[(&str, &str)], n: usize) -> String {
     let mut out = constants_wgsl();
-    for (name, text) in &FILES[..n.min(FILES.len())] {
+    for (name, text) in &files[..n.min(files.len())] {
         out.push_str(&format!("\n// ---- {name}\n"));
         out.push_str(text);
     }

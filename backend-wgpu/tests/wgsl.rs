@@ -7,9 +7,11 @@ use std::mem::{offset_of, size_of};
 use naga::proc::Layouter;
 use naga::valid::{Capabilities, ValidationFlags, Validator};
 use naga::{Expression, Literal, Module, TypeInner};
-use octoproxy_core::{Particle, StepParams};
-use octoproxy_wgpu::shader::{self, SharedValue, FILES};
-use octoproxy_wgpu::{ChunkParams, RunParams};
+use octoproxy_core::{
+    BroadNode, Hit, HitEvent, Instance, Particle, Pose, SceneHint, SceneSlots, StepParams,
+};
+use octoproxy_wgpu::shader::{self, SharedValue, FILES, SCENE_FILES};
+use octoproxy_wgpu::{ChunkParams, RunParams, SceneParams};
 
 fn parse(source: &str, what: &str) -> Module {
     let module = naga::front::wgsl::parse_str(source)
@@ -24,22 +26,37 @@ fn whole() -> Module {
     parse(&shader::source(), "the joined shader")
 }
 
+fn scene_whole() -> Module {
+    parse(&shader::scene_source(), "the joined scene shader")
+}
+
+/// A module's files (name, text) and its entry points.
+type ModuleFiles = (&'static [(&'static str, &'static str)], &'static [&'static str]);
+
+/// The two modules, each with its files and entry points.
+const MODULES: [ModuleFiles; 2] = [
+    (&FILES, &["step_kernel", "integrate_kernel"]),
+    (&SCENE_FILES, &["scene_kernel"]),
+];
+
 #[test]
 fn every_wgsl_file_parses_and_validates_after_the_ones_it_needs() {
-    for (i, (name, _)) in FILES.iter().enumerate() {
-        let module = parse(&shader::source_upto(i + 1), name);
-        assert!(
-            !module.functions.is_empty() || !module.types.is_empty(),
-            "{name} defines nothing"
-        );
+    for (files, entry_points) in MODULES {
+        for (i, (name, _)) in files.iter().enumerate() {
+            let module = parse(&shader::join(files, i + 1), name);
+            assert!(
+                !module.functions.is_empty() || !module.types.is_empty(),
+                "{name} defines nothing"
+            );
+        }
+        let module = parse(&shader::join(files, files.len()), "a joined module");
+        let entries: Vec<&str> = module
+            .entry_points
+            .iter()
+            .map(|e| e.name.as_str())
+            .collect();
+        assert_eq!(entries, entry_points);
     }
-    let module = whole();
-    let entries: Vec<&str> = module
-        .entry_points
-        .iter()
-        .map(|e| e.name.as_str())
-        .collect();
-    assert_eq!(entries, ["step_kernel", "integrate_kernel"]);
 }
 
 /// `(member name, offset)` of a WGSL struct, its size, and its alignment.
@@ -177,7 +194,7 @@ fn uniform_layouts_match_rust() {
             "ChunkParams",
             owned(&[
                 ("count", offset_of!(ChunkParams, count)),
-                ("_pad0", offset_of!(ChunkParams, _pad0)),
+                ("first", offset_of!(ChunkParams, first)),
                 ("_pad1", offset_of!(ChunkParams, _pad1)),
                 ("_pad2", offset_of!(ChunkParams, _pad2)),
             ]),
@@ -192,8 +209,153 @@ fn uniform_layouts_match_rust() {
 }
 
 #[test]
+fn scene_layouts_match_core() {
+    let module = scene_whole();
+    let layouter = layouter(&module);
+    type Case<'a> = (&'a str, Vec<(String, u32)>, usize);
+    let cases: [Case; 9] = [
+        (
+            "Pose",
+            owned(&[
+                ("translation", offset_of!(Pose, translation)),
+                ("scale", offset_of!(Pose, scale)),
+                ("rotation", offset_of!(Pose, rotation)),
+            ]),
+            size_of::<Pose>(),
+        ),
+        (
+            "Instance",
+            owned(&[
+                ("start", offset_of!(Instance, start)),
+                ("end", offset_of!(Instance, end)),
+                ("proxy", offset_of!(Instance, proxy)),
+                ("flags", offset_of!(Instance, flags)),
+                ("leaf", offset_of!(Instance, leaf)),
+                ("half_turn", offset_of!(Instance, half_turn)),
+            ]),
+            size_of::<Instance>(),
+        ),
+        (
+            "BroadNode",
+            owned(&[
+                ("min", offset_of!(BroadNode, min)),
+                ("index", offset_of!(BroadNode, index)),
+                ("max", offset_of!(BroadNode, max)),
+                ("kind", offset_of!(BroadNode, kind)),
+            ]),
+            size_of::<BroadNode>(),
+        ),
+        (
+            "Hit",
+            owned(&[
+                ("instance", offset_of!(Hit, instance)),
+                ("position", offset_of!(Hit, position)),
+                ("normal", offset_of!(Hit, normal)),
+                ("t", offset_of!(Hit, t)),
+                ("speed", offset_of!(Hit, speed)),
+            ]),
+            size_of::<Hit>(),
+        ),
+        (
+            "HitEvent",
+            owned(&[
+                ("step", offset_of!(HitEvent, step)),
+                ("particle", offset_of!(HitEvent, particle)),
+                ("hit", offset_of!(HitEvent, hit)),
+            ]),
+            size_of::<HitEvent>(),
+        ),
+        (
+            "SceneHint",
+            owned(&[
+                ("hint", offset_of!(SceneHint, hint)),
+                ("hint_instance", offset_of!(SceneHint, hint_instance)),
+                ("first_slot", offset_of!(SceneHint, first_slot)),
+            ]),
+            size_of::<SceneHint>(),
+        ),
+        (
+            "SceneSlots",
+            owned(&[
+                ("slots", offset_of!(SceneSlots, slots)),
+                ("_pad", offset_of!(SceneSlots, _pad)),
+            ]),
+            size_of::<SceneSlots>(),
+        ),
+        (
+            "SceneParams",
+            owned(&[
+                ("instances_at", offset_of!(SceneParams, instances_at)),
+                ("nodes_at", offset_of!(SceneParams, nodes_at)),
+                ("node_count", offset_of!(SceneParams, node_count)),
+                ("plain", offset_of!(SceneParams, plain)),
+                ("hits", offset_of!(SceneParams, hits)),
+                ("event_capacity", offset_of!(SceneParams, event_capacity)),
+                ("step", offset_of!(SceneParams, step)),
+                ("use_lut", offset_of!(SceneParams, use_lut)),
+            ]),
+            size_of::<SceneParams>(),
+        ),
+        (
+            "ChunkParams",
+            owned(&[
+                ("count", offset_of!(ChunkParams, count)),
+                ("first", offset_of!(ChunkParams, first)),
+                ("_pad1", offset_of!(ChunkParams, _pad1)),
+                ("_pad2", offset_of!(ChunkParams, _pad2)),
+            ]),
+            size_of::<ChunkParams>(),
+        ),
+    ];
+    for (name, rust, rust_size) in cases {
+        let (members, size, _) = wgsl_struct(&module, &layouter, name);
+        assert_eq!(members, rust, "{name} members (name, offset): WGSL vs Rust");
+        assert_eq!(size as usize, rust_size, "{name} size");
+    }
+    // The per-particle bindings: their strides are the records' sizes.
+    for (binding, size) in [
+        ("scene_hints", size_of::<SceneHint>()),
+        ("scene_slots", size_of::<SceneSlots>()),
+        ("hits", size_of::<Hit>()),
+        ("particles", size_of::<Particle>()),
+    ] {
+        let (_, var) = module
+            .global_variables
+            .iter()
+            .find(|(_, v)| v.name.as_deref() == Some(binding))
+            .unwrap_or_else(|| panic!("no binding {binding}"));
+        let TypeInner::Array { stride, .. } = module.types[var.ty].inner else {
+            panic!("{binding} is not an array")
+        };
+        assert_eq!(stride as usize, size, "{binding} stride");
+    }
+    // The event buffer: after the header words, events at their size.
+    let (members, _, _) = wgsl_struct(&module, &layouter, "SceneOut");
+    let events = members.iter().find(|(n, _)| n == "events").expect("events");
+    assert_eq!(events.1 as u64, octoproxy_wgpu::SCENE_OUT_HEADER_WORDS * 4);
+    let (handle, _) = module
+        .types
+        .iter()
+        .find(|(_, t)| t.name.as_deref() == Some("SceneOut"))
+        .unwrap();
+    let TypeInner::Struct { members, .. } = &module.types[handle].inner else {
+        unreachable!()
+    };
+    let last = members.last().unwrap();
+    let TypeInner::Array { stride, .. } = module.types[last.ty].inner else {
+        panic!("events is not an array")
+    };
+    assert_eq!(stride as usize, size_of::<HitEvent>());
+}
+
+#[test]
 fn shared_constants_have_the_rust_values() {
-    let module = whole();
+    for module in [whole(), scene_whole()] {
+        shared_constants_of(&module);
+    }
+}
+
+fn shared_constants_of(module: &Module) {
     let mut checked = 0;
     for (name, value) in shader::shared_constants() {
         let (_, constant) = module
@@ -217,7 +379,7 @@ fn shared_constants_have_the_rust_values() {
     }
     assert!(checked >= 40, "only {checked} constants checked");
     // The hand-written files define no numeric constants of their own: all come from Rust.
-    for (name, text) in FILES {
+    for (name, text) in FILES.iter().chain(&SCENE_FILES) {
         assert!(
             !text.contains("\nconst "),
             "{name} defines its own const; generate it from Rust instead"
@@ -241,7 +403,7 @@ use Twin::Rust;
 /// gone, or whose Rust twin is.
 const TWINS: &[(&str, &str, Twin)] = &[
     // format.wgsl
-    ("format.wgsl", "load_header", NoTwin("decodes the header once per invocation; Rust decodes it once per proxy, in ProxyView::new")),
+    ("format.wgsl", "load_header", NoTwin("decodes the header of the proxy in use; Rust decodes it once per proxy, in ProxyView::new, and passes the view")),
     ("format.wgsl", "node_record", Rust("view.rs", "ProxyView::nodes")),
     ("format.wgsl", "is_leaf", Rust("format.rs", "NodeRecord::is_leaf")),
     ("format.wgsl", "plane_offset", Rust("format.rs", "NodeRecord::plane_offset")),
@@ -311,6 +473,73 @@ const TWINS: &[(&str, &str, Twin)] = &[
     ("step.wgsl", "travel_through_leaf", Rust("step.rs", "travel_through_leaf")),
     ("step.wgsl", "finish_march", Rust("step.rs", "finish_march")),
     ("step.wgsl", "march", Rust("step.rs", "march")),
+    ("step.wgsl", "march_after", Rust("step.rs", "march_after")),
+    // observe_none.wgsl (the plain kernel's) and observe.wgsl (the scene kernel's)
+    ("observe_none.wgsl", "observe_hit", Rust("step.rs", "MarchObserver::hit")),
+    ("observe.wgsl", "observe_hit", Rust("scene.rs", "HitObserver::hit")),
+    ("observe.wgsl", "observe", Rust("scene.rs", "HitObserver::new")),
+    ("observe.wgsl", "push_event", Rust("scene.rs", "HitEvents::hit")),
+    ("observe.wgsl", "count_crushed", NoTwin("a 64-bit count in two atomic words; the CPU adds u64s (step_one's report)")),
+    ("observe.wgsl", "count_sides_lost", NoTwin("a 64-bit count in two atomic words; the CPU adds u64s (step_one's report)")),
+    ("observe.wgsl", "count_lost_event", NoTwin("a 64-bit count in two atomic words; the CPU adds u64s (CpuEvents)")),
+    // pose.wgsl
+    ("pose.wgsl", "use_proxy", NoTwin("loads the header of the proxy an instance names; Rust indexes the scene's ProxyViews")),
+    ("pose.wgsl", "load_pose", NoTwin("a Pose from the scene buffer's words; Rust reads the Pod slice")),
+    ("pose.wgsl", "load_instance", NoTwin("an Instance from the scene buffer's words; Rust reads the Pod slice")),
+    ("pose.wgsl", "load_broad_node", NoTwin("a BroadNode from the scene buffer's words; Rust reads the Pod slice")),
+    ("pose.wgsl", "plus_zero", Rust("scene.rs", "plus_zero")),
+    ("pose.wgsl", "max_of", Rust("scene.rs", "max_of")),
+    ("pose.wgsl", "min_of", Rust("scene.rs", "min_of")),
+    ("pose.wgsl", "vmax", NoTwin("glam's Vec3::max")),
+    ("pose.wgsl", "vmin", NoTwin("glam's Vec3::min")),
+    ("pose.wgsl", "max_element", NoTwin("glam's Vec3::max_element")),
+    ("pose.wgsl", "length3", NoTwin("glam's Vec3::length: sqrt of dot3")),
+    ("pose.wgsl", "ulp", Rust("view.rs", "ulp")),
+    ("pose.wgsl", "rotate", Rust("scene.rs", "rotate")),
+    ("pose.wgsl", "conjugate", Rust("scene.rs", "conjugate")),
+    ("pose.wgsl", "sin_poly", Rust("scene.rs", "sin_poly")),
+    ("pose.wgsl", "pose_to_world", Rust("scene.rs", "Pose::to_world")),
+    ("pose.wgsl", "pose_to_local", Rust("scene.rs", "Pose::to_local")),
+    ("pose.wgsl", "pose_vector_to_world", Rust("scene.rs", "Pose::vector_to_world")),
+    ("pose.wgsl", "pose_vector_to_local", Rust("scene.rs", "Pose::vector_to_local")),
+    ("pose.wgsl", "pose_normal_to_world", Rust("scene.rs", "Pose::normal_to_world")),
+    ("pose.wgsl", "same_pose", Rust("scene.rs", "pose_words")),
+    ("pose.wgsl", "identity_pose", NoTwin("Pose::IDENTITY: WGSL has no struct constants")),
+    ("pose.wgsl", "instance_is_static", Rust("scene.rs", "Instance::is_static")),
+    ("pose.wgsl", "instance_pose_at", Rust("scene.rs", "Instance::pose_at")),
+    ("pose.wgsl", "hit_frame_whole_step", Rust("scene.rs", "HitFrame::whole_step")),
+    ("pose.wgsl", "hit_frame_hit", Rust("scene.rs", "HitFrame::hit")),
+    ("pose.wgsl", "no_hit", NoTwin("Hit::NONE: WGSL has no struct constants")),
+    ("pose.wgsl", "hit_position", NoTwin("Vec3::from_array(hit.position)")),
+    ("pose.wgsl", "hit_normal", NoTwin("Vec3::from_array(hit.normal)")),
+    // scene.wgsl
+    ("scene.wgsl", "scene_sides_join", Rust("scene.rs", "SceneSides::join")),
+    ("scene.wgsl", "scene_sides_split", Rust("scene.rs", "SceneSides::split")),
+    ("scene.wgsl", "commit", Rust("scene.rs", "commit")),
+    ("scene.wgsl", "optional_slots", Rust("scene.rs", "optional")),
+    ("scene.wgsl", "slot_side", Rust("scene.rs", "slot_side")),
+    ("scene.wgsl", "first_side", Rust("scene.rs", "first_side")),
+    ("scene.wgsl", "broad_walk_new", Rust("scene.rs", "BroadWalk::new")),
+    ("scene.wgsl", "broad_walk_next", Rust("scene.rs", "BroadWalk::next")),
+    ("scene.wgsl", "count_candidates", Rust("scene.rs", "SceneView::count_candidates")),
+    ("scene.wgsl", "finest_leaf_size", Rust("view.rs", "ProxyView::finest_leaf_size")),
+    ("scene.wgsl", "local_radius", Rust("scene.rs", "local_radius")),
+    ("scene.wgsl", "initial_side", Rust("step.rs", "initial_side")),
+    ("scene.wgsl", "substeps", Rust("scene.rs", "substeps")),
+    ("scene.wgsl", "must_keep", Rust("scene.rs", "must_keep")),
+    ("scene.wgsl", "derived_side", Rust("scene.rs", "derived_side")),
+    ("scene.wgsl", "march_in_frame", Rust("scene.rs", "march_in_frame")),
+    ("scene.wgsl", "step_particle_scene", Rust("scene.rs", "step_particle_scene")),
+    ("scene.wgsl", "step_plain", Rust("scene.rs", "step_plain")),
+    ("scene.wgsl", "step_particle_scene_general", Rust("scene.rs", "step_particle_scene_general")),
+    ("scene.wgsl", "step_near_one_static", Rust("scene.rs", "step_near_one_static")),
+    ("scene.wgsl", "ride_is_clear", Rust("scene.rs", "ride_is_clear")),
+    ("scene.wgsl", "side_for", Rust("scene.rs", "step_in_rounds")),
+    ("scene.wgsl", "collided_in", Rust("scene.rs", "step_in_rounds")),
+    ("scene.wgsl", "step_in_rounds", Rust("scene.rs", "step_in_rounds")),
+    // scene_kernel.wgsl
+    ("scene_kernel.wgsl", "particle_index", NoTwin("a particle's index from the dispatch grid; the CPU backend iterates")),
+    ("scene_kernel.wgsl", "scene_kernel", NoTwin("entry point: one scene step of one particle; CpuBackend's loop over particles (step_one)")),
     // kernel.wgsl
     ("kernel.wgsl", "particle_index", NoTwin("a particle's index from the dispatch grid; the CPU backend iterates")),
     ("kernel.wgsl", "step_kernel", NoTwin("entry point: one step of one particle; CpuBackend's loop over particles")),
@@ -327,15 +556,12 @@ const HOST_ONLY: &[(&str, &str, &str)] = &[
     ("step.rs", "step_particle", "the unhinted entry point; the GPU always keeps hints (step_particle_hinted with none is the same step)"),
     ("step.rs", "march_from_hint", "keeps the march and settle_on_plane out of line of the hot settles on the CPU; WGSL's step_particle_hinted calls settle_on_plane, then march"),
     ("step.rs", "step_particle_traced", "host-only: ground-truth checks of the path"),
-    ("step.rs", "step_hinted_observed", "step_particle_hinted reporting collisions to an observer, for the scene step's hit records; WGSL has no observer yet (the scene step's mirror is not written: docs/scenes.md)"),
-    ("step.rs", "march_after", "the scene step's march from the leaf it just collided in (core/src/scene.rs); the scene step has no WGSL mirror yet"),
-    ("step.rs", "hit", "MarchObserver::hit: WGSL has no observer"),
+    ("step.rs", "step_hinted_observed", "step_particle_hinted reporting collisions to an observer; WGSL's step_particle_hinted always reports them, to observe_hit (nothing in the plain kernel)"),
     ("step.rs", "step_particle_counted", "host-only: tests count the rare branches"),
     ("step.rs", "add", "MarchCounts, for tests"),
     ("step.rs", "index", "MarchCounts, for tests"),
-    ("step.rs", "piece", "the march's observers; WGSL observes nothing"),
-    ("step.rs", "branch", "the march's observers; WGSL observes nothing"),
-    ("step.rs", "initial_side", "the host seeds particles' sides"),
+    ("step.rs", "piece", "the march's observers' path pieces: for ground truth on the host; WGSL observes only collisions"),
+    ("step.rs", "branch", "the march's observers' rare branches: for tests on the host; WGSL observes only collisions"),
     ("step.rs", "clamp", "f32::clamp without its assertion; WGSL's is the builtin clamp"),
     ("step.rs", "finish_caged", "finish_march out of line for a step that ends in its cage, to keep the CPU's march small; WGSL calls finish_march"),
     ("query.rs", "key", "LeafInfo::key: the baker's and the tests' leaf identity"),
@@ -343,6 +569,28 @@ const HOST_ONLY: &[(&str, &str, &str)] = &[
     ("query.rs", "locate_leaf", "a checked public query; the step uses locate_inside"),
     ("query.rs", "locate_leaf_toward", "a checked public query; the step uses locate_inside"),
     ("query.rs", "locate_leaf_from", "a checked public query; the step uses locate_next"),
+    ("scene.rs", "default", "Default impls: the host fills the buffers"),
+    ("scene.rs", "fmt", "SceneError's Display and SceneView's Debug: the host's"),
+    ("scene.rs", "half_turn", "the host computes an instance's half turn once (Instance::new); the step reads it"),
+    ("scene.rs", "is_valid", "Pose::is_valid: SceneView::new's check, on the host"),
+    ("scene.rs", "is_active", "the broad phase holds only active instances; the host builds it"),
+    ("scene.rs", "swept_box", "the host builds the broad phase's boxes"),
+    ("scene.rs", "swept_box_of", "the host builds the broad phase's boxes"),
+    ("scene.rs", "aabb", "BroadNode's box, for the host's validation"),
+    ("scene.rs", "max_turn", "SceneView::new's check, on the host"),
+    ("scene.rs", "contains", "SceneView::new's check, on the host"),
+    ("scene.rs", "plain_proxy", "the host computes it and passes the instance in SceneParams::plain"),
+    ("scene.rs", "proxies", "SceneView accessors, for the host"),
+    ("scene.rs", "instances", "SceneView accessors, for the host"),
+    ("scene.rs", "nodes", "SceneView accessors, for the host"),
+    ("scene.rs", "for_each_candidate", "a closure over BroadWalk; WGSL loops over broad_walk_next"),
+    ("scene.rs", "set_side", "SceneSides::set_side: the host sets starting sides"),
+    ("scene.rs", "iter", "SceneSides::iter: the host reads sides"),
+    ("scene.rs", "side_of", "SceneSides::side_of: the host reads sides"),
+    ("scene.rs", "record", "HitObserver::record: WGSL reads observer.last"),
+    ("scene.rs", "piece", "path pieces for ground truth, on the host"),
+    ("scene.rs", "branch", "path pieces for ground truth, on the host"),
+    ("scene.rs", "step_particle_scene_traced", "host-only: ground-truth checks of the path"),
 ];
 
 /// core's source files, by name.
@@ -353,6 +601,7 @@ fn rust_source(file: &str) -> &'static str {
         "format.rs" => include_str!("../../core/src/format.rs"),
         "view.rs" => include_str!("../../core/src/view.rs"),
         "particle.rs" => include_str!("../../core/src/particle.rs"),
+        "scene.rs" => include_str!("../../core/src/scene.rs"),
         other => panic!("no core source {other} in this test"),
     }
 }
@@ -382,20 +631,25 @@ fn rust_functions(source: &str) -> std::collections::BTreeSet<String> {
     out
 }
 
-/// The functions and entry points each `.wgsl` file adds to the ones before it.
+/// The functions and entry points each `.wgsl` file adds to the ones before it in its module
+/// (a file in both modules once).
 fn wgsl_functions_by_file() -> Vec<(&'static str, Vec<String>)> {
-    let mut seen = std::collections::BTreeSet::new();
-    let mut out = Vec::new();
-    for (i, (name, _)) in FILES.iter().enumerate() {
-        let module = parse(&shader::source_upto(i + 1), name);
-        let all: Vec<String> = module
-            .functions
-            .iter()
-            .filter_map(|(_, f)| f.name.clone())
-            .chain(module.entry_points.iter().map(|e| e.name.clone()))
-            .collect();
-        let added: Vec<String> = all.into_iter().filter(|f| seen.insert(f.clone())).collect();
-        out.push((*name, added));
+    let mut out: Vec<(&'static str, Vec<String>)> = Vec::new();
+    for (files, _) in MODULES {
+        let mut seen = std::collections::BTreeSet::new();
+        for (i, (name, _)) in files.iter().enumerate() {
+            let module = parse(&shader::join(files, i + 1), name);
+            let all: Vec<String> = module
+                .functions
+                .iter()
+                .filter_map(|(_, f)| f.name.clone())
+                .chain(module.entry_points.iter().map(|e| e.name.clone()))
+                .collect();
+            let added: Vec<String> = all.into_iter().filter(|f| seen.insert(f.clone())).collect();
+            if !out.iter().any(|(n, _)| n == name) {
+                out.push((*name, added));
+            }
+        }
     }
     out
 }
@@ -443,7 +697,7 @@ fn every_rust_twin_exists() {
 
 #[test]
 fn every_step_and_query_function_has_a_twin_or_is_host_only() {
-    for file in ["step.rs", "query.rs"] {
+    for file in ["step.rs", "query.rs", "scene.rs"] {
         let twins: Vec<&str> = TWINS
             .iter()
             .filter_map(|(_, _, t)| match t {

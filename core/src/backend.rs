@@ -2,12 +2,42 @@
 //! steps particles through, whatever runs the step.
 
 use crate::particle::Particle;
+use crate::scene::{BroadNode, Hit, HitEvent, Instance, SceneSides};
 use crate::step::StepParams;
 
-/// A place that steps particles against a proxy: the CPU (rayon) or a GPU (wgpu).
+/// What scene steps did, over all particles, since it was last taken
+/// ([`Backend::take_scene_report`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct SceneStepReport {
+    /// Particle-steps that ended pressed between colliders, left at their last contact
+    /// ([`crate::scene::FLAG_CRUSHED`]).
+    pub crushed: u64,
+    /// Particle-steps that ended in more shells than a particle keeps sides for
+    /// ([`crate::scene::FLAG_SIDES_LOST`]).
+    pub sides_lost: u64,
+}
+
+/// What [`Backend::take_events`] took: the events written, and how many did not fit.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct EventCount {
+    /// Events written to the caller's slice, at most the capacity.
+    pub stored: usize,
+    /// Events that happened after the buffer was full: counted exactly, never stored.
+    pub lost: u64,
+}
+
+/// A place that steps particles against a proxy or a scene: the CPU (rayon) or a GPU (wgpu).
 ///
 /// **API boundary.** Particles go in and come out in the same order; any reordering a
 /// backend does for speed stays inside it.
+///
+/// **Scenes** (moving and instanced colliders, `crate::scene`): the backend holds the
+/// scene's proxies ([`Backend::upload_scene_proxies`], once, or when proxies are added) and
+/// each particle's sides for the instances it is near ([`SceneSides`]); every call of
+/// [`Backend::step_scene`] is one step that moves each instance from the start pose to the
+/// end pose it is given. A multi-step run is one call per step, with the poses of that step:
+/// the caller samples its animation at step ends (`octoproxy_cpu::Scene::step` does this
+/// bookkeeping).
 pub trait Backend {
     /// What can go wrong.
     type Error: core::error::Error + Send + Sync + 'static;
@@ -18,7 +48,8 @@ pub trait Backend {
     /// Validates and takes a proxy, exactly as core encodes it.
     fn upload_proxy(&mut self, words: &[u32]) -> Result<(), Self::Error>;
 
-    /// Replaces the particles.
+    /// Replaces the particles. Their scene sides are emptied, hits cleared, stored events
+    /// dropped, and the scene step count restarts at 0.
     fn upload_particles(&mut self, particles: &[Particle]) -> Result<(), Self::Error>;
 
     /// Copies the particles out, in the order they went in. `out.len()` must equal
@@ -37,4 +68,48 @@ pub trait Backend {
     fn finish(&mut self) -> Result<(), Self::Error> {
         Ok(())
     }
+
+    /// Validates and takes a scene's proxies, by index (an instance's `proxy` names one),
+    /// under `key`, a name the caller gives this set ([`Backend::scene_proxies_key`]). Every
+    /// particle's leaf hint is forgotten (it belongs to the proxies that made it).
+    fn upload_scene_proxies(&mut self, key: u64, proxies: &[&[u32]]) -> Result<(), Self::Error>;
+
+    /// The key of the scene proxies held, if any.
+    fn scene_proxies_key(&self) -> Option<u64>;
+
+    /// One step of every particle through the scene of the proxies held and `instances`,
+    /// with `broad` its broad phase (validated here, with `crate::SceneView::new`). With
+    /// `hits`, each particle's last collision of the step is kept ([`Backend::download_hits`]);
+    /// with an event capacity, every collision is ([`Backend::take_events`]). May return
+    /// before the work is done, as [`Backend::step`].
+    fn step_scene(
+        &mut self,
+        instances: &[Instance],
+        broad: &[BroadNode],
+        params: &StepParams,
+        hits: bool,
+    ) -> Result<(), Self::Error>;
+
+    /// What the scene steps since the last call did (and starts counting again).
+    fn take_scene_report(&mut self) -> Result<SceneStepReport, Self::Error>;
+
+    /// Each particle's last collision in the last scene step taken with hits
+    /// ([`Hit::NONE`] when it had none), in upload order; `out.len()` must equal
+    /// [`Backend::particle_count`].
+    fn download_hits(&mut self, out: &mut [Hit]) -> Result<(), Self::Error>;
+
+    /// How many collision events the buffer keeps until they are taken; 0 (the default)
+    /// records none. Drops the events held.
+    fn set_event_capacity(&mut self, capacity: usize) -> Result<(), Self::Error>;
+
+    /// Moves the events recorded since the last call into `out` (at least the capacity
+    /// long), in no particular order (a GPU's appends race; compare them as sets), and says
+    /// how many there were and how many did not fit.
+    fn take_events(&mut self, out: &mut [HitEvent]) -> Result<EventCount, Self::Error>;
+
+    /// Each particle's sides for the scene's instances, in upload order.
+    fn download_scene_sides(&mut self, out: &mut [SceneSides]) -> Result<(), Self::Error>;
+
+    /// Replaces each particle's sides (starting sides from the meshes, or a restart).
+    fn upload_scene_sides(&mut self, sides: &[SceneSides]) -> Result<(), Self::Error>;
 }

@@ -55,13 +55,13 @@ pub mod scene;
 mod step;
 mod view;
 
-pub use backend::Backend;
+pub use backend::{Backend, EventCount, SceneStepReport};
 pub use format::{Label, NodeRecord, FORMAT_VERSION, MAX_DEPTH, MAX_LUT_DEPTH};
 pub use particle::*;
 pub use query::{Aabb, LeafInfo, LeafKind, NO_LEAF};
 pub use scene::{
-    step_particle_scene, step_particle_scene_traced, BroadNode, Hit, Instance, Pose, SceneError,
-    SceneHint, SceneSides, SceneSlots, SceneView,
+    step_particle_scene, step_particle_scene_traced, BroadNode, Hit, HitEvent, HitEvents, Instance,
+    Pose, SceneError, SceneHint, SceneSides, SceneSlots, SceneView,
 };
 pub use step::{
     initial_side, max_leaves_per_step, pinch, respond, step_particle, step_particle_counted,

@@ -63,7 +63,12 @@ pub const MAX_ROUNDS: u32 = 16;
 /// Collisions one step may take in all (a particle carried by a turning instance collides
 /// once a chord); past them the particle stays at its last contact, moving with the instance,
 /// flagged [`FLAG_BOUND_HIT`].
-pub const MAX_CONTACTS: u32 = 4 * MAX_ROUNDS + MAX_SUBSTEPS / 4;
+pub const MAX_CONTACTS: u32 = 4 * MAX_ROUNDS;
+/// Rounds in a row that one step may take with no time passing (each collides where the last
+/// did, at the same moment: a particle pressed on by a turning instance); past them the
+/// particle rides with the instance for the rest of the step, as past [`MAX_CONTACTS`], when
+/// no other instance is on the way (else the rounds go on).
+pub const MAX_STALLS: u32 = 32;
 /// Chords a particle's path may be cut into against one turning or scaling instance in one
 /// step ([`substeps`]).
 pub const MAX_SUBSTEPS: u32 = 1024;
@@ -99,26 +104,34 @@ impl Default for Pose {
     }
 }
 
-/// `v` rotated by the unit quaternion `q`. Written out so that WGSL's twin does the same
-/// operations; a quaternion with no vector part leaves `v` exactly as it is (an identity
-/// pose changes no bit).
+/// `v` rotated by the unit quaternion `q`: the rotation matrix, each entry a sum or difference
+/// of two products, applied as three dot products. These shapes are what every backend
+/// computes alike: a GPU compiler may reassociate a longer sum (Mesa's NIR turned
+/// `v + w t + u × t`, the usual form, into other roundings on lavapipe), never these. A
+/// quaternion with no vector part leaves `v` exactly as it is (an identity pose changes no
+/// bit).
 #[inline(always)]
 fn rotate(q: [f32; 4], v: Vec3) -> Vec3 {
     let [x, y, z, w] = q;
     if x == 0.0 && y == 0.0 && z == 0.0 {
         return v;
     }
-    // t = 2 (u × v); v + w t + u × t.
-    let t = Vec3::new(
-        2.0 * (y * v.z - z * v.y),
-        2.0 * (z * v.x - x * v.z),
-        2.0 * (x * v.y - y * v.x),
+    let r0 = Vec3::new(
+        1.0 - 2.0 * (y * y + z * z),
+        2.0 * (x * y - z * w),
+        2.0 * (x * z + y * w),
     );
-    Vec3::new(
-        v.x + w * t.x + (y * t.z - z * t.y),
-        v.y + w * t.y + (z * t.x - x * t.z),
-        v.z + w * t.z + (x * t.y - y * t.x),
-    )
+    let r1 = Vec3::new(
+        2.0 * (x * y + z * w),
+        1.0 - 2.0 * (x * x + z * z),
+        2.0 * (y * z - x * w),
+    );
+    let r2 = Vec3::new(
+        2.0 * (x * z - y * w),
+        2.0 * (y * z + x * w),
+        1.0 - 2.0 * (x * x + y * y),
+    );
+    Vec3::new(r0.dot(v), r1.dot(v), r2.dot(v))
 }
 
 /// The conjugate of a unit quaternion: the inverse rotation.
@@ -127,16 +140,69 @@ fn conjugate(q: [f32; 4]) -> [f32; 4] {
     [-q[0], -q[1], -q[2], q[3]]
 }
 
+/// The coefficients of [`sin_poly`]: `1/11!`, `1/9!`, `1/7!`, `1/5!`, `1/3!` (WGSL's are
+/// generated from these, bit for bit).
+pub const SIN_POLY: [f32; 5] = [
+    1.0 / 39_916_800.0,
+    1.0 / 362_880.0,
+    1.0 / 5_040.0,
+    1.0 / 120.0,
+    1.0 / 6.0,
+];
+
+/// Below this half turn (radians) the slerp weights are the lerp's: `sin` is its argument
+/// to within rounding there.
+pub const SLERP_LINEAR_BELOW: f32 = 1e-3;
+
+/// The least pad of a box around a particle's path: a box of a particle at the origin still
+/// has width.
+pub const PATH_PAD: f32 = 1e-30;
+
+/// `v` with every zero `+0.0`. A march in an instance's frame integrates a gravity of zero,
+/// `v + 0 dt`, which makes a `-0.0` component `+0.0`; a GPU compiler that sees the constant
+/// zero folds the sum away and keeps the `-0.0` (a face crossed on one side of it, or the
+/// other). Velocities go into those marches with no `-0.0`, so both agree.
+#[inline(always)]
+fn plus_zero(v: Vec3) -> Vec3 {
+    Vec3::new(
+        if v.x == 0.0 { 0.0 } else { v.x },
+        if v.y == 0.0 { 0.0 } else { v.y },
+        if v.z == 0.0 { 0.0 } else { v.z },
+    )
+}
+
+/// `a` if it is greater than `b`, else `b`: glam's `max` for one scalar, and WGSL's
+/// `select(b, a, a > b)` (`f32::max` may give either zero for `-0.0` and `0.0`).
+#[inline(always)]
+fn max_of(a: f32, b: f32) -> f32 {
+    if a > b {
+        a
+    } else {
+        b
+    }
+}
+
+/// `a` if it is less than `b`, else `b` (see [`max_of`]).
+#[inline(always)]
+fn min_of(a: f32, b: f32) -> f32 {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
+
 /// `sin x` for `x` in `[0, π/2]`, by its Taylor polynomial to `x^11` (error below 6e-8), in
 /// operations WGSL repeats exactly: a GPU's `sin` differs from libm's in the last bits.
 #[inline(always)]
-fn sin_poly(x: f32) -> f32 {
+pub fn sin_poly(x: f32) -> f32 {
+    let [c11, c9, c7, c5, c3] = SIN_POLY;
     let x2 = x * x;
-    let p = 1.0 / 39_916_800.0;
-    let p = p * -x2 + 1.0 / 362_880.0;
-    let p = p * x2 - 1.0 / 5_040.0;
-    let p = p * x2 + 1.0 / 120.0;
-    let p = p * x2 - 1.0 / 6.0;
+    let p = c11;
+    let p = p * -x2 + c9;
+    let p = p * x2 - c7;
+    let p = p * x2 + c5;
+    let p = p * x2 - c3;
     let p = p * x2 + 1.0;
     x * p
 }
@@ -283,7 +349,7 @@ impl Instance {
             qb = qb.map(|c| -c);
         }
         let phi = self.half_turn;
-        let (wa, wb) = if phi < 1e-3 {
+        let (wa, wb) = if phi < SLERP_LINEAR_BELOW {
             (1.0 - u, u)
         } else {
             let s = sin_poly(phi);
@@ -351,7 +417,7 @@ impl Instance {
         };
         // Rounding of the transforms: a few ulps of the largest coordinate involved.
         let mag = bmin.abs().max(bmax.abs()).max_element();
-        let pad = 16.0 * ulp(mag) + 1e-30;
+        let pad = 16.0 * ulp(mag) + PATH_PAD;
         Aabb {
             min: bmin - pad,
             max: bmax + pad,
@@ -731,30 +797,52 @@ impl<'a> SceneView<'a> {
     /// depth-first order (the order ties between instances are broken in).
     #[inline(always)]
     pub fn for_each_candidate(&self, b: &Aabb, mut f: impl FnMut(u32)) {
-        if self.nodes.is_empty() {
-            return;
+        let mut walk = BroadWalk::new(self.nodes);
+        while let Some(c) = walk.next(self.nodes, b) {
+            f(c);
         }
-        let mut stack = [0u32; MAX_BROAD_DEPTH as usize + 1];
-        let mut top = 1usize;
-        while top > 0 {
-            top -= 1;
-            let i = stack[top];
-            let node = &self.nodes[i as usize];
+    }
+}
+
+/// A walk of a validated broad phase that yields, one at a time, the instances whose swept
+/// boxes meet a box, in depth-first order ([`SceneView::for_each_candidate`]; WGSL, which has
+/// no closures, walks with it directly).
+struct BroadWalk {
+    stack: [u32; MAX_BROAD_DEPTH as usize + 1],
+    top: usize,
+}
+
+impl BroadWalk {
+    #[inline(always)]
+    fn new(nodes: &[BroadNode]) -> Self {
+        Self {
+            stack: [0; MAX_BROAD_DEPTH as usize + 1],
+            top: (!nodes.is_empty()) as usize,
+        }
+    }
+
+    /// The next instance whose swept box meets `b`, or `None` when the walk is over.
+    #[inline(always)]
+    fn next(&mut self, nodes: &[BroadNode], b: &Aabb) -> Option<u32> {
+        while self.top > 0 {
+            self.top -= 1;
+            let i = self.stack[self.top];
+            let node = &nodes[i as usize];
             if Vec3::from_array(node.min).cmpgt(b.max).any()
                 || Vec3::from_array(node.max).cmplt(b.min).any()
             {
                 continue;
             }
             if node.kind == BROAD_LEAF {
-                f(node.index);
-            } else {
-                // Validation proved the depth: the stack holds every pending second child.
-                // The first child is visited first.
-                stack[top] = node.index;
-                stack[top + 1] = i + 1;
-                top += 2;
+                return Some(node.index);
             }
+            // Validation proved the depth: the stack holds every pending second child. The
+            // first child is visited first.
+            self.stack[self.top] = node.index;
+            self.stack[self.top + 1] = i + 1;
+            self.top += 2;
         }
+        None
     }
 }
 
@@ -983,6 +1071,22 @@ impl Default for Hit {
     }
 }
 
+/// One collision response of a scene step in the event buffer: the step it happened in (the
+/// backend's count of scene steps since the particles were uploaded, from 0), the particle
+/// (its index in upload order) and its hit record. 44 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct HitEvent {
+    /// The step.
+    pub step: u32,
+    /// The particle.
+    pub particle: u32,
+    /// Where and how it collided.
+    pub hit: Hit,
+}
+
+const _: () = assert!(core::mem::size_of::<HitEvent>() == 44);
+
 /// Receives the straight pieces of a particle's world path in a scene step, with the
 /// fractions of the step at their ends ([`step_particle_scene_traced`]; `()` receives nothing).
 pub trait PathTrace {
@@ -1029,59 +1133,120 @@ impl FrameTrace {
     }
 }
 
-/// The observer of a march in an instance's frame: the last collision (`stop`: the first,
-/// and the march stops there), and, for a static instance, the march's pieces in the world
-/// (`frame`), less the jumps back that the shell rule and the leaf bound make (not travelled).
-struct HitObserver<'t, T: PathTrace> {
+/// Receives every collision response of a particle's scene step as it happens, in the world
+/// (the event buffer's input): pinches and shell blocks included, probes of instances that
+/// were not the earliest hit left out. `()` receives nothing.
+pub trait HitEvents {
+    /// Whether anything is received: a step with no hit record to fill and an inactive
+    /// sink takes the plain step's unobserved path.
+    const ACTIVE: bool = true;
+    /// One collision response.
+    fn hit(&mut self, hit: &Hit);
+}
+
+impl HitEvents for () {
+    const ACTIVE: bool = false;
+    #[inline(always)]
+    fn hit(&mut self, _: &Hit) {}
+}
+
+/// Where a march's collisions are in the world: in instance `c`'s frame over a chord from
+/// fraction `ua` to `ub` of a step of `dt` seconds, `h` seconds long; at `pose` for a static
+/// instance, else (`moving`) at the instance's pose at each collision's moment.
+#[derive(Clone, Copy)]
+struct HitFrame<'i> {
+    c: u32,
+    pose: Pose,
+    moving: Option<&'i Instance>,
+    ua: f32,
+    ub: f32,
+    h: f32,
+    dt: f32,
+}
+
+impl<'i> HitFrame<'i> {
+    /// A march over the whole step at a static `pose`.
+    fn whole_step(c: u32, pose: Pose, dt: f32) -> Self {
+        Self {
+            c,
+            pose,
+            moving: None,
+            ua: 0.0,
+            ub: 1.0,
+            h: dt,
+            dt,
+        }
+    }
+
+    /// The hit record of a collision at local `x` with local unit normal `n` and local
+    /// velocity `before` just before it, with `remaining` seconds of the chord left.
+    #[inline(always)]
+    fn hit(&self, x: Vec3, n: Vec3, before: Vec3, remaining: f32) -> Hit {
+        let u = min_of(self.ua + (self.h - remaining) / self.dt, self.ub);
+        let pose = match self.moving {
+            Some(inst) => inst.pose_at(u),
+            None => self.pose,
+        };
+        Hit {
+            instance: self.c as i32,
+            position: pose.to_world(x).to_array(),
+            normal: pose.normal_to_world(n).to_array(),
+            t: u,
+            speed: max_of(-before.dot(n) * pose.scale, 0.0),
+        }
+    }
+}
+
+/// The observer of a march in an instance's frame: the last collision in the world (`stop`:
+/// the first, and the march stops there), every collision to `events` when the march is the
+/// particle's path (`emit`; a probe's are not), and, for a static instance, the march's pieces
+/// in the world (`frame`), less the jumps back that the shell rule and the leaf bound make
+/// (not travelled).
+struct HitObserver<'t, 'i, T: PathTrace, E: HitEvents> {
     stop: bool,
+    emit: bool,
     count: u32,
-    x: Vec3,
-    n: Vec3,
-    before: Vec3,
-    after: Vec3,
+    last: Hit,
     remaining: f32,
     leaf: u32,
+    at: HitFrame<'i>,
     trace: &'t mut T,
+    events: &'t mut E,
     frame: Option<FrameTrace>,
     jump_next: bool,
 }
 
-impl<'t, T: PathTrace> HitObserver<'t, T> {
-    fn new(stop: bool, trace: &'t mut T, frame: Option<FrameTrace>) -> Self {
+impl<'t, 'i, T: PathTrace, E: HitEvents> HitObserver<'t, 'i, T, E> {
+    fn new(
+        stop: bool,
+        emit: bool,
+        at: HitFrame<'i>,
+        trace: &'t mut T,
+        events: &'t mut E,
+        frame: Option<FrameTrace>,
+    ) -> Self {
         Self {
             stop,
+            emit,
             count: 0,
-            x: Vec3::ZERO,
-            n: Vec3::ZERO,
-            before: Vec3::ZERO,
-            after: Vec3::ZERO,
+            last: Hit::NONE,
             remaining: 0.0,
             leaf: NO_LEAF,
+            at,
             trace,
+            events,
             frame,
             jump_next: false,
         }
     }
-}
 
-impl<T: PathTrace> HitObserver<'_, T> {
-    /// The hit record of a march over a whole step of `dt` seconds in instance `c`'s frame
-    /// at static `pose` ([`Hit::NONE`] when it had no collision).
-    fn record(&self, c: u32, pose: &Pose, dt: f32) -> Hit {
-        if self.count == 0 {
-            return Hit::NONE;
-        }
-        Hit {
-            instance: c as i32,
-            position: pose.to_world(self.x).to_array(),
-            normal: pose.normal_to_world(self.n).to_array(),
-            t: (dt - self.remaining) / dt,
-            speed: (-self.before.dot(self.n) * pose.scale).max(0.0),
-        }
+    /// The hit record of the march: its last collision ([`Hit::NONE`] when it had none).
+    fn record(&self) -> Hit {
+        self.last
     }
 }
 
-impl<T: PathTrace> MarchObserver for HitObserver<'_, T> {
+impl<T: PathTrace, E: HitEvents> MarchObserver for HitObserver<'_, '_, T, E> {
     #[inline(always)]
     fn piece(&mut self, a: Vec3, b: Vec3) {
         if let Some(f) = self.frame.as_mut() {
@@ -1117,8 +1282,11 @@ impl<T: PathTrace> MarchObserver for HitObserver<'_, T> {
         leaf: u32,
     ) -> bool {
         self.count += 1;
-        (self.x, self.n, self.before, self.after) = (x, n, before, after);
+        self.last = self.at.hit(x, n, before, remaining);
         (self.remaining, self.leaf) = (remaining, leaf);
+        if self.emit {
+            self.events.hit(&self.last);
+        }
         if let Some(f) = self.frame.as_mut() {
             // `remaining` is of the march's time, which spans `span` of the step.
             f.now = f.start + f.span - remaining / f.dt;
@@ -1150,8 +1318,8 @@ pub fn substeps(inst: &Instance, view: &ProxyView<'_>, v: Vec3, u0: f32, u1: f32
     let d_t =
         (Vec3::from_array(inst.end.translation) - Vec3::from_array(inst.start.translation)) * f;
     let d = (v * (dt * f) - d_t).length();
-    let s = inst.start.scale.min(inst.end.scale);
-    let s_max = inst.start.scale.max(inst.end.scale);
+    let s = min_of(inst.start.scale, inst.end.scale);
+    let s_max = max_of(inst.start.scale, inst.end.scale);
     let y = s_max * local_radius(&view.root_aabb()) + d;
     let c = ((2.0 * theta * d + theta * theta * y) / s
         + 2.0 * (theta * y + d) * sigma / (s * s)
@@ -1168,12 +1336,9 @@ pub fn substeps(inst: &Instance, view: &ProxyView<'_>, v: Vec3, u0: f32, u1: f32
 /// The last collision of a march in an instance's frame, in the world.
 #[derive(Clone, Copy)]
 struct FrameHit {
-    /// Fraction of the step at which it happened.
-    u: f32,
-    /// World position and unit normal; normal speed before it, relative to the collider.
-    x: Vec3,
-    n: Vec3,
-    speed: f32,
+    /// Its hit record (the fraction of the step, the world position and unit normal, the
+    /// normal speed before it relative to the collider).
+    hit: Hit,
     /// The surface leaf it was in (its record), or [`NO_LEAF`] for a shell block.
     leaf: u32,
     blocked: bool,
@@ -1211,13 +1376,16 @@ fn derived_side(inst: &Instance, view: &ProxyView<'_>, x: Vec3, u: f32) -> u32 {
 }
 
 /// Marches a particle at world `x` with world velocity `v` (gravity integrated), side word
-/// `side`, in instance `inst`'s frame from fraction `u0` to `u1` of the step, until a
-/// collision (`after` says how far past it). A static instance's frame is one transform; a
-/// moving one's is cut into [`substeps`] chords, each marched from the particle's world point
-/// at its start in the pose there to its world point at its end in the pose there.
-/// `collided`: the surface leaf it has just collided in and not left (see `march_after`).
+/// `side`, in instance `c`'s frame from fraction `u0` to `u1` of the step, until a collision
+/// (`after` says how far past it). A static instance's frame is one transform; a moving one's
+/// is cut into [`substeps`] chords, each marched from the particle's world point at its start
+/// in the pose there to its world point at its end in the pose there. `collided`: the surface
+/// leaf it has just collided in and not left (see `march_after`). A march that finishes its
+/// chord is the particle's path, and tells `events` every collision; one that stops at its
+/// first is a probe, and tells nothing (the rounds tell the collision they take).
 #[allow(clippy::too_many_arguments)]
 fn march_in_frame(
+    c: u32,
     inst: &Instance,
     view: &ProxyView<'_>,
     x: Vec3,
@@ -1229,6 +1397,7 @@ fn march_in_frame(
     after: AfterHit,
     mut collided: u32,
     trace: &mut impl PathTrace,
+    events: &mut impl HitEvents,
 ) -> FrameMarch {
     let dt = params.dt;
     let fixed = inst.is_static();
@@ -1239,24 +1408,30 @@ fn march_in_frame(
     };
     let mut required = false;
     let mut outcome = StepOutcome::Done;
+    // The chord's ends as offsets from `u0`, never as `(u0 + f) - u0`: a GPU compiler may
+    // fold that to `f` (Mesa's NIR does), and the backends must round alike.
+    let span = u1 - u0;
     for k in 0..n {
-        let ua = u0 + (u1 - u0) * (k as f32 / n as f32);
-        let ub = if k + 1 == n {
-            u1
+        let fa = span * (k as f32 / n as f32);
+        let last = k + 1 == n;
+        let fb = if last {
+            span
         } else {
-            u0 + (u1 - u0) * ((k + 1) as f32 / n as f32)
+            span * ((k + 1) as f32 / n as f32)
         };
-        let h = (ub - ua) * dt;
+        let ua = u0 + fa;
+        let ub = if last { u1 } else { u0 + fb };
+        let h = (fb - fa) * dt;
         if !(h > 0.0) {
             continue;
         }
         let (pa, pb) = (inst.pose_at(ua), inst.pose_at(ub));
-        let la = pa.to_local(x + v * ((ua - u0) * dt));
-        let lv = if fixed {
+        let la = pa.to_local(x + v * (fa * dt));
+        let lv = plus_zero(if fixed {
             pa.vector_to_local(v)
         } else {
-            (pb.to_local(x + v * ((ub - u0) * dt)) - la) / h
-        };
+            (pb.to_local(x + v * (fb * dt)) - la) / h
+        });
         let mut lp = Particle {
             position: la.to_array(),
             side,
@@ -1266,7 +1441,17 @@ fn march_in_frame(
         // A static instance's pieces are the march's, through its pose; a moving one's are
         // traced by the rounds, straight in the world up to the collision it stops at.
         let frame = fixed.then(|| FrameTrace::new(pa, ua, ub, dt, lv));
-        let mut obs = HitObserver::new(after == AfterHit::Stop, &mut *trace, frame);
+        let at = HitFrame {
+            c,
+            pose: pa,
+            moving: (!fixed).then_some(inst),
+            ua,
+            ub,
+            h,
+            dt,
+        };
+        let stop = after == AfterHit::Stop;
+        let mut obs = HitObserver::new(stop, !stop, at, &mut *trace, &mut *events, frame);
         let mut hint = LeafHint::NONE;
         let local = StepParams {
             gravity: [0.0; 3],
@@ -1284,36 +1469,26 @@ fn march_in_frame(
             continue;
         }
         // Where the march stopped: at the hit, or at the chord's end.
-        let (u_end, p_end) = if after == AfterHit::Stop {
-            let u = (ua + (h - obs.remaining) / dt).min(ub);
+        let (u_end, p_end) = if stop {
+            let u = min_of(ua + (h - obs.remaining) / dt, ub);
             (u, inst.pose_at(u))
         } else {
             (ub, pb)
         };
         let l_end = Vec3::from_array(lp.position);
-        // The collider's surface velocity at a local point, over this chord.
-        let surface = |l: Vec3| {
-            if fixed {
-                Vec3::ZERO
-            } else {
-                (pb.to_world(l) - pa.to_world(l)) / h
-            }
-        };
-        let u_hit = (ua + (h - obs.remaining) / dt).min(ub);
-        let ph = if after == AfterHit::Stop {
-            p_end
-        } else {
-            inst.pose_at(u_hit)
-        };
         let hit = FrameHit {
-            u: u_hit,
-            x: ph.to_world(obs.x),
-            n: ph.normal_to_world(obs.n),
-            speed: (-obs.before.dot(obs.n) * ph.scale).max(0.0),
+            hit: obs.record(),
             leaf: obs.leaf,
             blocked: outcome == StepOutcome::Blocked,
         };
-        let v_end = surface(l_end) + p_end.vector_to_world(Vec3::from_array(lp.velocity));
+        // The collider's surface velocity at the end point over this chord, added back (none
+        // for a static one: a sum with a zero a GPU compiler folds, see `plus_zero`).
+        let velocity = p_end.vector_to_world(Vec3::from_array(lp.velocity));
+        let v_end = if fixed {
+            velocity
+        } else {
+            (pb.to_world(l_end) - pa.to_world(l_end)) / h + velocity
+        };
         return FrameMarch {
             side,
             required: true,
@@ -1350,10 +1525,11 @@ pub fn step_particle_scene(
     slots: &mut SceneSlots,
     params: &StepParams,
     hit: Option<&mut Hit>,
+    events: &mut impl HitEvents,
 ) -> StepOutcome {
     if let Some((c, view)) = scene.plain_proxy() {
         if hint.first_slot >> SLOT_INSTANCE_SHIFT == c && hint.hint_instance == c {
-            return step_plain(view, c, p, hint, params, hit);
+            return step_plain(view, c, p, hint, params, hit, events);
         }
     }
     let mut unused = Hit::NONE;
@@ -1365,6 +1541,7 @@ pub fn step_particle_scene(
         params,
         hit.unwrap_or(&mut unused),
         &mut (),
+        events,
     );
     (*hint, *slots) = sides.split();
     outcome
@@ -1386,7 +1563,7 @@ pub fn step_particle_scene_traced(
     trace: &mut impl FnMut(Vec3, Vec3, f32, f32),
 ) -> StepOutcome {
     let mut sides = SceneSides::join(hint, slots);
-    let outcome = step_particle_scene_general(scene, p, &mut sides, params, hit, trace);
+    let outcome = step_particle_scene_general(scene, p, &mut sides, params, hit, trace, &mut ());
     (*hint, *slots) = sides.split();
     outcome
 }
@@ -1398,22 +1575,26 @@ pub fn step_particle_scene_traced(
 /// does for it too, without its queries and copies. A backend calls it in its own loop with
 /// the proxy hoisted out, as the plain step is called.
 #[inline(always)]
-pub fn step_plain(
+pub fn step_plain<E: HitEvents>(
     view: &ProxyView<'_>,
     c: u32,
     p: &mut Particle,
     sides: &mut SceneHint,
     params: &StepParams,
     hit: Option<&mut Hit>,
+    events: &mut E,
 ) -> StepOutcome {
     p.side = sides.first_slot & SLOT_SIDE_MASK;
     let outcome = match hit {
-        None => step_particle_hinted(view, p, params, &mut sides.hint),
-        Some(hit) => {
+        None if !E::ACTIVE => step_particle_hinted(view, p, params, &mut sides.hint),
+        hit => {
             let mut untraced = ();
-            let mut obs = HitObserver::new(false, &mut untraced, None);
+            let at = HitFrame::whole_step(c, Pose::IDENTITY, params.dt);
+            let mut obs = HitObserver::new(false, true, at, &mut untraced, events, None);
             let outcome = step_hinted_observed(view, p, params, &mut sides.hint, &mut obs);
-            *hit = obs.record(c, &Pose::IDENTITY, params.dt);
+            if let Some(hit) = hit {
+                *hit = obs.record();
+            }
             outcome
         }
     };
@@ -1428,13 +1609,14 @@ pub fn step_plain(
 
 /// [`step_particle_scene`] for every particle and scene.
 #[inline(never)]
-fn step_particle_scene_general<T: PathTrace>(
+fn step_particle_scene_general<T: PathTrace, E: HitEvents>(
     scene: &SceneView<'_>,
     p: &mut Particle,
     sides: &mut SceneSides,
     params: &StepParams,
     hit: &mut Hit,
     trace: &mut T,
+    events: &mut E,
 ) -> StepOutcome {
     *hit = Hit::NONE;
     let x0 = Vec3::from_array(p.position);
@@ -1448,7 +1630,7 @@ fn step_particle_scene_general<T: PathTrace>(
     }
     // Every point the particle can reach against static colliders (no response speeds it
     // up): the ball of radius `|v| dt` around its start.
-    let pad = 4.0 * ulp(x0.abs().max_element() + reach) + 1e-30;
+    let pad = 4.0 * ulp(x0.abs().max_element() + reach) + PATH_PAD;
     let ball = Aabb {
         min: x0 - (reach + pad),
         max: x0 + (reach + pad),
@@ -1466,14 +1648,15 @@ fn step_particle_scene_general<T: PathTrace>(
         return StepOutcome::Done;
     }
     if count == 1 && scene.instances[first as usize].is_static() {
-        return step_near_one_static(scene, first, p, sides, params, hit, trace);
+        return step_near_one_static(scene, first, p, sides, params, hit, trace, events);
     }
-    step_in_rounds(scene, p, sides, params, hit, trace)
+    step_in_rounds(scene, p, sides, params, hit, trace, events)
 }
 
 /// [`step_particle_scene`] for a particle that can meet one static instance only: the whole
 /// step in its frame, with every rule of the march and the hint.
-fn step_near_one_static<T: PathTrace>(
+#[allow(clippy::too_many_arguments)]
+fn step_near_one_static<T: PathTrace, E: HitEvents>(
     scene: &SceneView<'_>,
     c: u32,
     p: &mut Particle,
@@ -1481,6 +1664,7 @@ fn step_near_one_static<T: PathTrace>(
     params: &StepParams,
     hit: &mut Hit,
     trace: &mut T,
+    events: &mut E,
 ) -> StepOutcome {
     let inst = &scene.instances[c as usize];
     let view = &scene.proxies[inst.proxy as usize];
@@ -1522,7 +1706,8 @@ fn step_near_one_static<T: PathTrace>(
     let v_start =
         Vec3::from_array(lp.velocity) + Vec3::from_array(local_params.gravity) * local_params.dt;
     let frame = FrameTrace::new(pose, 0.0, 1.0, params.dt, v_start);
-    let mut obs = HitObserver::new(false, trace, Some(frame));
+    let at = HitFrame::whole_step(c, pose, params.dt);
+    let mut obs = HitObserver::new(false, true, at, trace, events, Some(frame));
     let outcome = step_hinted_observed(view, &mut lp, &local_params, &mut hint, &mut obs);
     if outcome == StepOutcome::Invalid {
         p.flags |= FLAG_INVALID;
@@ -1545,7 +1730,7 @@ fn step_near_one_static<T: PathTrace>(
             .to_array();
         p.flags = lp.flags;
     }
-    *hit = obs.record(c, &pose, params.dt);
+    *hit = obs.record();
     sides.slots = slots;
     sides.hint = hint;
     sides.hint_instance = c;
@@ -1568,6 +1753,27 @@ fn must_keep(view: &ProxyView<'_>, lp: &Particle, hint: LeafHint) -> bool {
         || in_root && (hint == LeafHint::NONE || hint.z_depth_label & LeafHint::SURFACE != 0)
 }
 
+/// Whether a particle at world `x` at fraction `u` of the step, riding with instance `c` for
+/// the rest of the step (its local point held), meets no other instance's swept box. The ride
+/// strays from the straight way to its end by at most the arc its point turns through and
+/// what the change of scale moves it.
+fn ride_is_clear(scene: &SceneView<'_>, c: u32, x: Vec3, u: f32) -> bool {
+    let inst = &scene.instances[c as usize];
+    let l = inst.pose_at(u).to_local(x);
+    let end = inst.end.to_world(l);
+    let r = l.length();
+    let turn = min_of(2.0 * inst.half_turn, 2.0);
+    let stray = r * max_of(inst.start.scale, inst.end.scale) * turn
+        + r * math::abs(inst.end.scale - inst.start.scale);
+    let pad = 4.0 * ulp(x.abs().max(end.abs()).max_element()) + PATH_PAD + stray;
+    let ride = Aabb {
+        min: x.min(end) - pad,
+        max: x.max(end) + pad,
+    };
+    let (count, first) = scene.count_candidates(&ride);
+    count == 0 || (count == 1 && first == c)
+}
+
 /// The side word [`Particle::side`] shows after a scene step: the first slot's.
 fn first_side(slots: &[u32; SIDE_SLOTS], otherwise: u32) -> u32 {
     match slots.iter().find(|&&s| s != EMPTY_SLOT) {
@@ -1581,13 +1787,14 @@ fn first_side(slots: &[u32; SIDE_SLOTS], otherwise: u32) -> u32 {
 /// chord with a collision; with several, it probes each up to its first collision, takes the
 /// earliest, and brings every other's side up to that moment. The next round goes on from
 /// there with the new velocity.
-fn step_in_rounds<T: PathTrace>(
+fn step_in_rounds<T: PathTrace, E: HitEvents>(
     scene: &SceneView<'_>,
     p: &mut Particle,
     sides: &mut SceneSides,
     params: &StepParams,
     hit: &mut Hit,
     trace: &mut T,
+    events: &mut E,
 ) -> StepOutcome {
     let dt = params.dt;
     let mut x = Vec3::from_array(p.position);
@@ -1611,17 +1818,29 @@ fn step_in_rounds<T: PathTrace>(
         Some((i, leaf)) if i == c && scene.instances[c as usize].is_static() => leaf,
         _ => NO_LEAF,
     };
-    // Rounds with several instances in reach (pressed between them past `MAX_ROUNDS`), and
-    // every round (a particle carried by one turning instance collides once a chord; past
-    // `MAX_CONTACTS` the step ends as if the leaf bound were hit).
-    let (mut rounds, mut contacts) = (0u32, 0u32);
+    // Rounds with several instances in reach (pressed between them past `MAX_ROUNDS`), every
+    // round (a particle carried by one turning instance collides once a chord; past
+    // `MAX_CONTACTS` the step ends as if the leaf bound were hit), and the rounds in a row
+    // that took no time (past `MAX_STALLS`, the same).
+    let (mut rounds, mut contacts, mut stalls) = (0u32, 0u32, 0u32);
     loop {
+        if stalls == MAX_STALLS {
+            stalls = 0;
+            if let Some((c, _)) = last {
+                if ride_is_clear(scene, c, x, u) {
+                    contacts = MAX_CONTACTS;
+                }
+            }
+        }
         if rounds == MAX_ROUNDS || contacts == MAX_CONTACTS {
-            // At its last contact, moving with what it touched.
-            status |= if rounds == MAX_ROUNDS {
-                FLAG_CRUSHED
-            } else {
+            // At its last contact, moving with what it touched: carried, or crushed where
+            // another instance is on the way.
+            let carried =
+                rounds < MAX_ROUNDS && last.is_none_or(|(c, _)| ride_is_clear(scene, c, x, u));
+            status |= if carried {
                 FLAG_BOUND_HIT
+            } else {
+                FLAG_CRUSHED
             };
             if let Some((c, _)) = last {
                 let inst = &scene.instances[c as usize];
@@ -1640,7 +1859,7 @@ fn step_in_rounds<T: PathTrace>(
         contacts += 1;
         let rest = (1.0 - u) * dt;
         let end = x + v * rest;
-        let pad = 4.0 * ulp(x.abs().max(end.abs()).max_element()) + 1e-30;
+        let pad = 4.0 * ulp(x.abs().max(end.abs()).max_element()) + PATH_PAD;
         // Against static colliders a particle stays within `|v| rest` of where it is (no
         // response speeds it up): with one static instance there, the whole rest of the step
         // is marched in its frame.
@@ -1690,6 +1909,7 @@ fn step_in_rounds<T: PathTrace>(
             let collided = collided_in(last, c);
             let m = if fixed {
                 march_in_frame(
+                    c,
                     inst,
                     view,
                     x,
@@ -1701,9 +1921,11 @@ fn step_in_rounds<T: PathTrace>(
                     after,
                     collided,
                     &mut *trace,
+                    &mut *events,
                 )
             } else {
                 march_in_frame(
+                    c,
                     inst,
                     view,
                     x,
@@ -1715,6 +1937,7 @@ fn step_in_rounds<T: PathTrace>(
                     after,
                     collided,
                     &mut (),
+                    &mut *events,
                 )
             };
             if !fixed && m.outcome != StepOutcome::BoundHit {
@@ -1736,6 +1959,7 @@ fn step_in_rounds<T: PathTrace>(
                 let view = &scene.proxies[inst.proxy as usize];
                 let side = side_for(&slots, c, x, u);
                 let m = march_in_frame(
+                    c,
                     inst,
                     view,
                     x,
@@ -1747,11 +1971,12 @@ fn step_in_rounds<T: PathTrace>(
                     AfterHit::Stop,
                     collided_in(last, c),
                     &mut (),
+                    &mut (),
                 );
                 invalid |= m.outcome == StepOutcome::Invalid;
                 if let Some(h) = m.hit {
-                    if best.is_none_or(|(bu, _)| h.u < bu) {
-                        best = Some((h.u, c));
+                    if best.is_none_or(|(bu, _)| h.hit.t < bu) {
+                        best = Some((h.hit.t, c));
                     }
                 }
             });
@@ -1766,6 +1991,7 @@ fn step_in_rounds<T: PathTrace>(
                 // The path is the best instance's march: its pieces when it is static.
                 let m = if is_best && inst.is_static() {
                     march_in_frame(
+                        c,
                         inst,
                         view,
                         x,
@@ -1777,9 +2003,11 @@ fn step_in_rounds<T: PathTrace>(
                         AfterHit::Stop,
                         collided,
                         &mut *trace,
+                        &mut (),
                     )
                 } else {
                     march_in_frame(
+                        c,
                         inst,
                         view,
                         x,
@@ -1790,6 +2018,7 @@ fn step_in_rounds<T: PathTrace>(
                         params,
                         AfterHit::Stop,
                         collided,
+                        &mut (),
                         &mut (),
                     )
                 };
@@ -1830,13 +2059,12 @@ fn step_in_rounds<T: PathTrace>(
                 if h.blocked {
                     status |= FLAG_BLOCKED;
                 }
-                *hit = Hit {
-                    instance: c as i32,
-                    position: h.x.to_array(),
-                    normal: h.n.to_array(),
-                    t: h.u,
-                    speed: h.speed,
-                };
+                *hit = h.hit;
+                // A march that finished its chord told every collision; a probe told none.
+                if !one_static {
+                    events.hit(&h.hit);
+                }
+                stalls = if u_end == u { stalls + 1 } else { 0 };
                 x = x_end;
                 v = v_end;
                 u = u_end;
@@ -1848,14 +2076,18 @@ fn step_in_rounds<T: PathTrace>(
                     let inst = &scene.instances[c as usize];
                     let view = &scene.proxies[inst.proxy as usize];
                     let reach = view.finest_leaf_size() * inst.start.scale * 2.0;
+                    let (hx, hn) = (
+                        Vec3::from_array(h.hit.position),
+                        Vec3::from_array(h.hit.normal),
+                    );
                     let mut pinched = false;
                     if let Some((px, pn, was)) = last_static {
-                        if (h.x - px).length() <= reach && v.dot(pn) < 0.0 {
-                            v = if was { Vec3::ZERO } else { pinch(v, h.n, pn) };
+                        if (hx - px).length() <= reach && v.dot(pn) < 0.0 {
+                            v = if was { Vec3::ZERO } else { pinch(v, hn, pn) };
                             pinched = true;
                         }
                     }
-                    last_static = Some((h.x, h.n, pinched));
+                    last_static = Some((hx, hn, pinched));
                 } else {
                     last_static = None;
                 }

@@ -1507,7 +1507,8 @@ fn moving_inner(u: &mut Unstructured<'_>) -> Result<()> {
             Err(e) => panic!("a scene of valid poses was refused: {e}"),
         }
         let instances = scene.instances().to_vec();
-        cpu.step_scene(&mut scene, &params, true)
+        scene
+            .step(&mut cpu, &params, true)
             .expect("a prepared scene steps");
         let after = cpu.particles().to_vec();
         for (p, h) in after.iter().zip(cpu.hits()) {

@@ -307,11 +307,10 @@ pub fn run(
         scene.prepare()?;
         let instances = scene.instances().to_vec();
         let sides = cpu.scene_sides();
-        cpu.step_scene(&mut scene, params, false)
-            .map_err(|e| match e {
-                octoproxy_cpu::CpuError::Scene(s) => s,
-                other => panic!("{other}"),
-            })?;
+        scene.step(&mut cpu, params, false).map_err(|e| match e {
+            octoproxy_cpu::SceneStepError::Scene(s) => s,
+            other => panic!("{other}"),
+        })?;
         let after = cpu.particles().to_vec();
         // The poses of the step just taken (the backend holds them at their ends after it).
         let mut replay = scene.clone();

@@ -187,12 +187,12 @@ fn a_one_proxy_scene_at_the_identity_steps_as_the_plain_step_bit_for_bit() {
             s
         })
         .collect();
-    cpu.set_scene_sides(&sides).unwrap();
+    cpu.upload_scene_sides(&sides).unwrap();
     for step in 0..90 {
         for (p, h) in plain.iter_mut().zip(&mut hints) {
             step_particle_hinted(&view, p, &params, h);
         }
-        cpu.step_scene(&mut scene, &params, false).unwrap();
+        scene.step(&mut cpu, &params, false).unwrap();
         for (k, (a, b)) in plain.iter().zip(cpu.particles()).enumerate() {
             assert_eq!(
                 bytemuck::bytes_of(a),
@@ -230,7 +230,7 @@ fn hits_say_where_when_and_how_fast_a_particle_met_a_moving_floor() {
         scene
             .move_to(0, pose([0.0, y, 0.0], Quat::IDENTITY, 1.0))
             .unwrap();
-        cpu.step_scene(&mut scene, &p, true).unwrap();
+        scene.step(&mut cpu, &p, true).unwrap();
         steps += 1;
         let h = cpu.hits()[0];
         if h.instance >= 0 {
@@ -253,7 +253,7 @@ fn hits_say_where_when_and_how_fast_a_particle_met_a_moving_floor() {
         assert!(steps < 20, "no hit");
     }
     // The next step: no hit.
-    cpu.step_scene(&mut scene, &p, true).unwrap();
+    scene.step(&mut cpu, &p, true).unwrap();
     assert_eq!(cpu.hits()[0].instance, -1);
 }
 
@@ -288,7 +288,7 @@ fn a_particle_pressed_between_converging_walls_is_flagged_and_never_pushed_throu
             .unwrap();
         scene.prepare().unwrap();
         let instances = scene.instances().to_vec();
-        cpu.step_scene(&mut scene, &p, false).unwrap();
+        scene.step(&mut cpu, &p, false).unwrap();
         let after = cpu.particles().to_vec();
         check.step(&instances, &before, &after, &mut tally);
         before = after;
@@ -515,7 +515,7 @@ fn particles_starting_in_an_instances_shell_take_their_side_from_its_mesh_and_ke
     let check = SceneCheck::new(&[&cube], &[words]);
     let mut cpu = CpuBackend::new();
     cpu.upload_particles(&particles).unwrap();
-    cpu.set_scene_sides(&scene_sides).unwrap();
+    cpu.upload_scene_sides(&scene_sides).unwrap();
     let params = params([0.0, -9.81, 0.0]);
     let mut before = particles.clone();
     for step in 1..=30 {
@@ -527,7 +527,7 @@ fn particles_starting_in_an_instances_shell_take_their_side_from_its_mesh_and_ke
         scene.move_to(0, p).unwrap();
         scene.prepare().unwrap();
         let inst = scene.instances()[0];
-        cpu.step_scene(&mut scene, &params, false).unwrap();
+        scene.step(&mut cpu, &params, false).unwrap();
         let after = cpu.particles().to_vec();
         for (i, (a, b)) in before.iter().zip(&after).enumerate() {
             let l = inst.end.to_local(Vec3::from_array(b.position));
@@ -572,7 +572,7 @@ fn a_hidden_or_removed_instance_lets_particles_pass_and_a_shown_one_stops_them()
     cpu.upload_particles(&particles).unwrap();
     let params = params([0.0, -9.81, 0.0]);
     for _ in 0..90 {
-        cpu.step_scene(&mut scene, &params, false).unwrap();
+        scene.step(&mut cpu, &params, false).unwrap();
     }
     let out = cpu.particles();
     assert!(
@@ -592,7 +592,7 @@ fn a_hidden_or_removed_instance_lets_particles_pass_and_a_shown_one_stops_them()
     scene.set_motion(hidden, at, at).unwrap();
     // They land at 15 units a second and bounce (restitution 0.5) for about 3 seconds.
     for _ in 0..400 {
-        cpu.step_scene(&mut scene, &params, false).unwrap();
+        scene.step(&mut cpu, &params, false).unwrap();
     }
     let top = lowest - 1.0 + 0.1;
     let out = cpu.particles();

@@ -3,7 +3,8 @@
 // `decode_normal` and `grid_plane` operation for operation. The constants (LEAF_BIT, OCT_MAX,
 // ...) come from Rust: `shader::constants_wgsl` writes them in front of this file.
 
-// The whole proxy, exactly as core encodes it: header, node records, lookup table.
+// The whole proxy, exactly as core encodes it: header, node records, lookup table. A scene's
+// proxies lie one after another in it; `header.base` is the word where the one in use starts.
 @group(0) @binding(0) var<storage, read> proxy: array<u32>;
 
 // One node record (core's `NodeRecord`): two words whose meaning depends on LEAF_BIT.
@@ -12,37 +13,42 @@ struct NodeRecord {
     b: u32,
 }
 
-// The header fields a step reads, decoded once per invocation (core's `Header` plus
-// `ProxyView::cell_unit` and `uses_lut`).
+// The header fields a step reads, decoded once per proxy used (core's `Header` plus
+// `ProxyView::cell_unit` and `uses_lut`), and where the proxy starts in the buffer.
 struct Header {
+    base: u32,
     root_min: vec3<f32>,
     root_size: f32,
     cell_unit: f32,
     lut_depth: u32,
     tree_depth: u32,
+    dmax: u32,
     lut_offset: u32,
     use_lut: bool,
 }
 
 var<private> header: Header;
 
-fn load_header(use_lut: bool) {
+// The proxy that starts at word `base` of the buffer is the one the step reads from now on.
+fn load_header(base: u32, use_lut: bool) {
+    header.base = base;
     header.root_min = vec3<f32>(
-        bitcast<f32>(proxy[HEADER_ROOT_MIN]),
-        bitcast<f32>(proxy[HEADER_ROOT_MIN + 1u]),
-        bitcast<f32>(proxy[HEADER_ROOT_MIN + 2u]),
+        bitcast<f32>(proxy[base + HEADER_ROOT_MIN]),
+        bitcast<f32>(proxy[base + HEADER_ROOT_MIN + 1u]),
+        bitcast<f32>(proxy[base + HEADER_ROOT_MIN + 2u]),
     );
-    header.root_size = bitcast<f32>(proxy[HEADER_ROOT_SIZE]);
+    header.root_size = bitcast<f32>(proxy[base + HEADER_ROOT_SIZE]);
     // A power-of-two scale: exact, as on the CPU.
     header.cell_unit = header.root_size * INV_GRID_CELLS;
-    header.lut_depth = proxy[HEADER_LUT_DEPTH];
-    header.tree_depth = proxy[HEADER_TREE_DEPTH];
-    header.lut_offset = proxy[HEADER_LUT_OFFSET];
+    header.lut_depth = proxy[base + HEADER_LUT_DEPTH];
+    header.tree_depth = proxy[base + HEADER_TREE_DEPTH];
+    header.dmax = proxy[base + HEADER_DMAX];
+    header.lut_offset = proxy[base + HEADER_LUT_OFFSET];
     header.use_lut = use_lut && header.lut_depth > 0u;
 }
 
 fn node_record(index: u32) -> NodeRecord {
-    let w = HEADER_WORDS + NODE_WORDS * index;
+    let w = header.base + HEADER_WORDS + NODE_WORDS * index;
     return NodeRecord(proxy[w], proxy[w + 1u]);
 }
 

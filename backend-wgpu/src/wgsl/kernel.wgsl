@@ -10,10 +10,11 @@ struct RunParams {
     _pad2: u32,
 }
 
-// Per-chunk settings (the Rust twin is `ChunkParams`).
+// Per-chunk settings (the Rust twin is `ChunkParams`): the particles in the chunk and the
+// index of its first particle.
 struct ChunkParams {
     count: u32,
-    _pad0: u32,
+    first: u32,
     _pad1: u32,
     _pad2: u32,
 }
@@ -40,7 +41,7 @@ fn step_kernel(
     if i >= chunk.count {
         return;
     }
-    load_header(run.use_lut != 0u);
+    load_header(0u, run.use_lut != 0u);
     var p = particles[i];
     var hint = hints[i];
     step_particle_hinted(&p, params, &hint);

@@ -129,7 +129,7 @@ fn locate_in_cell(cell: vec3<u32>, depth: u32, p: vec3<f32>, dir: vec3<f32>) -> 
     if header.use_lut && depth >= d {
         let c = cell >> vec3<u32>(depth - d);
         let n = 1u << d;
-        let entry = proxy[header.lut_offset + (c.z * n + c.y) * n + c.x];
+        let entry = proxy[header.base + header.lut_offset + (c.z * n + c.y) * n + c.x];
         let at = entry >> LUT_DEPTH_SHIFT;
         return descend(entry & LUT_INDEX_MASK, at, cell >> vec3<u32>(depth - at), cell, depth, p, dir);
     }

@@ -1,9 +1,10 @@
 // The step, as core/src/step.rs: one particle marched leaf by leaf along x(t) -> x(t + dt).
 // Read the Rust module for the rules; this file mirrors it function for function, with the
 // same names (a Rust method `LeafHint::of` is `leaf_hint_of` here), the same order of
-// floating-point operations, and no observer (Rust's march reports pieces and rare branches to
-// one; here there is nothing to report to). A Rust `Option<T>` is a `TOption { value, some }`;
-// the twins are listed, and checked, in backend-wgpu/tests/wgsl.rs.
+// floating-point operations. Of Rust's march observer only the collisions are reported here,
+// to `observe_hit`: nothing in the plain kernel (observe_none.wgsl), the scene step's hit
+// records and events in the scene kernel (observe.wgsl). A Rust `Option<T>` is a
+// `TOption { value, some }`; the twins are listed, and checked, in backend-wgpu/tests/wgsl.rs.
 
 // core's `Particle`: 32 bytes, vec3 members at offsets 0 and 16.
 struct Particle {
@@ -326,6 +327,11 @@ fn settle_on_plane(p: ptr<function, Particle>, params: StepParams, hint: vec2<u3
     if !(all(end > leaf.aabb.min) && all(end < leaf.aabb.max)) {
         return false;
     }
+    if collided == 1u {
+        // The march's observer would not stop here: the collision leaves the particle
+        // strictly inside the leaf with time left, where the march goes on.
+        _ = observe_hit(x, n, v, vel, remaining, leaf.node);
+    }
     (*p).position = end;
     (*p).velocity = vel;
     let count = min(collisions(*p) + collided, MAX_COLLISIONS);
@@ -559,9 +565,12 @@ fn enter_empty_leaf(st: ptr<function, MarchState>, leaf: LeafInfo, params: StepP
 fn block_at_shell(st: ptr<function, MarchState>, params: StepParams) {
     (*st).x = (*st).shell_entry;
     let n = face_normal((*st).cross_axes, (*st).cross_signs);
+    let before = (*st).v;
     (*st).v = respond((*st).v, n, params.restitution, params.friction);
     (*st).collisions += 1u;
     (*st).outcome = STEP_BLOCKED;
+    // The march ends here whatever the observer says.
+    _ = observe_hit((*st).x, n, before, (*st).v, (*st).remaining, NO_LEAF);
 }
 
 fn enter_surface_leaf(st: ptr<function, MarchState>, leaf: LeafInfo, params: StepParams) -> bool {
@@ -648,6 +657,7 @@ fn collision_normal(st: ptr<function, MarchState>, leaf: LeafInfo) -> vec3<f32> 
 }
 
 fn collide(st: ptr<function, MarchState>, leaf: LeafInfo, n: vec3<f32>, params: StepParams) {
+    let before = (*st).v;
     (*st).v = respond((*st).v, n, params.restitution, params.friction);
     let gap = (*st).x - (*st).hit_x;
     let diagonal = leaf.aabb.max - leaf.aabb.min;
@@ -667,6 +677,10 @@ fn collide(st: ptr<function, MarchState>, leaf: LeafInfo, n: vec3<f32>, params: 
     (*st).hit_n = n;
     (*st).collisions += 1u;
     (*st).last_collided = leaf.node;
+    if observe_hit((*st).x, n, before, (*st).v, (*st).remaining, leaf.node) {
+        // Every loop of the march ends when the time is up; the particle stays at the hit.
+        (*st).remaining = 0.0;
+    }
 }
 
 // core's `walk_in_cage`: a caged particle's step before the march. In its cage it moves
@@ -902,6 +916,13 @@ fn finish_march(p: ptr<function, Particle>, st: ptr<function, MarchState>, cage:
 // core's `march`: leaf by leaf, each found from the last, until the time is used up, a rule
 // stops the particle, or the leaf bound is hit.
 fn march(p: ptr<function, Particle>, params: StepParams, hint: ptr<function, vec2<u32>>) -> u32 {
+    return march_after(p, params, hint, NO_LEAF);
+}
+
+// core's `march_after`: the march of a particle that has just collided in surface leaf
+// `collided` (or NO_LEAF) and has not left it; it does not collide there again before it
+// crosses a face. The scene step goes on from a contact with it.
+fn march_after(p: ptr<function, Particle>, params: StepParams, hint: ptr<function, vec2<u32>>, collided: u32) -> u32 {
     let start_hint = *hint;
     *hint = vec2<u32>(0u);
     if !is_finite3((*p).position) || !is_finite3((*p).velocity) {
@@ -909,6 +930,7 @@ fn march(p: ptr<function, Particle>, params: StepParams, hint: ptr<function, vec
         return STEP_INVALID;
     }
     var st = start_march(*p, params, start_hint);
+    st.last_collided = collided;
     if st.exits != 0u {
         let cage = walk_in_cage(&st, params);
         if cage.some {

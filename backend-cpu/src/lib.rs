@@ -8,6 +8,8 @@
 //! - [`sides`]: exact starting sides from the mesh ([`starting_sides`], beside [`bake()`]).
 //! - [`ground_truth`], [`harness`], [`scenes`]: checking a scene the way the tests do: exact
 //!   winding numbers and segment crossings, the penetration harness, procedural meshes.
+//! - [`gltf`](mod@gltf): glTF 2.0 scenes (meshes, node hierarchy, animation) read into a
+//!   scene description, baked once per mesh, and the baked scene file.
 //! - [`Scene`]: proxies placed by moving instances, stepped by [`Scene::step`] on any backend.
 //! - [`CpuBackend`]: the core step over particles with rayon, behind the core `Backend` trait.
 //!
@@ -64,6 +66,7 @@
 pub mod backend;
 pub mod bake;
 pub mod emit;
+pub mod gltf;
 pub mod ground_truth;
 pub mod harness;
 pub mod io;
@@ -72,8 +75,8 @@ pub mod scenes;
 pub mod sides;
 
 pub use backend::{CpuBackend, CpuError};
-pub use octoproxy_core::SceneStepReport;
 pub use bake::{bake, BuildError, BuildParams, BuildProgress, BuildReport, MeshRef};
+pub use octoproxy_core::SceneStepReport;
 pub use scene::{starting_scene_sides, Scene, SceneBuildError, SceneStepError};
 pub use sides::{starting_sides, CageCounts, Sides, StartCounts};
 

@@ -15,6 +15,8 @@
 //! a point of its path, with the crossings it had there: the jump is not counted as a path
 //! (its chord would count a passage round a rim that no piece of the path made).
 
+pub mod scene;
+
 use crate::emit::{emit_surface_for, Rng, SurfaceSampler};
 use glam::Vec3;
 use octoproxy_core::{

@@ -31,7 +31,10 @@ fn scene_whole() -> Module {
 }
 
 /// A module's files (name, text) and its entry points.
-type ModuleFiles = (&'static [(&'static str, &'static str)], &'static [&'static str]);
+type ModuleFiles = (
+    &'static [(&'static str, &'static str)],
+    &'static [&'static str],
+);
 
 /// The two modules, each with its files and entry points.
 const MODULES: [ModuleFiles; 2] = [

@@ -1368,7 +1368,7 @@ fn moving_shapes() -> &'static [(Mesh, [Vec<u32>; 2])] {
 }
 
 fn moving_inner(u: &mut Unstructured<'_>) -> Result<()> {
-    use crate::moving::{outside_all, pose, SceneCheck, Tally};
+    use crate::moving::{outside_all, pose, scene_check, Tally};
     use glam::Quat;
     use octoproxy_core::{Backend, Pose};
     use octoproxy_cpu::{CpuBackend, Scene, SceneBuildError};
@@ -1450,7 +1450,7 @@ fn moving_inner(u: &mut Unstructured<'_>) -> Result<()> {
         let _ = i;
         motions.push((velocity, axis, turn, grow));
     }
-    let check = SceneCheck::new(&meshes, &proxies);
+    let mut check = scene_check(&meshes, &proxies);
     let count = u.int_in_range(1usize..=48)?;
     let mut particles = Vec::new();
     for _ in 0..count {
@@ -1526,7 +1526,7 @@ fn moving_inner(u: &mut Unstructured<'_>) -> Result<()> {
                 assert_eq!(*h, octoproxy_core::Hit::NONE);
             }
         }
-        check.step(&instances, &before, &after, &mut tally);
+        tally.add(&check.step(&instances, &before, &after, None));
         assert_eq!(
             tally.penetrations, 0,
             "PENETRATION in a moving scene ({params:?}, motions {motions:?}): {:?}",

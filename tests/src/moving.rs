@@ -5,209 +5,23 @@
 //! campaign.
 
 use glam::{Quat, Vec3};
-use octoproxy_core::scene::{Instance, Pose, FLAG_CRUSHED};
+use octoproxy_core::scene::{Instance, Pose};
 use octoproxy_core::{Backend, Particle, ProxyView, StepParams};
 use octoproxy_cpu::emit::Rng;
-use octoproxy_cpu::ground_truth::GroundTruth;
+pub use octoproxy_cpu::harness::scene::{traced_pieces, Piece, SceneCheck, Tally};
 use octoproxy_cpu::io::Mesh;
 use octoproxy_cpu::scenes;
 use octoproxy_cpu::{bake, BuildParams, CpuBackend, MeshRef, Scene, SceneBuildError};
 
-/// Counts, after one scene step, the particles that are inside a closed instance's mesh
-/// deeper than one finest-leaf diagonal, in the instance's frame at the end pose. Every
-/// particle of these tests starts outside every mesh, so none may be inside at any step's
-/// end. A particle with no collision in the step went straight in the world: its path in each
-/// instance's frame (the pose at each moment, lerp and slerp) is checked too, in chords whose
-/// crossings with the mesh are exact, and where a chord crosses, point by point every half
-/// leaf diagonal: that is where a fast particle tunnelling through a thin collider would
-/// show, ending outside on the other side. Particles flagged crushed (pressed between two
-/// instances, left at their last contact with one) are counted in `crushed` and not checked
-/// from then on: one may be inside the other instance, which passed over it.
-pub struct SceneCheck {
-    pub truths: Vec<GroundTruth>,
-    pub diagonals: Vec<f32>,
-    /// Per particle: whether it was ever flagged crushed (it is then counted, not checked).
-    crushed: std::cell::RefCell<Vec<bool>>,
-}
-
-#[derive(Debug, Default)]
-pub struct Tally {
-    /// Particles found too deep inside a mesh (at a step's end or on a straight path).
-    pub penetrations: usize,
-    /// Particles flagged crushed.
-    pub crushed: usize,
-    /// Collisions counted.
-    pub collisions: u64,
-    /// Particle-steps checked.
-    pub particle_steps: u64,
-    /// The first few penetrations, for the failure message.
-    pub examples: Vec<String>,
-}
-
-impl SceneCheck {
-    /// Ground truth for each proxy's mesh.
-    pub fn new(meshes: &[&Mesh], proxies: &[Vec<u32>]) -> Self {
-        Self {
-            truths: meshes
-                .iter()
-                .map(|m| GroundTruth::new(&m.positions, &m.triangles))
-                .collect(),
-            diagonals: proxies
-                .iter()
-                .map(|w| ProxyView::new(w).unwrap().finest_leaf_size() * 3f32.sqrt())
-                .collect(),
-            crushed: Default::default(),
-        }
-    }
-
-    /// Checks one step of `before -> after` against `instances` (their poses in that step):
-    /// every step's end, and the straight path of a particle with no collision.
-    pub fn step(
-        &self,
-        instances: &[Instance],
-        before: &[Particle],
-        after: &[Particle],
-        t: &mut Tally,
-    ) {
-        self.step_with_pieces(instances, before, after, None, t)
-    }
-
-    /// [`SceneCheck::step`] with every particle's path as `step_particle_scene_traced` gives
-    /// it: every piece of every path is followed in every instance's frame.
-    pub fn step_with_pieces(
-        &self,
-        instances: &[Instance],
-        before: &[Particle],
-        after: &[Particle],
-        pieces: Option<&[Vec<Piece>]>,
-        t: &mut Tally,
-    ) {
-        let mut crushed = self.crushed.borrow_mut();
-        crushed.resize(after.len(), false);
-        for (k, (a, b)) in before.iter().zip(after).enumerate() {
-            t.particle_steps += 1;
-            t.collisions += (b.collisions() - a.collisions()) as u64;
-            if b.flags & FLAG_CRUSHED != 0 {
-                t.crushed += 1;
-                crushed[k] = true;
-            }
-            if crushed[k] {
-                continue;
-            }
-            let straight = b.collisions() == a.collisions();
-            for inst in instances.iter().filter(|i| i.is_active()) {
-                let truth = &self.truths[inst.proxy as usize];
-                let diagonal = self.diagonals[inst.proxy as usize] as f64;
-                let l1 = inst.end.to_local(Vec3::from_array(b.position));
-                let deep = |l: Vec3| {
-                    truth.is_inside(l.to_array()) && truth.distance(l.to_array()) > diagonal
-                };
-                let mut found = deep(l1).then_some((l1, 1.0f32));
-                match pieces {
-                    Some(pieces) => {
-                        for &(pa, pb, ua, ub) in &pieces[k] {
-                            if found.is_some() {
-                                break;
-                            }
-                            found = self.deepest_on_piece(inst, pa, pb, ua, ub, &deep);
-                        }
-                    }
-                    None if found.is_none() && straight => {
-                        let (x0, x1) = (Vec3::from_array(a.position), Vec3::from_array(b.position));
-                        found = self.deepest_on_piece(inst, x0, x1, 0.0, 1.0, &deep);
-                    }
-                    None => {}
-                }
-                if let Some((l, at)) = found {
-                    t.penetrations += 1;
-                    if t.examples.len() < 4 {
-                        let l0 = inst.start.to_local(Vec3::from_array(a.position));
-                        let path = pieces
-                            .map(|p| format!(", pieces {:?}", p[k]))
-                            .unwrap_or_default();
-                        t.examples.push(format!(
-                            "{} -> {} (local {l0} -> {l1}; deep at {l}, {at:.3} of the step), before {a:?}, after {b:?}, instance {inst:?}{path}",
-                            Vec3::from_array(a.position),
-                            Vec3::from_array(b.position)
-                        ));
-                    }
-                }
-            }
-        }
-    }
-
-    /// A point of the straight world piece `x0 -> x1`, travelled from fraction `u0` to `u1`
-    /// of the step, in `inst`'s frame (its pose at each moment), that `deep` says is too deep,
-    /// and the fraction of the step where it is.
-    fn deepest_on_piece(
-        &self,
-        inst: &Instance,
-        x0: Vec3,
-        x1: Vec3,
-        u0: f32,
-        u1: f32,
-        deep: &dyn Fn(Vec3) -> bool,
-    ) -> Option<(Vec3, f32)> {
-        let truth = &self.truths[inst.proxy as usize];
-        let step = self.diagonals[inst.proxy as usize] * 0.5;
-        let at = |t: f32| {
-            inst.pose_at(u0 + (u1 - u0) * t)
-                .to_local(x0 + (x1 - x0) * t)
-        };
-        let chords: u32 = if inst.is_static() { 1 } else { 64 };
-        let chords_f = chords as f32;
-        for j in 0..chords {
-            let (ta, tb) = (j as f32 / chords_f, (j + 1) as f32 / chords_f);
-            let (la, lb) = (at(ta), at(tb));
-            if truth.segment_crossings(la.to_array(), lb.to_array()) == 0 {
-                continue;
-            }
-            let n = ((lb - la).length() / step).ceil().max(1.0) as u32;
-            for k in 0..=n {
-                let t = ta + (tb - ta) * k as f32 / n as f32;
-                let l = at(t);
-                if deep(l) {
-                    return Some((l, u0 + (u1 - u0) * t));
-                }
-            }
-        }
-        None
-    }
-}
-
-/// A straight piece of a world path: from, to, and the fractions of the step at its ends.
-pub type Piece = (Vec3, Vec3, f32, f32);
-
-/// Every particle's pieces of one scene step by `step_particle_scene_traced`, from the state
-/// `before` (particles and sides), checked to give the very bits `after` that the backend gave.
-pub fn traced_pieces(
-    view: &octoproxy_core::SceneView<'_>,
-    before: &[Particle],
-    sides: &[octoproxy_core::SceneSides],
-    after: &[Particle],
-    params: &StepParams,
-) -> Vec<Vec<Piece>> {
-    use rayon::prelude::*;
-    before
-        .par_iter()
-        .zip(sides)
-        .zip(after)
-        .map(|((p, s), expected)| {
-            let mut q = *p;
-            let (mut h, mut sl) = s.split();
-            let mut pieces = Vec::new();
-            let mut hit = octoproxy_core::Hit::NONE;
-            octoproxy_core::step_particle_scene_traced(view, &mut q, &mut h, &mut sl, params, &mut hit, &mut |a, b, ua, ub| {
-                pieces.push((a, b, ua, ub))
-            });
-            assert_eq!(
-                bytemuck::bytes_of(&q),
-                bytemuck::bytes_of(expected),
-                "the traced scene step differs from the backend's: {p:?} -> {q:?} traced, {expected:?} stepped"
-            );
-            pieces
-        })
-        .collect()
+/// The scene harness (`octoproxy_cpu::harness::scene`) for these tests' closed shapes:
+/// `meshes[k]` baked into `proxies[k]`.
+pub fn scene_check(meshes: &[&Mesh], proxies: &[Vec<u32>]) -> SceneCheck {
+    let refs: Vec<MeshRef<'_>> = meshes.iter().map(|m| MeshRef::from(*m)).collect();
+    let views: Vec<ProxyView<'_>> = proxies
+        .iter()
+        .map(|w| ProxyView::new(w).expect("a valid proxy"))
+        .collect();
+    SceneCheck::new(&refs, &vec![true; meshes.len()], &views)
 }
 
 /// Particles on a jittered lattice in `[lo, hi]`, at rest, outside every given instance's
@@ -287,7 +101,7 @@ pub fn run(
     params: &StepParams,
     poses: impl Fn(u32, u32) -> Pose,
 ) -> Result<(Tally, Vec<Particle>), SceneBuildError> {
-    let check = SceneCheck::new(meshes, proxies);
+    let mut check = scene_check(meshes, proxies);
     let mut scene = Scene::new();
     for w in proxies {
         scene.add_proxy(w.clone())?;
@@ -319,9 +133,13 @@ pub fn run(
                 replay.set_motion(i as u32, inst.start, inst.end)?;
             }
         }
-        let pieces =
+        let (pieces, differ) =
             replay.with_view(|view| traced_pieces(view, &before, &sides, &after, params))?;
-        check.step_with_pieces(&instances, &before, &after, Some(&pieces), &mut tally);
+        assert!(
+            differ.is_empty(),
+            "the traced scene step differs from the backend's for particles {differ:?}"
+        );
+        tally.add(&check.step(&instances, &before, &after, Some(&pieces)));
         before = after;
     }
     Ok((tally, before))

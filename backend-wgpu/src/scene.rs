@@ -266,11 +266,12 @@ impl WgpuBackend {
         }
     }
 
-    /// The output buffer for `capacity` events, its counts zero.
+    /// The output buffer for `capacity` events (room for one at least: a binding's array
+    /// has an element), its counts zero.
     fn make_out(&self, capacity: usize) -> wgpu::Buffer {
         self.buffer_with(
             "octoproxy scene output",
-            OUT_HEADER_WORDS * 4 + capacity as u64 * EVENT_BYTES,
+            OUT_HEADER_WORDS * 4 + capacity.max(1) as u64 * EVENT_BYTES,
             wgpu::BufferUsages::STORAGE,
             &[0u8; OUT_HEADER_WORDS as usize * 4],
         )

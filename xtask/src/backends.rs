@@ -1,8 +1,10 @@
 //! `--backend auto|cpu|wgpu`: picking where particles are stepped, and saying so.
 
 use anyhow::{bail, Result};
-use octoproxy_core::{Backend, Particle, StepParams};
-use octoproxy_cpu::CpuBackend;
+use octoproxy_core::{
+    Backend, EventCount, Hit, HitEvent, Particle, SceneSides, SceneStepReport, StepParams,
+};
+use octoproxy_cpu::{CpuBackend, Scene, SceneStepError};
 use octoproxy_wgpu::WgpuBackend;
 
 /// Which backend to step on.
@@ -102,5 +104,46 @@ impl Stepper {
     /// Waits for queued steps (for timing).
     pub fn finish(&mut self) -> Result<()> {
         both!(self, b => b.finish())
+    }
+
+    /// One step through `scene` (see `Scene::step`), with hit records when `hits`.
+    pub fn step_scene(&mut self, scene: &mut Scene, params: &StepParams, hits: bool) -> Result<()> {
+        fn flat<E: std::error::Error + Send + Sync + 'static>(
+            e: SceneStepError<E>,
+        ) -> anyhow::Error {
+            match e {
+                SceneStepError::Scene(s) => anyhow::Error::new(s),
+                SceneStepError::Backend(b) => anyhow::Error::new(b),
+                other => anyhow::anyhow!("{other}"),
+            }
+        }
+        match self {
+            Stepper::Cpu(b) => scene.step(b, params, hits).map_err(flat),
+            Stepper::Wgpu(b) => scene.step(b.as_mut(), params, hits).map_err(flat),
+        }
+    }
+
+    pub fn upload_scene_sides(&mut self, sides: &[SceneSides]) -> Result<()> {
+        both!(self, b => b.upload_scene_sides(sides))
+    }
+
+    pub fn download_scene_sides(&mut self, out: &mut [SceneSides]) -> Result<()> {
+        both!(self, b => b.download_scene_sides(out))
+    }
+
+    pub fn download_hits(&mut self, out: &mut [Hit]) -> Result<()> {
+        both!(self, b => b.download_hits(out))
+    }
+
+    pub fn set_event_capacity(&mut self, capacity: usize) -> Result<()> {
+        both!(self, b => b.set_event_capacity(capacity))
+    }
+
+    pub fn take_events(&mut self, out: &mut [HitEvent]) -> Result<EventCount> {
+        both!(self, b => b.take_events(out))
+    }
+
+    pub fn take_scene_report(&mut self) -> Result<SceneStepReport> {
+        both!(self, b => b.take_scene_report())
     }
 }

@@ -6,18 +6,23 @@ use std::path::PathBuf;
 use anyhow::{bail, Result};
 
 use crate::flags::{self, BuildFlags};
+use crate::instanced::{bake_gltf, SceneFile};
 use crate::scene;
 
 fn help() -> String {
     format!(
-        "usage: octoproxy bake --mesh MESH [--mesh MESH...] -o FILE [build options]\n\n\
-         Bakes the meshes (PLY, OBJ or STL, each optionally .gz) into one proxy file.\n\n{}",
+        "usage: octoproxy bake (--mesh MESH [--mesh MESH...] | --scene FILE.gltf) -o FILE [build options]\n\n\
+         Bakes the meshes (PLY, OBJ or STL, each optionally .gz) into one proxy file; or a glTF\n\
+         2.0 scene (.gltf, .glb) into a baked scene (write it as FILE.octoscene): every mesh baked\n\
+         once, the instance table and the animation, which `sim --scene FILE.octoscene` reads\n\
+         without baking again.\n\n{}",
         flags::BUILD_HELP
     )
 }
 
 pub fn run(args: Vec<OsString>) -> Result<()> {
     let mut meshes: Vec<PathBuf> = Vec::new();
+    let mut scene_file: Option<PathBuf> = None;
     let mut out: Option<PathBuf> = None;
     let mut build = BuildFlags::default();
     let mut parser = lexopt::Parser::from_args(args);
@@ -27,6 +32,7 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
         }
         match name.as_str() {
             "--mesh" => meshes.push(flags::path(&mut parser, "--mesh")?),
+            "--scene" => scene_file = Some(flags::path(&mut parser, "--scene")?),
             "-o" | "--out" => out = Some(flags::path(&mut parser, "--out")?),
             "-h" | "--help" => {
                 println!("{}", help());
@@ -35,12 +41,33 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
             _ => return Err(unexpected.into()),
         }
     }
-    if meshes.is_empty() {
-        bail!("bake needs at least one --mesh");
-    }
     let Some(out) = out else {
         bail!("bake needs --out FILE (or -o FILE)")
     };
+    if let Some(path) = scene_file {
+        if !meshes.is_empty() {
+            bail!("give either --mesh or --scene, not both");
+        }
+        if SceneFile::of(&path) != Some(SceneFile::Gltf) {
+            bail!(
+                "--scene {}: bake reads glTF 2.0 scenes (.gltf or .glb)",
+                path.display()
+            );
+        }
+        if same_file(&path, &out) {
+            bail!(
+                "--out {} is the input scene; refusing to overwrite it",
+                out.display()
+            );
+        }
+        let baked = bake_gltf(&path, build.params()?)?;
+        baked.write(&out)?;
+        println!("wrote {}", out.display());
+        return Ok(());
+    }
+    if meshes.is_empty() {
+        bail!("bake needs --mesh MESH (repeat for several) or --scene FILE.gltf");
+    }
     if meshes.iter().any(|m| same_file(m, &out)) {
         bail!(
             "--out {} is one of the input meshes; refusing to overwrite it",

@@ -17,12 +17,13 @@ use octoproxy_cpu::scenes::{self, MeshExt};
 use octoproxy_cpu::{MeshRef, Sides};
 
 use crate::flags::{self, BuildFlags};
+use crate::instanced::{outside_all, Instanced, SceneFile};
 use crate::scene;
 
 fn help() -> String {
     format!(
         "\
-usage: octoproxy check (--mesh MESH... | --scene NAME) [options]
+usage: octoproxy check (--mesh MESH... | --scene NAME | --scene FILE) [options]
 
 Counts penetrations against exact ground truth: generalized winding numbers for closed
 meshes (at every step's end, and along every piece of a path that crosses the surface, so a
@@ -32,6 +33,9 @@ segment for open ones, both through a BVH.
 scene:
   --mesh FILE       a mesh (PLY/OBJ/STL, .gz); repeat for several
   --scene NAME      a built-in scene: sphere, torus, slab, wedge, star, shells, sheet, dome, comb
+  --scene FILE      a glTF 2.0 scene (.gltf, .glb) or a baked one (.octoscene), its
+                    instances moving as its animations say: every piece of every path is
+                    checked in every instance's frame at the pose of each moment
 {}
 
 particles:
@@ -68,7 +72,7 @@ fn builtin(name: &str) -> Result<Mesh> {
         "sheet" => scenes::flat_sheet([0.0; 3], 2.0, 8),
         "dome" => scenes::hemisphere([0.0; 3], 1.0, 48, 12),
         "comb" => scenes::merge(&(0..9).map(|i| scenes::slab([i as f32 * 0.2 - 0.8, 0.0, 0.0], [0.003, 1.5, 1.5])).collect::<Vec<_>>()),
-        _ => bail!("--scene: unknown scene {name:?} (sphere, torus, slab, wedge, star, shells, sheet, dome, comb)"),
+        _ => bail!("--scene: {name:?} is neither a built-in scene (sphere, torus, slab, wedge, star, shells, sheet, dome, comb) nor a scene file (.gltf, .glb, .octoscene)"),
     })
 }
 
@@ -116,6 +120,32 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     params.validate()?;
     if particles_file.is_some() && (emit.is_some() || starts.is_some()) {
         bail!("give either --particles or --emit (with --starts), not both");
+    }
+    if let Some(name) = &builtin_name {
+        let path = PathBuf::from(name);
+        if SceneFile::of(&path).is_some() {
+            if !meshes.is_empty() {
+                bail!("give either --mesh or --scene, not both");
+            }
+            if starts.is_some_and(|s| s != Start::Outside) {
+                bail!(
+                    "--starts with a scene file: only outside (particles start outside every part)"
+                );
+            }
+            let build = if SceneFile::of(&path) == Some(SceneFile::Baked) {
+                if build.any() {
+                    bail!(
+                        "--dmin/--dmax/--epsilon/--lut-depth shape a bake; {} is baked already",
+                        path.display()
+                    );
+                }
+                None
+            } else {
+                Some(build.params()?)
+            };
+            let scene = Instanced::from_file(&path, build.as_ref())?;
+            return check_scene(scene, particles_file.as_deref(), emit, seed, steps, &params);
+        }
     }
     let mesh_list = match (meshes.is_empty(), &builtin_name) {
         (true, None) => bail!("check needs a scene: --mesh MESH or --scene NAME"),
@@ -237,6 +267,146 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
             "{} penetrations and {} NaN particles",
             report.penetrations,
             report.non_finite
+        );
+    }
+    Ok(())
+}
+
+/// `check --scene FILE`: particles stepped through a scene of moving instances on the CPU,
+/// every piece of every path checked against each instance's own mesh in its frame at the
+/// pose of each moment (`octoproxy_cpu::harness::scene`).
+fn check_scene(
+    mut inst: Instanced,
+    particles_file: Option<&std::path::Path>,
+    emit: Option<usize>,
+    seed: u64,
+    steps_given: u32,
+    params: &StepParams,
+) -> Result<()> {
+    use glam::Vec3;
+    use octoproxy_core::{Backend, ProxyView, SceneSides};
+    use octoproxy_cpu::emit::emit_box;
+    use octoproxy_cpu::harness::scene::{traced_pieces, SceneCheck, Tally};
+    use octoproxy_cpu::CpuBackend;
+
+    let t = Instant::now();
+    let refs: Vec<MeshRef<'_>> = inst.meshes.iter().map(|m| MeshRef::from(&m[0])).collect();
+    let views: Vec<ProxyView<'_>> = inst.scene.proxies().iter().map(|p| p.view()).collect();
+    let mut check = SceneCheck::new(&refs, &inst.closed, &views);
+    drop(views);
+    eprintln!(
+        "ground truth: {} meshes ({} closed: winding numbers; the others open: crossing parity), {:.0} ms",
+        inst.closed.len(),
+        inst.closed.iter().filter(|&&c| c).count(),
+        t.elapsed().as_secs_f64() * 1e3
+    );
+    let duration = inst.duration();
+    let steps = if duration > 0.0 && steps_given == 100 {
+        (duration / params.dt as f64).ceil().max(1.0) as u32
+    } else {
+        steps_given
+    };
+    // Speeds from a tenth of the finest leaf to the whole scene per step.
+    let (lo, hi) = inst.world_box();
+    let size = (hi - lo).max_element();
+    let leaf = inst
+        .scene
+        .instances()
+        .iter()
+        .filter(|i| i.is_active())
+        .map(|i| {
+            inst.scene.proxies()[i.proxy as usize]
+                .view()
+                .finest_leaf_size()
+                * i.start.scale.min(i.end.scale)
+        })
+        .fold(f32::INFINITY, f32::min);
+    let particles = match particles_file {
+        Some(path) => read_particles(path)?.particles,
+        None => {
+            let n = emit.unwrap_or(20_000);
+            let speeds = [0.1 * leaf, leaf, 5.0 * leaf, 0.25 * size, size];
+            let mut ps = Vec::with_capacity(n);
+            for (k, s) in speeds.iter().enumerate() {
+                let count = n / speeds.len() + (k < n % speeds.len()) as usize;
+                ps.extend(emit_box(count, lo, hi, s / params.dt, seed + k as u64));
+            }
+            ps
+        }
+    };
+    let given = particles.len();
+    let particles = outside_all(particles, &check, &inst.scene);
+    eprintln!(
+        "particles: {} of {given} start outside every part (two leaf diagonals from every surface); {steps} steps",
+        particles.len()
+    );
+    let Some(sides_by_proxy): Option<Vec<Sides>> = inst.sides().into_iter().collect() else {
+        bail!("the scene's proxies came without their meshes");
+    };
+    let (sides, _) = octoproxy_cpu::starting_scene_sides(&inst.scene, &sides_by_proxy, &particles);
+    let mut cpu = CpuBackend::new();
+    cpu.upload_particles(&particles)?;
+    cpu.upload_scene_sides(&sides)?;
+    check.begin(inst.scene.instances(), &particles);
+    let mut before = particles;
+    let mut tally = Tally::default();
+    let mut differ = 0usize;
+    let bar = crate::progress::bar(steps as u64, "checking");
+    let t = Instant::now();
+    for k in 1..=steps {
+        inst.pose_at(k as f64 * params.dt as f64)?;
+        inst.scene.prepare()?;
+        inst.scene.upload_proxies(&mut cpu)?;
+        let mut sides = vec![SceneSides::EMPTY; before.len()];
+        cpu.download_scene_sides(&mut sides)?;
+        cpu.step_scene(
+            inst.scene.instances(),
+            inst.scene.broad_phase(),
+            params,
+            false,
+        )?;
+        let mut after = vec![octoproxy_core::Particle::default(); before.len()];
+        cpu.download_particles(&mut after)?;
+        let (pieces, bad) = inst
+            .scene
+            .with_view(|view| traced_pieces(view, &before, &sides, &after, params))?;
+        differ += bad.len();
+        tally.add(&check.step(inst.scene.instances(), &before, &after, Some(&pieces)));
+        inst.scene.hold();
+        before = after;
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let secs = t.elapsed().as_secs_f64();
+    println!(
+        "{} particles × {steps} steps = {} particle-steps in {secs:.1} s ({:.2} µs per checked particle-step)",
+        before.len(),
+        tally.particle_steps,
+        secs * 1e6 / tally.particle_steps.max(1) as f64
+    );
+    println!(
+        "penetrations: {} (particle-steps too deep on the other side of an instance's mesh, at a step's end or on its path in the instance's frame)",
+        tally.penetrations
+    );
+    println!(
+        "collisions: {}; particle-steps crushed between instances (counted, not checked after): {}",
+        tally.collisions, tally.crushed
+    );
+    let non_finite = before
+        .iter()
+        .filter(|p| !Vec3::from_array(p.position).is_finite())
+        .count();
+    println!("NaN or infinite: {non_finite}");
+    for e in &tally.examples {
+        println!("  e.g. {e}");
+    }
+    if differ > 0 {
+        bail!("{differ} particle-steps of the traced step differ from the step: a bug, please report it");
+    }
+    if tally.penetrations > 0 || non_finite > 0 {
+        bail!(
+            "{} penetrations and {non_finite} NaN particles",
+            tally.penetrations
         );
     }
     Ok(())

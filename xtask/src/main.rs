@@ -18,6 +18,7 @@ mod bench;
 mod check;
 mod demo;
 mod flags;
+mod instanced;
 #[cfg(feature = "dev")]
 mod plot;
 mod progress;

@@ -17,15 +17,24 @@ use octoproxy_cpu::MeshRef;
 use crate::backends::{select_backend, BackendChoice};
 use crate::bake::same_file;
 use crate::flags::{self, BuildFlags};
+use crate::instanced::{
+    list_instances, looks_baked, only_view, take_slots, with_scene_columns, write_events,
+    Instanced, SceneFile,
+};
 use crate::scene;
 
 fn help() -> String {
     format!(
-        "usage: octoproxy sim (--mesh MESH... | --proxy FILE) (--particles IN.ply | --emit N ...) -o OUT.ply [options]
+        "usage: octoproxy sim (--mesh MESH... | --proxy FILE | --scene FILE) (--particles IN.ply | --emit N ...) -o OUT.ply [options]
 
 scene:
   --mesh MESH       a mesh of the scene (repeat for several); baked before stepping
   --proxy FILE      a proxy file from `octoproxy bake` (build options are then an error)
+  --scene FILE      a glTF 2.0 scene (.gltf, .glb: each mesh baked once, nodes with a mesh
+                    its instances, animations played from time 0), or a baked scene
+                    (.octoscene, from `octoproxy bake --scene`: build options are an error)
+  --list-instances  print the scene's instances (index, node, mesh, pose) and stop
+  --start-time S    animation time at the start of the first step (default 0)
 {}
 
 particles:
@@ -38,7 +47,7 @@ particles:
   --seed K          emitter seed (default 1)
 
 stepping:
-  --steps N         steps (default 100)
+  --steps N         steps (default 100; with an animated --scene, its length)
   --dt S            seconds per step (default 1/60)
   --gravity X,Y,Z   acceleration (default 0,-9.81,0)
   --restitution R   in [0, 1] (default 0.5)
@@ -50,7 +59,16 @@ output:
   --ascii           write ascii PLY instead
   --frames DIR      also write DIR/frame_00000.ply ... (initial state first, final last)
   --every K         write a frame every K steps (default 1)
-  --force           allow --frames into a directory that already holds frames",
+  --force           allow --frames into a directory that already holds frames
+  --hits            write each particle's last collision of its last step (hit_instance,
+                    -1 for none; hit_x hit_y hit_z, hit_nx hit_ny hit_nz, hit_t, hit_speed)
+  --events FILE     write every collision of every step as a PLY point cloud (step,
+                    particle and the hit fields, at the hit's position)
+  --event-capacity N  events kept per step before they count as lost (default 1048576)
+
+A scene, or --hits or --events, steps through the scene API: the output then carries each
+particle's sides for the instances it is near (scene_slot0..7), which a later run of the
+same scene reads back to continue where this one stopped.",
         flags::BUILD_HELP
     )
 }
@@ -59,6 +77,12 @@ output:
 struct Opts {
     meshes: Vec<PathBuf>,
     proxy: Option<PathBuf>,
+    scene: Option<PathBuf>,
+    list_instances: bool,
+    start_time: Option<f64>,
+    hits: bool,
+    events: Option<PathBuf>,
+    event_capacity: Option<usize>,
     build: BuildFlags,
     particles: Option<PathBuf>,
     emit: Option<usize>,
@@ -90,6 +114,12 @@ fn parse(args: Vec<OsString>) -> Result<Option<Opts>> {
         match name.as_str() {
             "--mesh" => o.meshes.push(flags::path(p, "--mesh")?),
             "--proxy" => o.proxy = Some(flags::path(p, "--proxy")?),
+            "--scene" => o.scene = Some(flags::path(p, "--scene")?),
+            "--list-instances" => o.list_instances = true,
+            "--start-time" => o.start_time = Some(flags::number(p, "--start-time")?),
+            "--hits" => o.hits = true,
+            "--events" => o.events = Some(flags::path(p, "--events")?),
+            "--event-capacity" => o.event_capacity = Some(flags::number(p, "--event-capacity")?),
             "--particles" => o.particles = Some(flags::path(p, "--particles")?),
             "--emit" => o.emit = Some(flags::number(p, "--emit")?),
             "--emit-box" => o.emit_box = Some(flags::floats::<6>(p, "--emit-box")?),
@@ -120,14 +150,34 @@ fn parse(args: Vec<OsString>) -> Result<Option<Opts>> {
 pub fn run(args: Vec<OsString>) -> Result<()> {
     let Some(o) = parse(args)? else { return Ok(()) };
     // Check everything before any work.
-    match (o.meshes.is_empty(), &o.proxy) {
-        (true, None) => bail!("sim needs a scene: --mesh MESH or --proxy FILE"),
-        (false, Some(_)) => bail!("give either --mesh or --proxy, not both"),
-        (_, Some(_)) if o.build.any() => {
-            bail!("--dmin/--dmax/--epsilon/--lut-depth shape a bake; a --proxy is already baked")
-        }
-        _ => {}
+    let sources = !o.meshes.is_empty() as u32 + o.proxy.is_some() as u32 + o.scene.is_some() as u32;
+    match sources {
+        0 => bail!("sim needs a scene: --mesh MESH, --proxy FILE or --scene FILE"),
+        1 => {}
+        _ => bail!("give one of --mesh, --proxy and --scene"),
     }
+    if o.proxy.is_some() && o.build.any() {
+        bail!("--dmin/--dmax/--epsilon/--lut-depth shape a bake; a --proxy is already baked");
+    }
+    if let Some(t) = o.start_time {
+        if !t.is_finite() {
+            bail!("--start-time must be a finite number of seconds, got {t}");
+        }
+    }
+    if o.event_capacity.is_some() && o.events.is_none() {
+        bail!("--event-capacity goes with --events");
+    }
+    if o.event_capacity == Some(0) {
+        bail!("--event-capacity must be at least 1");
+    }
+    if o.list_instances {
+        let Some(path) = &o.scene else {
+            bail!("--list-instances goes with --scene (a mesh or proxy is one instance, 0, at the identity)");
+        };
+        print!("{}", list_instances(path)?);
+        return Ok(());
+    }
+
     match (&o.particles, o.emit) {
         (None, None) => bail!("sim needs particles: --particles FILE or --emit N"),
         (Some(_), Some(_)) => bail!("give either --particles or --emit, not both"),
@@ -174,6 +224,12 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     let every = o.every.unwrap_or(1);
     if every == 0 {
         bail!("--every must be at least 1");
+    }
+    if o.scene.is_some() || o.hits || o.events.is_some() {
+        return run_scene(o);
+    }
+    if o.start_time.is_some() {
+        bail!("--start-time goes with an animated --scene");
     }
     let defaults = StepParams::default();
     let params = StepParams {
@@ -434,4 +490,274 @@ pub(crate) fn report_cages(cages: &CageCounts, n: usize) {
             String::new()
         }
     );
+}
+
+/// A scene file, baked here when it is glTF (with the build flags), read when it is baked.
+fn instanced_from(path: &Path, build: &BuildFlags) -> Result<Instanced> {
+    let kind = SceneFile::of(path).or_else(|| looks_baked(path).then_some(SceneFile::Baked));
+    match kind {
+        Some(SceneFile::Baked) => {
+            if build.any() {
+                bail!(
+                    "--dmin/--dmax/--epsilon/--lut-depth shape a bake; {} is baked already",
+                    path.display()
+                );
+            }
+            let baked = octoproxy_cpu::gltf::BakedScene::read(path)?;
+            Instanced::from_baked(baked)
+        }
+        _ => Instanced::from_file(path, Some(&build.params()?)),
+    }
+}
+
+/// `--mesh` or `--proxy` as a scene of one instance at the identity.
+fn one_instance(o: &Opts) -> Result<Instanced> {
+    let scene = match &o.proxy {
+        Some(path) => scene::read_proxy(path)?,
+        None => scene::bake_meshes(scene::load_meshes(&o.meshes)?, &o.build.params()?)?,
+    };
+    scene::print_bake_summary(&scene)?;
+    Instanced::one(scene.words, scene.meshes)
+}
+
+/// `sim` through the scene API: a scene file, or a mesh or proxy as a scene of one instance,
+/// with hit records, events and each particle's sides for the instances it is near.
+fn run_scene(o: Opts) -> Result<()> {
+    let out = o.out.clone().context("sim needs --out FILE (or -o FILE)")?;
+    let defaults = StepParams::default();
+    let params = StepParams {
+        gravity: o.gravity.unwrap_or(defaults.gravity),
+        dt: o.dt.unwrap_or(defaults.dt),
+        restitution: o.restitution.unwrap_or(defaults.restitution),
+        friction: o.friction.unwrap_or(defaults.friction),
+        _pad: [0; 2],
+    };
+    params.validate()?;
+    let every = o.every.unwrap_or(1);
+    if let Some(dir) = &o.frames {
+        prepare_frames_dir(dir, o.force)?;
+    }
+    if o.emit_surface && o.scene.is_some() {
+        bail!("--emit-surface needs --mesh (with --scene, emit in a box)");
+    }
+    let mut inst = match &o.scene {
+        Some(path) => instanced_from(path, &o.build)?,
+        None => one_instance(&o)?,
+    };
+    let start = o.start_time.unwrap_or(0.0);
+    inst.hold_at(start)?;
+    let duration = inst.duration();
+    let steps = match o.steps {
+        Some(n) => n,
+        None if duration > 0.0 => ((duration - start) / params.dt as f64).ceil().max(1.0) as u32,
+        None => 100,
+    };
+    let instances = inst.scene.instances().len();
+    eprintln!(
+        "scene: {instances} instances of {} proxies{}",
+        inst.scene.proxies().len(),
+        if duration > 0.0 {
+            format!(
+                ", animated for {duration:.3} s: {steps} steps of {} s from {start} s",
+                params.dt
+            )
+        } else {
+            String::new()
+        }
+    );
+
+    // The particles and their sides.
+    let mut cloud = match (&o.particles, o.emit) {
+        (Some(path), _) => {
+            let cloud = read_particles(path)?;
+            eprintln!(
+                "read {} particles from {}",
+                cloud.particles.len(),
+                path.display()
+            );
+            cloud
+        }
+        (None, Some(n)) => {
+            let speed = o.emit_speed.unwrap_or(0.0);
+            let seed = o.seed.unwrap_or(1);
+            let particles = if o.emit_surface {
+                let view = only_view(&inst.scene);
+                let refs: Vec<MeshRef<'_>> = inst.meshes[0].iter().map(MeshRef::from).collect();
+                emit_surface_for(&view, n, &refs, speed, seed)
+            } else {
+                let (min, max) = match o.emit_box {
+                    Some(b) => (Vec3::new(b[0], b[1], b[2]), Vec3::new(b[3], b[4], b[5])),
+                    None => inst.world_box(),
+                };
+                emit_box(n, min, max, speed, seed)
+            };
+            ParticleCloud::from_particles(particles)
+        }
+        (None, None) => unreachable!("checked above"),
+    };
+    let sides = match take_slots(&mut cloud)? {
+        Some(sides) => {
+            eprintln!(
+                "sides: the file's, for every instance each particle was near (scene_slot0..7), kept"
+            );
+            sides
+        }
+        None if instances == 1 && o.scene.is_none() => {
+            // One mesh or proxy at the identity: a side per particle, as the plain step has.
+            let view = only_view(&inst.scene);
+            if o.emit_surface {
+                let refs: Vec<MeshRef<'_>> = inst.meshes[0].iter().map(MeshRef::from).collect();
+                let cages = Sides::new(&refs).cages(&view, &mut cloud.particles, false);
+                report_cages(&cages, cloud.particles.len());
+            } else {
+                let words = inst.scene.proxies()[0].words().to_vec();
+                let one = scene::Scene {
+                    words,
+                    meshes: inst.meshes[0].clone(),
+                    triangles: 0,
+                    bake_time: None,
+                    report: None,
+                };
+                starting_sides(&one, &view, &mut cloud)?;
+            }
+            cloud
+                .particles
+                .iter()
+                .map(|p| {
+                    let mut s = octoproxy_core::SceneSides::EMPTY;
+                    s.set_side(0, p.side);
+                    s
+                })
+                .collect()
+        }
+        None => {
+            if cloud.has_side {
+                eprintln!(
+                    "sides: the file's `side` is for a scene of one instance; with {instances} instances each particle takes its sides from the meshes"
+                );
+            }
+            let per_proxy = inst.sides();
+            let Some(all): Option<Vec<Sides>> = per_proxy.into_iter().collect() else {
+                bail!("the scene's proxies came without their meshes");
+            };
+            let t = Instant::now();
+            let (sides, from_mesh) =
+                octoproxy_cpu::starting_scene_sides(&inst.scene, &all, &cloud.particles);
+            eprintln!(
+                "sides: {from_mesh} of {} particles start in an instance's surface leaf and take their side from its mesh (exact, {:.0} ms); the others take it from the empty leaf they are in",
+                cloud.particles.len(),
+                t.elapsed().as_secs_f64() * 1e3
+            );
+            sides
+        }
+    };
+
+    let mut backend = select_backend(o.backend.unwrap_or(BackendChoice::Auto))?;
+    backend.upload_particles(&cloud.particles)?;
+    backend.upload_scene_sides(&sides)?;
+    let capacity = o.event_capacity.unwrap_or(1 << 20);
+    if o.events.is_some() {
+        backend.set_event_capacity(capacity)?;
+    }
+    let encoding = if o.ascii {
+        PlyEncoding::Ascii
+    } else {
+        PlyEncoding::BinaryLittleEndian
+    };
+    let n = cloud.particles.len();
+    let mut sides = sides;
+    let mut hits = vec![octoproxy_core::Hit::NONE; n];
+    let mut frame = 0u32;
+    let mut write_frame = |cloud: &ParticleCloud,
+                           sides: &[octoproxy_core::SceneSides],
+                           hits: &[octoproxy_core::Hit]|
+     -> Result<()> {
+        if let Some(dir) = &o.frames {
+            let path = dir.join(format!("frame_{frame:05}.ply"));
+            let columns = with_scene_columns(cloud, sides, o.hits.then_some(hits));
+            write_particles(&path, &columns, encoding)
+                .with_context(|| format!("writing {}", path.display()))?;
+            frame += 1;
+        }
+        Ok(())
+    };
+    write_frame(&cloud, &sides, &hits)?;
+    let mut events = Vec::new();
+    let none = octoproxy_core::HitEvent {
+        step: 0,
+        particle: 0,
+        hit: octoproxy_core::Hit::NONE,
+    };
+    let mut event_buf = vec![none; if o.events.is_some() { capacity } else { 0 }];
+    let mut lost = 0u64;
+    let bar = crate::progress::bar(steps as u64, "stepping");
+    let mut stepping = Duration::ZERO;
+    for k in 1..=steps {
+        let t = Instant::now();
+        inst.pose_at(start + k as f64 * params.dt as f64)?;
+        backend.step_scene(&mut inst.scene, &params, o.hits)?;
+        if o.events.is_some() {
+            let count = backend.take_events(&mut event_buf)?;
+            events.extend_from_slice(&event_buf[..count.stored]);
+            lost += count.lost;
+        }
+        stepping += t.elapsed();
+        bar.inc(1);
+        if o.frames.is_some() && (k % every == 0 || k == steps) {
+            backend.download_particles(&mut cloud.particles)?;
+            backend.download_scene_sides(&mut sides)?;
+            if o.hits {
+                backend.download_hits(&mut hits)?;
+            }
+            write_frame(&cloud, &sides, &hits)?;
+        }
+    }
+    bar.finish_and_clear();
+    backend.finish()?;
+    backend.download_particles(&mut cloud.particles)?;
+    backend.download_scene_sides(&mut sides)?;
+    if o.hits {
+        backend.download_hits(&mut hits)?;
+    }
+    let report = backend.take_scene_report()?;
+    let columns = with_scene_columns(&cloud, &sides, o.hits.then_some(&hits[..]));
+    write_particles(&out, &columns, encoding)
+        .with_context(|| format!("writing {}", out.display()))?;
+    if let Some(path) = &o.events {
+        write_events(path, &events)?;
+    }
+
+    let count = |f: u32| cloud.particles.iter().filter(|p| p.flags & f != 0).count();
+    let collisions: u64 = cloud.particles.iter().map(|p| p.collisions() as u64).sum();
+    eprintln!("particles: {n}");
+    eprintln!(
+        "steps: {steps} × {} s on {}: {:.3} ms per step",
+        params.dt,
+        backend.name(),
+        stepping.as_secs_f64() * 1e3 / steps.max(1) as f64
+    );
+    eprintln!(
+        "collisions: {collisions}; particle-steps crushed between instances: {}, with sides lost: {}; flagged now: {} invalid (NaN/inf), {} at a bound or carried, {} kept from crossing",
+        report.crushed,
+        report.sides_lost,
+        count(FLAG_INVALID),
+        count(FLAG_BOUND_HIT),
+        count(FLAG_BLOCKED)
+    );
+    if o.hits {
+        let hit = hits.iter().filter(|h| h.instance >= 0).count();
+        eprintln!("hits: {hit} of {n} particles collided in the last step");
+    }
+    if let Some(path) = &o.events {
+        eprintln!(
+            "events: {} written to {}, {lost} lost (more than --event-capacity {capacity} in one step)",
+            events.len(),
+            path.display()
+        );
+    }
+    if let Some(dir) = &o.frames {
+        eprintln!("frames: {frame} in {}", dir.display());
+    }
+    println!("wrote {}", out.display());
+    Ok(())
 }

@@ -325,9 +325,14 @@ fn chords(
     ub: f32,
     mut f: impl FnMut(Vec3, Vec3, &dyn Fn(f32) -> f32),
 ) {
+    // The ends exactly: the next piece starts where this one ends, to the bit.
     let local = |t: f32| {
-        inst.pose_at(ua + (ub - ua) * t)
-            .to_local(pa + (pb - pa) * t)
+        if t == 1.0 {
+            inst.pose_at(ub).to_local(pb)
+        } else {
+            inst.pose_at(ua + (ub - ua) * t)
+                .to_local(pa + (pb - pa) * t)
+        }
     };
     let n: u32 = if inst.is_static() { 1 } else { 64 };
     for j in 0..n {

@@ -1,0 +1,415 @@
+//! Scenes on the command line end to end: glTF files written by Blender and the Khronos
+//! samples, `bake --scene` and the baked file, `sim --scene` with hit records, events and a
+//! restart from its output, `check --scene`, and one-line errors for bad scenes.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use octoproxy_cpu::io::read_particles;
+
+fn octoproxy(args: &[&str], dir: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_octoproxy"))
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("octoproxy runs")
+}
+
+fn ok(out: &Output) -> String {
+    assert!(
+        out.status.success(),
+        "failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    )
+}
+
+fn fails_with(out: &Output, needle: &str) {
+    assert!(!out.status.success(), "expected a failure");
+    let err = String::from_utf8_lossy(&out.stderr);
+    let last = err.lines().rfind(|l| !l.trim().is_empty()).unwrap_or("");
+    assert!(last.starts_with("error: "), "stderr: {err}");
+    assert!(last.contains(needle), "expected {needle:?} in {last:?}");
+    assert!(!err.contains("panicked"), "stderr: {err}");
+}
+
+/// The glTF fixtures (`backend-cpu/tests/data/gltf`).
+fn fixture(name: &str) -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../backend-cpu/tests/data/gltf")
+        .join(name)
+        .display()
+        .to_string()
+}
+
+/// A fresh directory, removed when the test passes.
+struct Scratch(PathBuf);
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        if !std::thread::panicking() {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
+}
+
+fn scratch(name: &str) -> Scratch {
+    let dir = std::env::temp_dir().join(format!("octoproxy-scene-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    Scratch(dir)
+}
+
+/// The index of a property among a cloud's extra columns.
+fn column(cloud: &octoproxy_cpu::io::ParticleCloud, name: &str) -> usize {
+    cloud
+        .extra
+        .properties
+        .iter()
+        .position(|(n, _)| n == name)
+        .unwrap_or_else(|| panic!("no {name} column"))
+}
+
+#[test]
+fn list_instances_names_every_node_with_a_mesh_in_depth_first_order() {
+    let dir = scratch("list");
+    let text = ok(&octoproxy(
+        &[
+            "sim",
+            "--scene",
+            &fixture("blender/blender_keys.gltf"),
+            "--list-instances",
+        ],
+        &dir.0,
+    ));
+    let rows: Vec<&str> = text
+        .lines()
+        .filter(|l| l.starts_with(char::is_numeric))
+        .collect();
+    assert_eq!(rows.len(), 5, "{text}");
+    for (i, name) in ["Parent", "Child", "DupStill", "DupStep", "DupLinear"]
+        .iter()
+        .enumerate()
+    {
+        assert!(rows[i].starts_with(&format!("{i}\t")), "{}", rows[i]);
+        assert!(rows[i].contains(&format!("\"{name}\"")), "{}", rows[i]);
+    }
+    // The three Dup* share one mesh.
+    assert!(rows[2..].iter().all(|r| r.contains("SharedIco")), "{text}");
+}
+
+#[test]
+fn a_baked_scene_steps_with_hits_and_events_and_a_restart_continues_it() {
+    let dir = scratch("baked");
+    let d = &dir.0;
+    let glb = fixture("blender/blender_sampled.glb");
+    ok(&octoproxy(
+        &[
+            "bake",
+            "--scene",
+            &glb,
+            "--dmax",
+            "5",
+            "-o",
+            "scene.octoscene",
+        ],
+        d,
+    ));
+    let text = ok(&octoproxy(
+        &[
+            "sim",
+            "--scene",
+            "scene.octoscene",
+            "--emit",
+            "2000",
+            "--emit-speed",
+            "2",
+            "--steps",
+            "40",
+            "--hits",
+            "--events",
+            "events.ply",
+            "--frames",
+            "frames",
+            "--every",
+            "20",
+            "--backend",
+            "cpu",
+            "-o",
+            "out.ply",
+        ],
+        d,
+    ));
+    assert!(text.contains("scene: 5 instances of 3 proxies"), "{text}");
+    let out = read_particles(&d.join("out.ply")).unwrap();
+    assert_eq!(out.particles.len(), 2000);
+    let slot = column(&out, "scene_slot0");
+    let hit = column(&out, "hit_instance");
+    let hits = (0..out.particles.len())
+        .filter(|&i| out.extra.row(i).unwrap()[hit] >= 0.0)
+        .count();
+    assert!(
+        (0..out.particles.len()).all(|i| {
+            let v = out.extra.row(i).unwrap()[hit];
+            (-1.0..5.0).contains(&v)
+        }),
+        "hit_instance is an instance or -1"
+    );
+    // Every collision of every step is an event (none lost at this size).
+    let collisions: u64 = out.particles.iter().map(|p| p.collisions() as u64).sum();
+    let events = read_particles(&d.join("events.ply")).unwrap();
+    assert_eq!(events.particles.len() as u64, collisions, "{text}");
+    assert!(
+        collisions > 0 && hits > 0,
+        "{collisions} collisions, {hits} hits"
+    );
+    // Frame 0 has no hits; the last frame is the output.
+    let first = read_particles(&d.join("frames/frame_00000.ply")).unwrap();
+    let h0 = column(&first, "hit_instance");
+    assert!((0..2000).all(|i| first.extra.row(i).unwrap()[h0] == -1.0));
+    let last = read_particles(&d.join("frames/frame_00002.ply")).unwrap();
+    assert_eq!(last.particles, out.particles);
+    // Sides for some instance were kept.
+    assert!((0..2000).any(|i| out.extra.row(i).unwrap()[slot] != u32::MAX as f64));
+
+    // A restart from the output reads the sides back and goes on from its time.
+    let text = ok(&octoproxy(
+        &[
+            "sim",
+            "--scene",
+            "scene.octoscene",
+            "--particles",
+            "out.ply",
+            "--start-time",
+            "0.6667",
+            "--steps",
+            "10",
+            "--backend",
+            "cpu",
+            "-o",
+            "again.ply",
+        ],
+        d,
+    ));
+    assert!(
+        text.contains("sides: the file's, for every instance"),
+        "{text}"
+    );
+    let again = read_particles(&d.join("again.ply")).unwrap();
+    assert_eq!(again.particles.len(), 2000);
+    // The columns are written once, not carried as extras and written again.
+    assert_eq!(
+        again
+            .extra
+            .properties
+            .iter()
+            .filter(|(n, _)| n == "scene_slot0")
+            .count(),
+        1
+    );
+    // Building a baked scene again is refused.
+    fails_with(
+        &octoproxy(
+            &[
+                "sim",
+                "--scene",
+                "scene.octoscene",
+                "--dmax",
+                "6",
+                "--emit",
+                "10",
+                "-o",
+                "x.ply",
+            ],
+            d,
+        ),
+        "is baked already",
+    );
+}
+
+#[test]
+fn a_scene_steps_the_same_on_the_gpu_as_on_the_cpu() {
+    let dir = scratch("gpu");
+    let d = &dir.0;
+    let gltf = fixture("blender/blender_keys.gltf");
+    let run = |backend: &str, out: &str| {
+        octoproxy(
+            &[
+                "sim",
+                "--scene",
+                &gltf,
+                "--dmax",
+                "5",
+                "--emit",
+                "1500",
+                "--emit-speed",
+                "3",
+                "--steps",
+                "24",
+                "--hits",
+                "--backend",
+                backend,
+                "-o",
+                out,
+            ],
+            d,
+        )
+    };
+    let gpu = run("wgpu", "gpu.ply");
+    if !gpu.status.success() {
+        let err = String::from_utf8_lossy(&gpu.stderr);
+        if std::env::var("CI").as_deref() == Ok("true") || !err.contains("GPU adapter") {
+            panic!("sim --backend wgpu failed: {err}");
+        }
+        eprintln!("skipped: {err}");
+        return;
+    }
+    ok(&run("cpu", "cpu.ply"));
+    let (a, b) = (
+        read_particles(&d.join("cpu.ply")).unwrap(),
+        read_particles(&d.join("gpu.ply")).unwrap(),
+    );
+    assert_eq!(a.particles.len(), b.particles.len());
+    let collisions: u64 = a.particles.iter().map(|p| p.collisions() as u64).sum();
+    assert!(collisions > 0);
+    let gpu_text = String::from_utf8_lossy(&gpu.stderr);
+    if gpu_text.contains("llvmpipe") {
+        // On lavapipe, the same bytes (particles, sides and hits).
+        assert_eq!(a, b);
+    } else {
+        for (p, q) in a.particles.iter().zip(&b.particles) {
+            assert_eq!(p.collisions(), q.collisions());
+        }
+    }
+}
+
+#[test]
+fn check_scene_finds_no_penetration_in_animated_gltf_scenes() {
+    let dir = scratch("check");
+    for (file, steps) in [
+        ("blender/blender_sampled.glb", "60"),
+        ("khronos/AnimatedTriangle.gltf", "60"),
+        ("khronos/SimpleMeshes.gltf", "30"),
+    ] {
+        let text = ok(&octoproxy(
+            &[
+                "check",
+                "--scene",
+                &fixture(file),
+                "--dmax",
+                "6",
+                "--emit",
+                "3000",
+                "--steps",
+                steps,
+            ],
+            &dir.0,
+        ));
+        assert!(text.contains("penetrations: 0"), "{file}: {text}");
+    }
+}
+
+#[test]
+fn bad_scenes_get_one_readable_line() {
+    let dir = scratch("bad");
+    let d = &dir.0;
+    // A skin is a deforming mesh: the node is named.
+    fails_with(
+        &octoproxy(
+            &[
+                "sim",
+                "--scene",
+                &fixture("khronos/SimpleSkin.gltf"),
+                "--emit",
+                "10",
+                "-o",
+                "o.ply",
+            ],
+            d,
+        ),
+        "deforming meshes",
+    );
+    fails_with(
+        &octoproxy(
+            &["check", "--scene", &fixture("khronos/SimpleMorph.gltf")],
+            d,
+        ),
+        "not supported yet",
+    );
+    // A truncated GLB names the file.
+    let glb = std::fs::read(fixture("blender/blender_sampled.glb")).unwrap();
+    std::fs::write(d.join("cut.glb"), &glb[..glb.len() / 2]).unwrap();
+    fails_with(
+        &octoproxy(
+            &["sim", "--scene", "cut.glb", "--emit", "10", "-o", "o.ply"],
+            d,
+        ),
+        "cut.glb",
+    );
+    // A damaged baked scene names the file.
+    std::fs::write(d.join("bad.octoscene"), b"OCTOSCN\0 not a scene").unwrap();
+    fails_with(
+        &octoproxy(
+            &[
+                "sim",
+                "--scene",
+                "bad.octoscene",
+                "--emit",
+                "10",
+                "-o",
+                "o.ply",
+            ],
+            d,
+        ),
+        "bad.octoscene",
+    );
+    // check --scene takes built-in names and scene files, nothing else.
+    fails_with(
+        &octoproxy(&["check", "--scene", "teapot.obj"], d),
+        "nor a scene file (.gltf, .glb, .octoscene)",
+    );
+    fails_with(
+        &octoproxy(&["bake", "--scene", "teapot.obj", "-o", "x.octoscene"], d),
+        "bake reads glTF 2.0 scenes",
+    );
+    fails_with(
+        &octoproxy(&["sim", "--mesh", "a.obj", "--list-instances"], d),
+        "--list-instances goes with --scene",
+    );
+    fails_with(
+        &octoproxy(
+            &[
+                "sim",
+                "--scene",
+                &fixture("khronos/Box.gltf"),
+                "--emit",
+                "10",
+                "--event-capacity",
+                "5",
+                "-o",
+                "o.ply",
+            ],
+            d,
+        ),
+        "--event-capacity goes with --events",
+    );
+    fails_with(
+        &octoproxy(
+            &[
+                "sim",
+                "--scene",
+                &fixture("khronos/Box.gltf"),
+                "--proxy",
+                "p",
+                "-o",
+                "o.ply",
+            ],
+            d,
+        ),
+        "give one of --mesh, --proxy and --scene",
+    );
+}

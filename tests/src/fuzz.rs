@@ -1343,6 +1343,54 @@ pub fn mesh_files(data: &[u8]) {
 }
 
 // ---------------------------------------------------------------------------------------------
+// scene_files
+// ---------------------------------------------------------------------------------------------
+
+/// The `scene_files` target: the first byte picks how the rest is read: a `.gltf` (bit 0
+/// clear) or a `.glb` (set), or a baked scene (bit 1). No input may panic. A glTF that reads
+/// must sample finite, valid poses for every instance at any time, and list its instances; a
+/// baked scene that reads must encode to bytes that read back to the same scene.
+pub fn scene_files(data: &[u8]) {
+    use octoproxy_cpu::gltf::{parse_gltf, BakedScene};
+    let Some((&selector, rest)) = data.split_first() else {
+        return;
+    };
+    if selector & 2 != 0 {
+        if let Ok(baked) = BakedScene::parse("fuzz.octoscene", rest) {
+            let again = BakedScene::parse("again.octoscene", &baked.encode())
+                .expect("a baked scene's own bytes read back");
+            assert_eq!(again.encode(), baked.encode(), "a baked scene round-trips");
+            check_poses(|t| baked.poses_at(t), baked.duration());
+        }
+        return;
+    }
+    let name = if selector & 1 != 0 { "fuzz.glb" } else { "fuzz.gltf" };
+    // No base directory: external buffers are refused, never opened.
+    if let Ok((scene, _warnings)) = parse_gltf(name, rest, None) {
+        let _ = scene.list_instances();
+        check_poses(|t| scene.poses_at(t), scene.duration());
+        for m in &scene.meshes {
+            assert!(m.mesh.positions.iter().flatten().all(|c| c.is_finite()));
+            let n = m.mesh.positions.len() as u32;
+            assert!(m.mesh.triangles.iter().flatten().all(|&i| i < n));
+        }
+    }
+}
+
+/// Poses at a few times, before, within and after the animation: valid where they sample (a
+/// time can be refused with an error naming the node, never answered with a bad pose).
+fn check_poses<E>(poses_at: impl Fn(f64) -> Result<Vec<octoproxy_core::Pose>, E>, duration: f64) {
+    assert!(duration.is_finite() && duration >= 0.0, "duration {duration}");
+    for t in [-1.0, 0.0, duration * 0.37, duration, duration + 1.0] {
+        if let Ok(poses) = poses_at(t) {
+            for p in poses {
+                assert!(p.is_valid(), "an invalid pose {p:?} at {t}");
+            }
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
 // moving
 // ---------------------------------------------------------------------------------------------
 

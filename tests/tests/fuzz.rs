@@ -108,6 +108,43 @@ fn fuzz_moving_corpus_and_sweep() {
 }
 
 #[test]
+fn fuzz_scene_files_corpus_and_sweep() {
+    let corpus = run_corpus("scene_files", fuzz::scene_files);
+    assert!(corpus >= 4, "the scene_files corpus has {corpus} files");
+    let swept = run_sweep("scene_files", fuzz::scene_files, 2000, 1024, 8);
+    assert_eq!(swept, 2000);
+    // Mutations of the corpus: bytes flipped, replaced, and files cut short.
+    let mut rng = Rng::new(8);
+    let dir = corpus_dir("scene_files");
+    let mut seeds: Vec<Vec<u8>> = std::fs::read_dir(&dir)
+        .expect("corpus")
+        .map(|e| std::fs::read(e.expect("entry").path()).expect("file"))
+        .collect();
+    seeds.sort();
+    let mut ran = 0;
+    for (k, seed) in seeds.iter().enumerate() {
+        for i in 0..150 {
+            let mut input = seed.clone();
+            for _ in 0..1 + rng.next_u64() % 4 {
+                if input.len() < 2 {
+                    break;
+                }
+                let at = 1 + (rng.next_u64() as usize) % (input.len() - 1);
+                match rng.next_u64() % 3 {
+                    0 => input[at] ^= 1 << (rng.next_u64() % 8),
+                    1 => input[at] = rng.next_u64() as u8,
+                    _ => input.truncate(at),
+                }
+            }
+            let what = format!("mutation {i} of corpus file {k}");
+            run_one("scene_files", &what, &input, fuzz::scene_files);
+            ran += 1;
+        }
+    }
+    assert!(ran >= 600, "only {ran} mutated inputs ran");
+}
+
+#[test]
 fn fuzz_mesh_files_corpus_and_sweep() {
     let corpus = run_corpus("mesh_files", fuzz::mesh_files);
     assert!(corpus >= 3, "the mesh_files corpus has {corpus} files");
@@ -295,6 +332,8 @@ fn reproduce() {
         "bake" => fuzz::bake(&data),
         "penetration" => fuzz::penetration(&data),
         "mesh_files" => fuzz::mesh_files(&data),
+        "moving" => fuzz::moving(&data),
+        "scene_files" => fuzz::scene_files(&data),
         other => panic!("unknown target {other}"),
     }
     println!("took {:?}", t.elapsed());

@@ -770,3 +770,166 @@ fn particles_truncated_binary_is_parse_error() {
     let e = parse_particles("p.ply", &bytes).err();
     assert!(matches!(e, Some(ParticleIoError::Parse { .. })), "{e:?}");
 }
+
+// ---- scenes (glTF, baked scenes, poses) ------------------------------------------------------
+
+/// The Khronos `Box` sample (a matrix node over a node with a mesh), as text to break.
+fn box_gltf() -> String {
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../backend-cpu/tests/data/gltf/khronos/Box.gltf"
+    );
+    std::fs::read_to_string(path).expect("the Box sample")
+}
+
+/// `text` with `from` replaced (once, and it must be there) by `to`.
+fn broken(text: &str, from: &str, to: &str) -> Vec<u8> {
+    assert!(text.contains(from), "{from:?} is not in the sample");
+    text.replacen(from, to, 1).into_bytes()
+}
+
+#[test]
+fn bad_gltf_is_an_error_naming_the_file_and_what_is_wrong() {
+    use octoproxy_cpu::gltf::parse_gltf;
+    let text = box_gltf();
+    assert!(parse_gltf("box.gltf", text.as_bytes(), None).is_ok());
+    let cases: [(&str, Vec<u8>, &str); 7] = [
+        (
+            "truncated",
+            text.as_bytes()[..text.len() / 2].to_vec(),
+            "box.gltf",
+        ),
+        ("not JSON", b"glTF? no".to_vec(), "box.gltf"),
+        // 36 indices read from a 72-byte view: 360 do not fit.
+        (
+            "accessor past its view",
+            broken(&text, "\"count\": 36", "\"count\": 360"),
+            "mesh 0",
+        ),
+        // Positions from the indices' accessor: unsigned short scalars, not float triples.
+        (
+            "wrong accessor type",
+            broken(&text, "\"POSITION\": 2", "\"POSITION\": 0"),
+            "mesh 0",
+        ),
+        // An index past the 24 vertices (the max says 23; the data is what counts: a bad
+        // buffer view points the indices at the positions' floats).
+        (
+            "index out of range",
+            broken(&text, "\"byteOffset\": 576", "\"byteOffset\": 0"),
+            "mesh 0",
+        ),
+        (
+            "a skin",
+            broken(&text, "\"mesh\": 0,", "\"mesh\": 0, \"skin\": 0,"),
+            "deforming meshes",
+        ),
+        (
+            "non-uniform scale",
+            broken(
+                &text,
+                "\"mesh\": 0,\n            \"matrix\": [\n                1.0,",
+                "\"mesh\": 0,\n            \"matrix\": [\n                3.0,",
+            ),
+            "node 1",
+        ),
+    ];
+    for (what, bytes, needle) in cases {
+        let e = parse_gltf("box.gltf", &bytes, None).err();
+        let msg = e.map(|e| e.to_string()).unwrap_or_default();
+        assert!(msg.starts_with("box.gltf"), "{what}: {msg:?}");
+        assert!(
+            msg.contains(needle),
+            "{what}: {msg:?} should say {needle:?}"
+        );
+    }
+}
+
+#[test]
+fn a_damaged_baked_scene_is_an_error_naming_the_file() {
+    use octoproxy_cpu::gltf::{bake_scene, parse_gltf, BakedScene};
+    let (scene, _) = parse_gltf("box.gltf", box_gltf().as_bytes(), None).expect("reads");
+    let params = BuildParams {
+        dmax: 3,
+        dmin: 2,
+        lut_depth: 0,
+        ..BuildParams::default()
+    };
+    let (baked, _) = bake_scene(&scene, &params, &()).expect("bakes");
+    let bytes = baked.encode();
+    assert!(BakedScene::parse("s.octoscene", &bytes).is_ok());
+    let mut flipped = bytes.clone();
+    flipped[bytes.len() / 2] ^= 0x10;
+    let mut version = bytes.clone();
+    version[8] ^= 2;
+    for (what, b) in [
+        ("truncated", &bytes[..bytes.len() - 3]),
+        ("a bit flipped", &flipped[..]),
+        ("another version", &version[..]),
+        ("empty", &[][..]),
+    ] {
+        let msg = BakedScene::parse("s.octoscene", b)
+            .err()
+            .map(|e| e.to_string())
+            .unwrap_or_default();
+        assert!(msg.starts_with("s.octoscene"), "{what}: {msg:?}");
+    }
+}
+
+#[test]
+fn bad_poses_are_refused_naming_the_instance() {
+    use octoproxy_core::{Pose, SceneError};
+    use octoproxy_cpu::{Scene, SceneBuildError};
+    let cube = octoproxy_cpu::scenes::cube([-0.5; 3], [0.5; 3]);
+    let (words, _) = bake(
+        &[MeshRef::from(&cube)],
+        &BuildParams {
+            dmax: 5,
+            ..BuildParams::default()
+        },
+        &(),
+    )
+    .expect("bakes");
+    let mut scene = Scene::new();
+    let proxy = scene.add_proxy(words).expect("valid");
+    let i = scene.add_instance(proxy, Pose::IDENTITY).expect("valid");
+    for bad in [
+        Pose {
+            translation: [f32::NAN, 0.0, 0.0],
+            ..Pose::IDENTITY
+        },
+        Pose {
+            rotation: [0.0, 0.0, 0.0, 2.0],
+            ..Pose::IDENTITY
+        },
+        Pose {
+            scale: -1.0,
+            ..Pose::IDENTITY
+        },
+    ] {
+        let e = scene.move_to(i, bad).err();
+        assert!(
+            matches!(e, Some(SceneBuildError::BadPose { instance, .. }) if instance == i),
+            "{bad:?}: {e:?}"
+        );
+    }
+    // So far out that f32 cannot resolve a leaf of the proxy there.
+    scene
+        .move_to(
+            i,
+            Pose {
+                translation: [3e7, 0.0, 0.0],
+                ..Pose::IDENTITY
+            },
+        )
+        .expect("a finite pose");
+    let e = scene.prepare().err();
+    assert!(
+        matches!(e, Some(SceneBuildError::Scene(SceneError::TooFarOut { instance })) if instance == i),
+        "{e:?}"
+    );
+    assert!(e
+        .expect("an error")
+        .to_string()
+        .contains(&format!("instance {i}")));
+}

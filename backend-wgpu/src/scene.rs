@@ -17,7 +17,7 @@ use octoproxy_core::{
     SceneSlots, SceneStepReport, SceneView, StepParams,
 };
 
-use crate::backend::{ErrorScope, WgpuBackend, WgpuError, PARTICLE_BYTES};
+use crate::backend::{storage, uniform, ErrorScope, WgpuBackend, WgpuError, PARTICLE_BYTES};
 use crate::shader;
 
 /// Storage buffers the scene kernel binds (the device must allow as many in one stage).
@@ -122,26 +122,6 @@ impl WgpuBackend {
                     label: Some("octoproxy scene step"),
                     source: wgpu::ShaderSource::Wgsl(shader::scene_source().into()),
                 });
-            let storage = |binding, read_only| wgpu::BindGroupLayoutEntry {
-                binding,
-                visibility: wgpu::ShaderStages::COMPUTE,
-                ty: wgpu::BindingType::Buffer {
-                    ty: wgpu::BufferBindingType::Storage { read_only },
-                    has_dynamic_offset: false,
-                    min_binding_size: None,
-                },
-                count: None,
-            };
-            let uniform = |binding, size: usize| wgpu::BindGroupLayoutEntry {
-                binding,
-                visibility: wgpu::ShaderStages::COMPUTE,
-                ty: wgpu::BindingType::Buffer {
-                    ty: wgpu::BufferBindingType::Uniform,
-                    has_dynamic_offset: false,
-                    min_binding_size: NonZeroU64::new(size as u64),
-                },
-                count: None,
-            };
             let layout = self
                 .device
                 .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -149,11 +129,11 @@ impl WgpuBackend {
                     entries: &[
                         storage(0, true),
                         storage(1, false),
-                        uniform(2, core::mem::size_of::<StepParams>()),
-                        uniform(3, core::mem::size_of::<crate::ChunkParams>()),
+                        uniform(2, core::mem::size_of::<StepParams>() as u64),
+                        uniform(3, core::mem::size_of::<crate::ChunkParams>() as u64),
                         storage(4, false),
                         storage(5, true),
-                        uniform(6, core::mem::size_of::<SceneParams>()),
+                        uniform(6, core::mem::size_of::<SceneParams>() as u64),
                         storage(7, false),
                         storage(8, false),
                         storage(9, false),

@@ -169,8 +169,6 @@ fn proxy_binding_is_the_word_array() {
 fn uniform_layouts_match_rust() {
     let module = whole();
     let layouter = layouter(&module);
-    // (WGSL struct, its Rust twin's (member, offset) pairs, the twin's size)
-    type Case<'a> = (&'a str, Vec<(String, u32)>, usize);
     let cases: [Case; 3] = [
         (
             "StepParams",
@@ -204,10 +202,21 @@ fn uniform_layouts_match_rust() {
             size_of::<ChunkParams>(),
         ),
     ];
+    assert_layouts(&module, &layouter, &cases);
+}
+
+/// A WGSL struct, its Rust twin's (member, offset) pairs, and the twin's size.
+type Case<'a> = (&'a str, Vec<(String, u32)>, usize);
+
+/// Each struct of `cases` has its Rust twin's members at its offsets, and its size.
+fn assert_layouts(module: &Module, layouter: &Layouter, cases: &[Case]) {
     for (name, rust, rust_size) in cases {
-        let (members, size, _) = wgsl_struct(&module, &layouter, name);
-        assert_eq!(members, rust, "{name} members (name, offset): WGSL vs Rust");
-        assert_eq!(size as usize, rust_size, "{name} size");
+        let (members, size, _) = wgsl_struct(module, layouter, name);
+        assert_eq!(
+            &members, rust,
+            "{name} members (name, offset): WGSL vs Rust"
+        );
+        assert_eq!(size as usize, *rust_size, "{name} size");
     }
 }
 
@@ -215,7 +224,6 @@ fn uniform_layouts_match_rust() {
 fn scene_layouts_match_core() {
     let module = scene_whole();
     let layouter = layouter(&module);
-    type Case<'a> = (&'a str, Vec<(String, u32)>, usize);
     let cases: [Case; 9] = [
         (
             "Pose",
@@ -310,11 +318,7 @@ fn scene_layouts_match_core() {
             size_of::<ChunkParams>(),
         ),
     ];
-    for (name, rust, rust_size) in cases {
-        let (members, size, _) = wgsl_struct(&module, &layouter, name);
-        assert_eq!(members, rust, "{name} members (name, offset): WGSL vs Rust");
-        assert_eq!(size as usize, rust_size, "{name} size");
-    }
+    assert_layouts(&module, &layouter, &cases);
     // The per-particle bindings: their strides are the records' sizes.
     for (binding, size) in [
         ("scene_hints", size_of::<SceneHint>()),

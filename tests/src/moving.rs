@@ -79,6 +79,17 @@ pub fn bake_mesh(mesh: &Mesh, dmax: u32) -> Vec<u32> {
     bake(&[MeshRef::from(mesh)], &params, &()).expect("bakes").0
 }
 
+/// The tests' step parameters: 60 steps a second, restitution 0.5, friction 0.1, `gravity`.
+pub fn params(gravity: [f32; 3]) -> StepParams {
+    StepParams {
+        gravity,
+        dt: 1.0 / 60.0,
+        restitution: 0.5,
+        friction: 0.1,
+        ..StepParams::default()
+    }
+}
+
 /// A pose from a translation, a rotation (normalised here) and a scale.
 pub fn pose(t: [f32; 3], q: Quat, s: f32) -> Pose {
     Pose {

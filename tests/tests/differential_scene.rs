@@ -26,7 +26,7 @@ use octoproxy_core::{
 use octoproxy_cpu::emit::Rng;
 use octoproxy_cpu::scenes::{self, Mesh};
 use octoproxy_cpu::{CpuBackend, Scene};
-use octoproxy_tests::moving::{bake_mesh, lattice, pose};
+use octoproxy_tests::moving::{bake_mesh, lattice, params, pose};
 use octoproxy_wgpu::WgpuBackend;
 
 /// The GPU backend on any adapter (lavapipe included), one for all the tests (its scene
@@ -269,16 +269,6 @@ impl<B: Backend> SceneBackend for B {
     }
     fn report_taken(&mut self) -> octoproxy_core::SceneStepReport {
         self.take_scene_report().expect("report")
-    }
-}
-
-fn params(gravity: [f32; 3]) -> StepParams {
-    StepParams {
-        gravity,
-        dt: 1.0 / 60.0,
-        restitution: 0.5,
-        friction: 0.1,
-        ..StepParams::default()
     }
 }
 

@@ -114,8 +114,26 @@ fn fuzz_scene_files_corpus_and_sweep() {
     let swept = run_sweep("scene_files", fuzz::scene_files, 2000, 1024, 8);
     assert_eq!(swept, 2000);
     // Mutations of the corpus: bytes flipped, replaced, and files cut short.
-    let mut rng = Rng::new(8);
-    let dir = corpus_dir("scene_files");
+    let ran = run_mutations("scene_files", fuzz::scene_files, 150, 8);
+    assert!(ran >= 600, "only {ran} mutated inputs ran");
+}
+
+#[test]
+fn fuzz_mesh_files_corpus_and_sweep() {
+    let corpus = run_corpus("mesh_files", fuzz::mesh_files);
+    assert!(corpus >= 3, "the mesh_files corpus has {corpus} files");
+    let swept = run_sweep("mesh_files", fuzz::mesh_files, 3000, 1024, 4);
+    assert_eq!(swept, 3000);
+    // Mutations of the well-formed corpus files reach past the headers.
+    let ran = run_mutations("mesh_files", fuzz::mesh_files, 200, 5);
+    assert!(ran >= 600, "only {ran} mutated inputs ran");
+}
+
+/// Runs `body` on `per_seed` mutations of each corpus file of `target` (after its first
+/// byte, the selector: bytes flipped or replaced, the file cut short); returns how many ran.
+fn run_mutations(target: &str, body: fn(&[u8]), per_seed: usize, seed: u64) -> usize {
+    let mut rng = Rng::new(seed);
+    let dir = corpus_dir(target);
     let mut seeds: Vec<Vec<u8>> = std::fs::read_dir(&dir)
         .expect("corpus")
         .map(|e| std::fs::read(e.expect("entry").path()).expect("file"))
@@ -123,7 +141,7 @@ fn fuzz_scene_files_corpus_and_sweep() {
     seeds.sort();
     let mut ran = 0;
     for (k, seed) in seeds.iter().enumerate() {
-        for i in 0..150 {
+        for i in 0..per_seed {
             let mut input = seed.clone();
             for _ in 0..1 + rng.next_u64() % 4 {
                 if input.len() < 2 {
@@ -137,52 +155,11 @@ fn fuzz_scene_files_corpus_and_sweep() {
                 }
             }
             let what = format!("mutation {i} of corpus file {k}");
-            run_one("scene_files", &what, &input, fuzz::scene_files);
+            run_one(target, &what, &input, body);
             ran += 1;
         }
     }
-    assert!(ran >= 600, "only {ran} mutated inputs ran");
-}
-
-#[test]
-fn fuzz_mesh_files_corpus_and_sweep() {
-    let corpus = run_corpus("mesh_files", fuzz::mesh_files);
-    assert!(corpus >= 3, "the mesh_files corpus has {corpus} files");
-    let swept = run_sweep("mesh_files", fuzz::mesh_files, 3000, 1024, 4);
-    assert_eq!(swept, 3000);
-    // Mutations of the well-formed corpus files reach past the headers.
-    let mut rng = Rng::new(5);
-    let dir = corpus_dir("mesh_files");
-    let mut seeds: Vec<Vec<u8>> = std::fs::read_dir(&dir)
-        .expect("corpus")
-        .map(|e| std::fs::read(e.expect("entry").path()).expect("file"))
-        .collect();
-    seeds.sort();
-    let mut ran = 0;
-    for (k, seed) in seeds.iter().enumerate() {
-        for i in 0..200 {
-            let mut input = seed.clone();
-            for _ in 0..1 + rng.next_u64() % 4 {
-                if input.len() < 2 {
-                    break;
-                }
-                let at = 1 + (rng.next_u64() as usize) % (input.len() - 1);
-                match rng.next_u64() % 3 {
-                    0 => input[at] ^= 1 << (rng.next_u64() % 8),
-                    1 => input[at] = rng.next_u64() as u8,
-                    _ => input.truncate(at),
-                }
-            }
-            run_one(
-                "mesh_files",
-                &format!("mutation {i} of corpus file {k}"),
-                &input,
-                fuzz::mesh_files,
-            );
-            ran += 1;
-        }
-    }
-    assert!(ran >= 600, "only {ran} mutated inputs ran");
+    ran
 }
 
 /// Writes the generated seed files of `fuzz/corpus/` (well-formed inputs that take each

@@ -13,17 +13,9 @@ use octoproxy_core::{
 };
 use octoproxy_cpu::scenes;
 use octoproxy_cpu::{CpuBackend, Scene, SceneBuildError};
-use octoproxy_tests::moving::{bake_mesh, lattice, pose, random_scene, run, scene_check, Tally};
-
-fn params(gravity: [f32; 3]) -> StepParams {
-    StepParams {
-        gravity,
-        dt: 1.0 / 60.0,
-        restitution: 0.5,
-        friction: 0.1,
-        ..StepParams::default()
-    }
-}
+use octoproxy_tests::moving::{
+    bake_mesh, lattice, params, pose, random_scene, run, scene_check, Tally,
+};
 
 #[test]
 fn a_box_translating_three_sizes_a_step_pushes_particles_and_none_tunnels() {

@@ -255,33 +255,8 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     let view = scene.view()?;
 
     // The particles.
-    let mut cloud = match (&o.particles, o.emit) {
-        (Some(path), _) => {
-            let cloud = read_particles(path)?;
-            eprintln!(
-                "read {} particles from {}",
-                cloud.particles.len(),
-                path.display()
-            );
-            cloud
-        }
-        (None, Some(n)) => {
-            let speed = o.emit_speed.unwrap_or(0.0);
-            let seed = o.seed.unwrap_or(1);
-            let particles = if o.emit_surface {
-                let refs: Vec<MeshRef<'_>> = scene.meshes.iter().map(MeshRef::from).collect();
-                emit_surface_for(&view, n, &refs, speed, seed)
-            } else {
-                let (min, max) = match o.emit_box {
-                    Some(b) => (Vec3::new(b[0], b[1], b[2]), Vec3::new(b[3], b[4], b[5])),
-                    None => scene_box(&scene, &view),
-                };
-                emit_box(n, min, max, speed, seed)
-            };
-            ParticleCloud::from_particles(particles)
-        }
-        (None, None) => unreachable!("checked above"),
-    };
+    let refs: Vec<MeshRef<'_>> = scene.meshes.iter().map(MeshRef::from).collect();
+    let mut cloud = particles_in(&o, &view, &refs, || scene_box(&scene, &view))?;
     if o.emit_surface {
         eprintln!(
             "sides: emitted {} particles in front of the surface, each within one dmax leaf of its face",
@@ -567,34 +542,8 @@ fn run_scene(o: Opts) -> Result<()> {
     );
 
     // The particles and their sides.
-    let mut cloud = match (&o.particles, o.emit) {
-        (Some(path), _) => {
-            let cloud = read_particles(path)?;
-            eprintln!(
-                "read {} particles from {}",
-                cloud.particles.len(),
-                path.display()
-            );
-            cloud
-        }
-        (None, Some(n)) => {
-            let speed = o.emit_speed.unwrap_or(0.0);
-            let seed = o.seed.unwrap_or(1);
-            let particles = if o.emit_surface {
-                let view = only_view(&inst.scene);
-                let refs: Vec<MeshRef<'_>> = inst.meshes[0].iter().map(MeshRef::from).collect();
-                emit_surface_for(&view, n, &refs, speed, seed)
-            } else {
-                let (min, max) = match o.emit_box {
-                    Some(b) => (Vec3::new(b[0], b[1], b[2]), Vec3::new(b[3], b[4], b[5])),
-                    None => inst.world_box(),
-                };
-                emit_box(n, min, max, speed, seed)
-            };
-            ParticleCloud::from_particles(particles)
-        }
-        (None, None) => unreachable!("checked above"),
-    };
+    let refs: Vec<MeshRef<'_>> = inst.meshes[0].iter().map(MeshRef::from).collect();
+    let mut cloud = particles_in(&o, &only_view(&inst.scene), &refs, || inst.world_box())?;
     let sides = match take_slots(&mut cloud)? {
         Some(sides) => {
             eprintln!(
@@ -760,4 +709,38 @@ fn run_scene(o: Opts) -> Result<()> {
     }
     println!("wrote {}", out.display());
     Ok(())
+}
+
+/// The particles: a file's, or `--emit N` of them, on the surface of `meshes` (baked into
+/// `view`) or in the box given, else in `scene_box()`.
+fn particles_in(
+    o: &Opts,
+    view: &octoproxy_core::ProxyView<'_>,
+    meshes: &[MeshRef<'_>],
+    scene_box: impl FnOnce() -> (Vec3, Vec3),
+) -> Result<ParticleCloud> {
+    if let Some(path) = &o.particles {
+        let cloud = read_particles(path)?;
+        eprintln!(
+            "read {} particles from {}",
+            cloud.particles.len(),
+            path.display()
+        );
+        return Ok(cloud);
+    }
+    let n = o
+        .emit
+        .context("sim needs particles: --particles FILE or --emit N")?;
+    let speed = o.emit_speed.unwrap_or(0.0);
+    let seed = o.seed.unwrap_or(1);
+    let particles = if o.emit_surface {
+        emit_surface_for(view, n, meshes, speed, seed)
+    } else {
+        let (min, max) = match o.emit_box {
+            Some(b) => (Vec3::new(b[0], b[1], b[2]), Vec3::new(b[3], b[4], b[5])),
+            None => scene_box(),
+        };
+        emit_box(n, min, max, speed, seed)
+    };
+    Ok(ParticleCloud::from_particles(particles))
 }

@@ -1364,7 +1364,11 @@ pub fn scene_files(data: &[u8]) {
         }
         return;
     }
-    let name = if selector & 1 != 0 { "fuzz.glb" } else { "fuzz.gltf" };
+    let name = if selector & 1 != 0 {
+        "fuzz.glb"
+    } else {
+        "fuzz.gltf"
+    };
     // No base directory: external buffers are refused, never opened.
     if let Ok((scene, _warnings)) = parse_gltf(name, rest, None) {
         let _ = scene.list_instances();
@@ -1380,7 +1384,10 @@ pub fn scene_files(data: &[u8]) {
 /// Poses at a few times, before, within and after the animation: valid where they sample (a
 /// time can be refused with an error naming the node, never answered with a bad pose).
 fn check_poses<E>(poses_at: impl Fn(f64) -> Result<Vec<octoproxy_core::Pose>, E>, duration: f64) {
-    assert!(duration.is_finite() && duration >= 0.0, "duration {duration}");
+    assert!(
+        duration.is_finite() && duration >= 0.0,
+        "duration {duration}"
+    );
     for t in [-1.0, 0.0, duration * 0.37, duration, duration + 1.0] {
         if let Ok(poses) = poses_at(t) {
             for p in poses {

@@ -8,6 +8,10 @@
 //! `--out docs/bench` rewrites those regions; `--docs-only` rewrites them (and `results.md`)
 //! from the committed `results.json` without running anything; and a test fails when a region
 //! disagrees with its rendering.
+//!
+//! Beside the mesh scenes, the scene cases (module `instances`): particles raining through a
+//! grid of 1 to 1,000 instances of two shared proxies, all still and then half of them moving,
+//! and the scene API's cost on a static scene against the plain step.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -30,15 +34,19 @@ use rayon::prelude::*;
 use crate::flags;
 use crate::plot;
 
+mod instances;
+
 const USAGE: &str = "\
 usage: octoproxy bench [--quick] [--backends cpu,wgpu] [--scenes S,S...] [--particles N,N...]
 
   --quick          one scene (the bunny), 100k particles, every method: a few minutes
   --backends L     which of cpu, wgpu to run (default: both; wgpu only when an adapter exists)
-  --scenes L       of bunny, nefertiti, ogre, beast, nefertiti-1.6m, nefertiti-6.4m
+  --scenes L       of bunny, nefertiti, ogre, beast, nefertiti-1.6m, nefertiti-6.4m, and the
+                   instance cases instances-1, instances-10, instances-100, instances-1000
                    (default: all)
   --particles L    particle counts (default 10000,100000,1000000,4000000, and 3M and 10M on a
-                   hardware GPU; suffixes k and m work)
+                   hardware GPU; the instance cases 1000000, or 100000 with --quick; suffixes
+                   k and m work)
   --steps N        timed steps per case (default: about 4M particle-steps per case, 2..50)
   --samples N      particles in each penetration check (default 2000; 60 steps each)
   --out DIR        where results go (default target/bench); with docs/bench, the committed
@@ -47,9 +55,14 @@ usage: octoproxy bench [--quick] [--backends cpu,wgpu] [--scenes S,S...] [--part
                    and docs/ from the committed docs/bench/results.json
 
 Scenes come from ../shared/meshes. Methods: octoproxy-cpu, octoproxy-cpu-nolut,
-triangle-octree, parry3d, sdf-grid and floor on the CPU; octoproxy-wgpu and floor on the GPU.";
+triangle-octree, parry3d, sdf-grid and floor on the CPU; octoproxy-wgpu and floor on the GPU;
+on one scene (nefertiti, else the first), the same proxy as a one-instance static scene through
+the scene API (octoproxy-cpu-scene-api, octoproxy-wgpu-scene-api). An instance case places
+N instances of Spot and the rocker arm on a grid and times octoproxy through Scene::step with
+every instance still, then with half of them moving.";
 
-const ALL_SCENES: [&str; 6] = [
+/// The mesh scenes: one proxy each, every method.
+const MESH_SCENES: [&str; 6] = [
     "bunny",
     "nefertiti",
     "ogre",
@@ -74,6 +87,15 @@ struct Opts {
     docs_only: bool,
     /// Particle counts run on a hardware GPU only.
     gpu_only: Vec<usize>,
+    /// Particle counts of the instance cases.
+    instance_particles: Vec<usize>,
+    /// Whether `--backends` named wgpu (the scene cases run on a software adapter only then).
+    wgpu_asked: bool,
+}
+
+/// Every scene, mesh scenes first.
+fn all_scenes() -> impl Iterator<Item = &'static str> {
+    MESH_SCENES.into_iter().chain(instances::SCENES)
 }
 
 fn parse_count(s: &str) -> Result<usize> {
@@ -107,6 +129,8 @@ fn parse(args: Vec<std::ffi::OsString>) -> Result<Option<Opts>> {
         out: PathBuf::from("target/bench"),
         docs_only: false,
         gpu_only: Vec::new(),
+        instance_particles: Vec::new(),
+        wgpu_asked: false,
     };
     let mut p = lexopt::Parser::from_args(args);
     while let Some((name, _)) = flags::next_option(&mut p)? {
@@ -119,7 +143,7 @@ fn parse(args: Vec<std::ffi::OsString>) -> Result<Option<Opts>> {
                 for b in list.split(',') {
                     match b.trim() {
                         "cpu" => o.cpu = true,
-                        "wgpu" | "gpu" => o.wgpu = true,
+                        "wgpu" | "gpu" => (o.wgpu, o.wgpu_asked) = (true, true),
                         other => bail!("--backends: expected cpu and/or wgpu, got {other:?}"),
                     }
                 }
@@ -127,10 +151,10 @@ fn parse(args: Vec<std::ffi::OsString>) -> Result<Option<Opts>> {
             "--scenes" => {
                 for s in flags::string(&mut p, "--scenes")?.split(',') {
                     let s = s.trim();
-                    if !ALL_SCENES.contains(&s) {
+                    if !all_scenes().any(|a| a == s) {
                         bail!(
                             "--scenes: unknown scene {s:?} (scenes: {})",
-                            ALL_SCENES.join(", ")
+                            all_scenes().collect::<Vec<_>>().join(", ")
                         );
                     }
                     o.scenes.push(s.to_string());
@@ -162,9 +186,18 @@ fn parse(args: Vec<std::ffi::OsString>) -> Result<Option<Opts>> {
         o.scenes = if o.quick {
             vec!["bunny".into()]
         } else {
-            ALL_SCENES.iter().map(|s| s.to_string()).collect()
+            all_scenes().map(|s| s.to_string()).collect()
         };
     }
+    // The instance cases: the counts asked for, else a million particles (the issue's
+    // count), or the quick run's count.
+    o.instance_particles = if !o.particles.is_empty() {
+        o.particles.clone()
+    } else if o.quick {
+        vec![100_000]
+    } else {
+        vec![1_000_000]
+    };
     if o.particles.is_empty() {
         o.particles = if o.quick {
             vec![100_000]
@@ -235,6 +268,23 @@ pub struct Row {
     pub ratio_to_floor: f64,
     pub penetrations_per_million: f64,
     pub band: &'static str,
+    /// Instances in the scene (0: a mesh scene, its proxy stepped alone), and how many of
+    /// them move.
+    pub instances: usize,
+    pub moving: usize,
+    /// A moving case's time over the same instances still (NaN elsewhere).
+    pub ratio_to_static: f64,
+    /// The scene API's time over the plain step's on the same proxy and particles (NaN
+    /// elsewhere).
+    pub ratio_to_plain: f64,
+}
+
+impl Row {
+    /// A row of the mesh scenes' table: one proxy, stepped by `Backend::step` (not an
+    /// instance case, nor the scene API's comparison).
+    pub fn is_mesh_case(&self) -> bool {
+        self.instances == 0 && !self.method.ends_with(instances::SCENE_API)
+    }
 }
 
 /// Particles spread through the root box, random directions, speeds in `bands` (depth-8
@@ -390,10 +440,37 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
     if gpu.as_ref().is_some_and(|g| g.is_software()) && !o.gpu_only.is_empty() {
         eprintln!("wgpu: a software adapter; skipping the GPU-only sizes (3M, 10M particles)");
     }
-    let total_cases = o.scenes.len() * (o.particles.len() + gpu_extra + 2);
+    let mesh_scenes: Vec<&String> = o
+        .scenes
+        .iter()
+        .filter(|s| instances::instance_count(s).is_none())
+        .collect();
+    let instance_scenes: Vec<(&String, usize)> = o
+        .scenes
+        .iter()
+        .filter_map(|s| Some((s, instances::instance_count(s)?)))
+        .collect();
+    // The scene cases take minutes on a software adapter (a CPU emulating a GPU): there they
+    // run only when asked for.
+    let software = gpu.as_ref().is_some_and(|g| g.is_software());
+    let gpu_scenes = !software || o.wgpu_asked;
+    if software && !o.wgpu_asked {
+        eprintln!(
+            "wgpu: a software adapter; the scene cases (instances, the scene API) run on it only with --backends wgpu"
+        );
+    }
+    let total_cases = mesh_scenes.len() * (o.particles.len() + gpu_extra + 2)
+        + instance_scenes.len() * (o.instance_particles.len() + 1)
+        + usize::from(!instance_scenes.is_empty());
+    // The scene API's comparison runs on one scene: nefertiti, else the run's first.
+    let api_scene = mesh_scenes
+        .iter()
+        .find(|s| s.as_str() == "nefertiti")
+        .or(mesh_scenes.first())
+        .map(|s| s.to_string());
     let bar = crate::progress::bar(total_cases as u64, "bench");
     let mut rows: Vec<Row> = Vec::new();
-    for name in &o.scenes {
+    for name in mesh_scenes {
         bar.set_message(format!("{name}: loading"));
         let scene = load_scene(name)?;
         let (positions, triangles) = (&scene.mesh.positions, &scene.mesh.triangles);
@@ -499,7 +576,12 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
                     ratio_to_floor: f64::NAN,
                     penetrations_per_million: pen,
                     band,
+                    instances: 0,
+                    moving: 0,
+                    ratio_to_static: f64::NAN,
+                    ratio_to_plain: f64::NAN,
                 };
+                let scene_api = band == "mixed" && api_scene.as_deref() == Some(name.as_str());
                 let mut case_rows = Vec::new();
                 if run_cpu {
                     // Every method gets one untimed step first; octoproxy's leaf hints are
@@ -523,6 +605,21 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
                         octo_ns,
                         pen_octo,
                     ));
+                    if scene_api {
+                        let ns = instances::time_scene_api(
+                            &mut cpu, &words, &particles, steps, &params,
+                        )?;
+                        let mut r = row(
+                            "octoproxy-cpu-scene-api",
+                            "cpu",
+                            bake_ms,
+                            proxy_bytes,
+                            ns,
+                            f64::NAN,
+                        );
+                        r.ratio_to_plain = ns / octo_ns;
+                        case_rows.push(r);
+                    }
                     if band == "mixed" {
                         cpu.set_use_lut(false);
                         cpu.upload_particles(&particles)?;
@@ -585,21 +682,128 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
                         octo_ns,
                         pen_octo,
                     ));
-                }
-                for backend in ["cpu", "wgpu"] {
-                    let floor = case_rows
-                        .iter()
-                        .find(|r| r.backend == backend && r.method == "floor")
-                        .map(|r| r.ns_per_particle_step);
-                    if let Some(f) = floor {
-                        for r in case_rows.iter_mut().filter(|r| r.backend == backend) {
-                            r.ratio_to_floor = r.ns_per_particle_step / f;
-                        }
+                    if scene_api && gpu_scenes {
+                        let ns = instances::time_scene_api(g, &words, &particles, steps, &params)?;
+                        let mut r = row(
+                            "octoproxy-wgpu-scene-api",
+                            "wgpu",
+                            bake_ms,
+                            proxy_bytes,
+                            ns,
+                            f64::NAN,
+                        );
+                        r.ratio_to_plain = ns / octo_ns;
+                        case_rows.push(r);
                     }
                 }
+                set_floor_ratios(&mut case_rows);
                 rows.extend(case_rows);
             }
             bar.inc(1);
+        }
+    }
+    if !instance_scenes.is_empty() {
+        bar.set_message("instances: baking the shared meshes");
+        let shared = instances::load_shared(&meshes_dir())?;
+        bar.inc(1);
+        let all_bands: Vec<(f32, f32)> = BANDS.iter().map(|b| (b.1, b.2)).collect();
+        for (name, n) in instance_scenes {
+            let grid = instances::Grid::new(n);
+            bar.set_message(format!("{name}: penetration checks"));
+            let check_steps = 60;
+            let pen_still = instances::penetration_rate(
+                &grid,
+                &shared,
+                o.samples,
+                &all_bands,
+                check_steps,
+                false,
+                &params,
+            )?;
+            let pen_moving = instances::penetration_rate(
+                &grid,
+                &shared,
+                o.samples,
+                &all_bands,
+                check_steps,
+                true,
+                &params,
+            )?;
+            bar.inc(1);
+            for &count in &o.instance_particles {
+                bar.set_message(format!("{name}: {count} particles"));
+                let steps = o
+                    .steps
+                    .unwrap_or(((4_000_000 / count.max(1)) as u32).clamp(2, 50));
+                let particles = instances::case_particles(&grid, &shared, count, &all_bands);
+                let row =
+                    |method: &str, backend: &'static str, moving: usize, ns: f64, pen: f64| Row {
+                        scene: name.clone(),
+                        triangles: shared.triangles,
+                        particles: count,
+                        method: method.to_string(),
+                        backend,
+                        build_ms: if method == "floor" {
+                            0.0
+                        } else {
+                            shared.bake_ms
+                        },
+                        memory_bytes: if method == "floor" { 0 } else { shared.bytes },
+                        ns_per_particle_step: ns,
+                        ratio_to_floor: f64::NAN,
+                        penetrations_per_million: pen,
+                        band: "mixed",
+                        instances: n,
+                        moving,
+                        ratio_to_static: f64::NAN,
+                        ratio_to_plain: f64::NAN,
+                    };
+                let per_step =
+                    |t: Instant| t.elapsed().as_secs_f64() * 1e9 / (count as f64 * steps as f64);
+                let mut case_rows = Vec::new();
+                if o.cpu {
+                    let mut cpu = CpuBackend::new();
+                    cpu.upload_particles(&particles)?;
+                    cpu.integrate_only(&params, 1)?;
+                    let t = Instant::now();
+                    cpu.integrate_only(&params, steps)?;
+                    case_rows.push(row("floor", "cpu", 0, per_step(t), f64::NAN));
+                    let [still, moving] = [false, true].map(|moving| {
+                        instances::time_case(
+                            &mut cpu, &grid, &shared, &particles, steps, moving, &params,
+                        )
+                    });
+                    let (still, moving) = (still?, moving?);
+                    case_rows.push(row("octoproxy-cpu", "cpu", 0, still, pen_still));
+                    let mut r = row("octoproxy-cpu", "cpu", grid.moving(), moving, pen_moving);
+                    r.ratio_to_static = moving / still;
+                    case_rows.push(r);
+                }
+                if let Some(g) = gpu.as_mut().filter(|_| gpu_scenes) {
+                    // The floor's kernel binds a proxy, though it reads none.
+                    g.upload_proxy(shared.proxy(0))?;
+                    g.upload_particles(&particles)?;
+                    g.integrate_only(&params, 1)?;
+                    g.wait()?;
+                    let t = Instant::now();
+                    g.integrate_only(&params, steps)?;
+                    g.wait()?;
+                    case_rows.push(row("floor", "wgpu", 0, per_step(t), f64::NAN));
+                    let still =
+                        instances::time_case(g, &grid, &shared, &particles, steps, false, &params)?;
+                    let moving =
+                        instances::time_case(g, &grid, &shared, &particles, steps, true, &params)?;
+                    // The GPU steps the very bits the CPU does (bit for bit on lavapipe): the
+                    // CPU's sample stands for both, as it does for the mesh scenes.
+                    case_rows.push(row("octoproxy-wgpu", "wgpu", 0, still, pen_still));
+                    let mut r = row("octoproxy-wgpu", "wgpu", grid.moving(), moving, pen_moving);
+                    r.ratio_to_static = moving / still;
+                    case_rows.push(r);
+                }
+                set_floor_ratios(&mut case_rows);
+                rows.extend(case_rows);
+                bar.inc(1);
+            }
         }
     }
     bar.finish_and_clear();
@@ -615,6 +819,21 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
         docs::refresh(&report)?;
     }
     Ok(())
+}
+
+/// Each row's time over its backend's floor in the same case.
+fn set_floor_ratios(case_rows: &mut [Row]) {
+    for backend in ["cpu", "wgpu"] {
+        let floor = case_rows
+            .iter()
+            .find(|r| r.backend == backend && r.method == "floor")
+            .map(|r| r.ns_per_particle_step);
+        if let Some(f) = floor {
+            for r in case_rows.iter_mut().filter(|r| r.backend == backend) {
+                r.ratio_to_floor = r.ns_per_particle_step / f;
+            }
+        }
+    }
 }
 
 /// Everything one run measured.
@@ -686,7 +905,7 @@ impl Report {
         for (i, r) in self.rows.iter().enumerate() {
             let _ = write!(
                 s,
-                "    {{\"scene\": {}, \"triangles\": {}, \"particles\": {}, \"method\": {}, \"backend\": {}, \"speed_band\": {}, \"build_ms\": {}, \"memory_bytes\": {}, \"ns_per_particle_step\": {}, \"ratio_to_floor\": {}, \"penetrations_per_million_particle_steps\": {}}}",
+                "    {{\"scene\": {}, \"triangles\": {}, \"particles\": {}, \"method\": {}, \"backend\": {}, \"speed_band\": {}, \"build_ms\": {}, \"memory_bytes\": {}, \"ns_per_particle_step\": {}, \"ratio_to_floor\": {}, \"penetrations_per_million_particle_steps\": {}",
                 json_str(&r.scene),
                 r.triangles,
                 r.particles,
@@ -699,6 +918,21 @@ impl Report {
                 json_num(r.ratio_to_floor),
                 json_num(r.penetrations_per_million)
             );
+            // The scene cases' fields, on their rows only.
+            if r.instances > 0 {
+                let _ = write!(
+                    s,
+                    ", \"instances\": {}, \"moving\": {}",
+                    r.instances, r.moving
+                );
+            }
+            if r.ratio_to_static.is_finite() {
+                let _ = write!(s, ", \"ratio_to_static\": {}", json_num(r.ratio_to_static));
+            }
+            if r.ratio_to_plain.is_finite() {
+                let _ = write!(s, ", \"ratio_to_plain\": {}", json_num(r.ratio_to_plain));
+            }
+            s.push('}');
             s.push_str(if i + 1 < self.rows.len() { ",\n" } else { "\n" });
         }
         s.push_str("  ]\n}\n");
@@ -717,9 +951,16 @@ impl Report {
                 .map(|g| format!("; GPU: {g}"))
                 .unwrap_or_default()
         );
-        s.push_str("| scene | triangles | particles | method | build (ms) | memory | ns / particle-step | ms / step | × floor | penetrations / M steps |\n");
-        s.push_str("|---|---:|---:|---|---:|---:|---:|---:|---:|---:|\n");
-        for r in self.rows.iter().filter(|r| r.band == "mixed") {
+        let mesh_rows: Vec<&Row> = self
+            .rows
+            .iter()
+            .filter(|r| r.band == "mixed" && r.is_mesh_case())
+            .collect();
+        if !mesh_rows.is_empty() {
+            s.push_str("| scene | triangles | particles | method | build (ms) | memory | ns / particle-step | ms / step | × floor | penetrations / M steps |\n");
+            s.push_str("|---|---:|---:|---|---:|---:|---:|---:|---:|---:|\n");
+        }
+        for r in mesh_rows {
             let method = if r.method == "floor" {
                 format!("floor ({})", r.backend)
             } else {
@@ -747,7 +988,7 @@ impl Report {
         let bands: Vec<&Row> = self
             .rows
             .iter()
-            .filter(|r| r.band != "mixed" && r.method != "floor")
+            .filter(|r| r.band != "mixed" && r.method != "floor" && r.is_mesh_case())
             .collect();
         if !bands.is_empty() {
             s.push_str("\nBy speed band (slow 0.1–0.5, medium 0.5–2, fast 2–5 depth-8 leaves per step):\n\n");
@@ -762,6 +1003,89 @@ impl Report {
                     r.method,
                     r.ns_per_particle_step,
                     fmt_opt(r.ratio_to_floor, 2)
+                );
+            }
+        }
+        s.push_str(&self.markdown_scene_cases());
+        s
+    }
+
+    /// The plain step's row that a scene-API row is compared with.
+    fn plain_of(&self, api: &Row) -> Option<&Row> {
+        let method = api.method.strip_suffix(instances::SCENE_API)?;
+        self.rows.iter().find(|r| {
+            r.scene == api.scene
+                && r.particles == api.particles
+                && r.backend == api.backend
+                && r.band == api.band
+                && r.method == method
+        })
+    }
+
+    /// The instance cases and the scene API's comparison, where the run has them (nothing
+    /// otherwise, so that a run before them renders as it did).
+    fn markdown_scene_cases(&self) -> String {
+        let mut s = String::new();
+        let cases: Vec<&Row> = self.rows.iter().filter(|r| r.instances > 0).collect();
+        if !cases.is_empty() {
+            let meshes: Vec<&str> = instances::MESHES.iter().map(|m| m.0).collect();
+            let _ = write!(
+                s,
+                "\nInstance cases: particles raining through a grid of instances of {} (one proxy \
+                 each, baked once), stepped through `Scene::step`, every instance static, then \
+                 half of them moving (going round, bobbing and turning):\n\n",
+                meshes.join(" and ")
+            );
+            s.push_str("| scene | instances | moving | particles | method | ns / particle-step | ms / step | × floor | moving ÷ static | penetrations / M steps |\n");
+            s.push_str("|---|---:|---:|---:|---|---:|---:|---:|---:|---:|\n");
+            for r in cases {
+                let method = if r.method == "floor" {
+                    format!("floor ({})", r.backend)
+                } else {
+                    r.method.clone()
+                };
+                let _ = writeln!(
+                    s,
+                    "| {} | {} | {} | {} | {} | {:.1} | {:.2} | {} | {} | {} |",
+                    r.scene,
+                    r.instances,
+                    r.moving,
+                    r.particles,
+                    method,
+                    r.ns_per_particle_step,
+                    r.ns_per_particle_step * r.particles as f64 * 1e-6,
+                    fmt_opt(r.ratio_to_floor, 2),
+                    fmt_opt(r.ratio_to_static, 2),
+                    fmt_opt(r.penetrations_per_million, 1)
+                );
+            }
+        }
+        let api: Vec<&Row> = self
+            .rows
+            .iter()
+            .filter(|r| r.method.ends_with(instances::SCENE_API))
+            .collect();
+        if !api.is_empty() {
+            s.push_str(
+                "\nThe scene API on a static scene: the proxy as one instance at the identity, \
+                 stepped through `Scene::step`, against the plain `Backend::step` of the same \
+                 particles:\n\n",
+            );
+            s.push_str("| scene | particles | method | plain ns / particle-step | scene API ns / particle-step | scene API ÷ plain |\n");
+            s.push_str("|---|---:|---|---:|---:|---:|\n");
+            for r in api {
+                let plain = self
+                    .plain_of(r)
+                    .map_or(f64::NAN, |p| p.ns_per_particle_step);
+                let _ = writeln!(
+                    s,
+                    "| {} | {} | {} | {} | {:.1} | {} |",
+                    r.scene,
+                    r.particles,
+                    r.method,
+                    fmt_opt(plain, 1),
+                    r.ns_per_particle_step,
+                    fmt_opt(r.ratio_to_plain, 2)
                 );
             }
         }
@@ -791,7 +1115,11 @@ impl Report {
         x: impl Fn(&Row) -> f64,
     ) -> Vec<plot::Series> {
         let mut series: Vec<plot::Series> = Vec::new();
-        for r in self.rows.iter().filter(|r| r.band == "mixed" && filter(r)) {
+        for r in self
+            .rows
+            .iter()
+            .filter(|r| r.band == "mixed" && r.is_mesh_case() && filter(r))
+        {
             let label = if r.method == "floor" {
                 format!("floor ({})", r.backend)
             } else {
@@ -814,7 +1142,12 @@ impl Report {
 
     fn plots(&self, dir: &Path) -> Result<()> {
         // Cost against particles, on the scene with the most triangles.
-        if let Some(big) = self.rows.iter().max_by_key(|r| r.triangles) {
+        if let Some(big) = self
+            .rows
+            .iter()
+            .filter(|r| r.is_mesh_case())
+            .max_by_key(|r| r.triangles)
+        {
             let scene = big.scene.clone();
             let series = self.series_by_method(|r| r.scene == scene, |r| r.particles as f64);
             plot::line_chart(
@@ -827,7 +1160,13 @@ impl Report {
         }
         // Cost against triangles, at the largest particle count: on the Nefertiti family
         // (one surface, subdivided) when the run has two of them, else across the scenes.
-        if let Some(n) = self.rows.iter().map(|r| r.particles).max() {
+        if let Some(n) = self
+            .rows
+            .iter()
+            .filter(|r| r.is_mesh_case())
+            .map(|r| r.particles)
+            .max()
+        {
             let family: Vec<&str> = ["nefertiti", "nefertiti-1.6m", "nefertiti-6.4m"]
                 .into_iter()
                 .filter(|s| self.rows.iter().any(|r| r.scene == *s))
@@ -854,11 +1193,51 @@ impl Report {
 
     fn print_summary(&self) {
         println!("{}", self.markdown());
-        // The targets: 1M particles (or the largest count the CPU ran) on the largest scene.
+        self.print_mesh_targets();
+        self.print_scene_targets();
+    }
+
+    /// The scene cases' ratios against their targets: moving instances at most twice the same
+    /// instances still (at 100 instances), and a static scene through the scene API at the
+    /// plain step's cost.
+    fn print_scene_targets(&self) {
+        let moving: Vec<&Row> = self
+            .rows
+            .iter()
+            .filter(|r| r.instances > 0 && r.ratio_to_static.is_finite())
+            .collect();
+        if !moving.is_empty() {
+            println!("moving instances (half of them moving, against all static; target at 100 instances: at most 2×):");
+            for r in moving {
+                println!(
+                    "  {} on {}, {} particles: {:.1} ns per particle-step, {:.2}× static",
+                    r.scene, r.backend, r.particles, r.ns_per_particle_step, r.ratio_to_static
+                );
+            }
+        }
+        let api: Vec<&Row> = self
+            .rows
+            .iter()
+            .filter(|r| r.ratio_to_plain.is_finite())
+            .collect();
+        if !api.is_empty() {
+            println!("the scene API on a static scene (target: the plain step's cost):");
+            for r in api {
+                println!(
+                    "  {} on {}, {} particles: {:.1} ns per particle-step, {:.2}× the plain step",
+                    r.scene, r.backend, r.particles, r.ns_per_particle_step, r.ratio_to_plain
+                );
+            }
+        }
+    }
+
+    /// The targets of the mesh scenes: 1M particles (or the largest count the CPU ran) on the
+    /// largest scene.
+    fn print_mesh_targets(&self) {
         let cpu_rows = || {
             self.rows
                 .iter()
-                .filter(|r| r.method == "octoproxy-cpu" && r.band == "mixed")
+                .filter(|r| r.method == "octoproxy-cpu" && r.band == "mixed" && r.is_mesh_case())
         };
         let Some(triangles) = cpu_rows().map(|r| r.triangles).max() else {
             return;
@@ -921,19 +1300,20 @@ mod docs {
 
     use anyhow::{anyhow, bail, Context, Result};
 
-    use super::{human_bytes, Report, Row, BANDS};
+    use super::{human_bytes, instances, Report, Row, BANDS};
 
     /// Where the committed run lives, from the repository root.
     pub const COMMITTED_DIR: &str = "docs/bench";
 
     /// Every generated region, and the file (from the repository root) that must hold it. The
     /// same region may appear in other Markdown files too.
-    pub const REGIONS: [(&str, &str); 5] = [
+    pub const REGIONS: [(&str, &str); 6] = [
         ("README.md", "table:headline"),
         ("docs/bench/README.md", "table:summary"),
         ("docs/bench/README.md", "text:findings"),
         ("docs/bench/README.md", "table:bands"),
         ("docs/bench/README.md", "text:targets"),
+        ("docs/bench/README.md", "table:instances"),
     ];
 
     /// The CPU methods in the order the tables list them; others follow as they appear.
@@ -1117,6 +1497,10 @@ mod docs {
     /// A region's content: a blank line, the rendering, a blank line (so Markdown sees the
     /// markers as their own blocks).
     pub fn render(name: &str, report: &Report) -> Result<String> {
+        if name == "table:instances" {
+            // The scene cases stand apart from the mesh scenes' run.
+            return Ok(format!("\n{}\n", scene_cases(report)));
+        }
         let run = Run::new(report)?;
         let body = match name {
             "table:headline" => run.headline(),
@@ -1201,6 +1585,149 @@ mod docs {
         }
     }
 
+    /// Whether the run's only GPU was a software one (its rows time a CPU emulating a GPU).
+    fn software_gpu(report: &Report) -> bool {
+        report.gpu.as_deref().is_some_and(|g| g.contains(", Cpu)"))
+    }
+
+    /// The scene cases: the instance cases, still and moving, and the scene API on a static
+    /// scene, with their targets; or, for a run before them, how to run them.
+    fn scene_cases(report: &Report) -> String {
+        let shown = |r: &Row| r.backend == "cpu" || !software_gpu(report);
+        let cases: Vec<&Row> = report
+            .rows
+            .iter()
+            .filter(|r| r.instances > 0 && r.method != "floor" && shown(r))
+            .collect();
+        let mut api: Vec<&Row> = report
+            .rows
+            .iter()
+            .filter(|r| r.ratio_to_plain.is_finite() && shown(r))
+            .collect();
+        // The scene API at one count: a million particles where the run has them.
+        let api_n = if api.iter().any(|r| r.particles == 1_000_000) {
+            1_000_000
+        } else {
+            api.iter().map(|r| r.particles).max().unwrap_or(0)
+        };
+        api.retain(|r| r.particles == api_n);
+        if cases.is_empty() && api.is_empty() {
+            return format!(
+                "The committed run ({}) predates the instance cases and the scene API's \
+                 comparison: `cargo xtask bench --scenes {}` runs them, and the next full run \
+                 to commit puts their figures here.",
+                report.date,
+                instances::SCENES.join(",")
+            );
+        }
+        let mut s = String::new();
+        if !cases.is_empty() {
+            let n = if cases.iter().any(|r| r.particles == 1_000_000) {
+                1_000_000
+            } else {
+                cases.iter().map(|r| r.particles).max().unwrap_or(0)
+            };
+            let at_n: Vec<&Row> = cases.into_iter().filter(|r| r.particles == n).collect();
+            let first = at_n[0];
+            let meshes: Vec<String> = instances::MESHES.iter().map(|m| m.0.to_string()).collect();
+            let _ = write!(
+                s,
+                "{} particles raining through a grid of instances of {} (one proxy each, baked \
+                 once: {} triangles, {}), stepped through `Scene::step`, ns per particle-step: \
+                 every instance static, then half of them moving (going round, bobbing and \
+                 turning):\n\n",
+                thousands(n as u64),
+                and_list(&meshes),
+                thousands(first.triangles as u64),
+                human_bytes(first.memory_bytes)
+            );
+            s.push_str("| instances | method | static | moving | moving ÷ static | × floor (moving) | penetrations / M (static, moving) |\n");
+            s.push_str("|---:|---|---:|---:|---:|---:|---:|\n");
+            let mut targets = Vec::new();
+            for r in at_n.iter().filter(|r| r.moving > 0) {
+                let Some(still) = at_n.iter().find(|q| {
+                    q.scene == r.scene
+                        && q.backend == r.backend
+                        && q.method == r.method
+                        && q.moving == 0
+                }) else {
+                    continue;
+                };
+                let _ = writeln!(
+                    s,
+                    "| {} | {} | {:.1} | {:.1} | {:.2}× | {:.0}× | {}, {} |",
+                    thousands(r.instances as u64),
+                    r.method,
+                    still.ns_per_particle_step,
+                    r.ns_per_particle_step,
+                    r.ratio_to_static,
+                    r.ratio_to_floor,
+                    penetrations(still.penetrations_per_million),
+                    penetrations(r.penetrations_per_million)
+                );
+                if r.instances == 100 {
+                    targets.push(r);
+                }
+            }
+            let verdict = if targets.is_empty() {
+                "no 100-instance case in this run".to_string()
+            } else if targets.iter().all(|r| r.ratio_to_static <= 2.0) {
+                "met".to_string()
+            } else if targets.iter().any(|r| r.ratio_to_static <= 2.0) {
+                "met on some backends".to_string()
+            } else {
+                "not met on this machine".to_string()
+            };
+            let figures: Vec<String> = targets
+                .iter()
+                .map(|r| format!("`{}` {:.2}×", r.method, r.ratio_to_static))
+                .collect();
+            let _ = writeln!(
+                s,
+                "\n- **Moving instances** (target: 100 instances, half of them moving, at most 2× \
+                 the same instances static; {verdict}){}.",
+                if figures.is_empty() {
+                    String::new()
+                } else {
+                    format!(": {}", and_list(&figures))
+                }
+            );
+        } else {
+            s.push_str("The run has no instance cases.\n\n");
+        }
+        for r in api {
+            let plain = report
+                .rows
+                .iter()
+                .find(|p| {
+                    Some(p.method.as_str()) == r.method.strip_suffix(instances::SCENE_API)
+                        && p.scene == r.scene
+                        && p.particles == r.particles
+                        && p.backend == r.backend
+                        && p.band == r.band
+                })
+                .map_or(f64::NAN, |p| p.ns_per_particle_step);
+            let _ = writeln!(
+                s,
+                "- **A static scene through the scene API** (target: the plain step's cost; \
+                 `{}`): {}, {} particles, its proxy as one instance at the identity through \
+                 `Scene::step`, {:.1} ns per particle-step against {} for `Backend::step`: \
+                 {:.2}×.",
+                r.method,
+                r.scene,
+                thousands(r.particles as u64),
+                r.ns_per_particle_step,
+                if plain.is_finite() {
+                    format!("{plain:.1}")
+                } else {
+                    "–".into()
+                },
+                r.ratio_to_plain
+            );
+        }
+        s
+    }
+
     /// The figures of one run: the CPU methods at one particle count (1M where the run has
     /// it), every scene.
     struct Run<'a> {
@@ -1215,7 +1742,10 @@ mod docs {
         fn new(report: &'a Report) -> Result<Self> {
             let octo = || {
                 report.rows.iter().filter(|r| {
-                    r.method == "octoproxy-cpu" && r.backend == "cpu" && r.band == "mixed"
+                    r.method == "octoproxy-cpu"
+                        && r.backend == "cpu"
+                        && r.band == "mixed"
+                        && r.is_mesh_case()
                 })
             };
             let n = if octo().any(|r| r.particles == 1_000_000) {
@@ -1234,7 +1764,7 @@ mod docs {
             }
             let mut methods: Vec<&str> = METHODS.to_vec();
             for r in &report.rows {
-                if r.backend == "cpu" && !methods.contains(&r.method.as_str()) {
+                if r.backend == "cpu" && r.is_mesh_case() && !methods.contains(&r.method.as_str()) {
                     methods.push(&r.method);
                 }
             }
@@ -1259,6 +1789,7 @@ mod docs {
                     && r.backend == "cpu"
                     && r.band == "mixed"
                     && r.particles == self.n
+                    && r.is_mesh_case()
             })
         }
 
@@ -1525,7 +2056,10 @@ mod docs {
                     .rows
                     .iter()
                     .filter(|r| {
-                        r.scene == *scene && r.method == "octoproxy-cpu" && r.band != "mixed"
+                        r.scene == *scene
+                            && r.method == "octoproxy-cpu"
+                            && r.band != "mixed"
+                            && r.is_mesh_case()
                     })
                     .collect();
                 let Some(n) = rows.iter().map(|r| r.particles).max() else {
@@ -1701,6 +2235,68 @@ mod docs {
             assert_eq!(rewrite(shown, &report).unwrap(), shown);
         }
 
+        /// A run with the scene cases: the mesh scenes' figures leave them out, and their own
+        /// region shows them, with the targets judged.
+        #[test]
+        fn the_scene_cases_render_apart_from_the_mesh_scenes() {
+            let row = |scene: &str, method: &str, ns: f64| Row {
+                scene: scene.into(),
+                triangles: 25_944,
+                particles: 1_000_000,
+                method: method.into(),
+                backend: "cpu",
+                build_ms: 100.0,
+                memory_bytes: 1 << 20,
+                ns_per_particle_step: ns,
+                ratio_to_floor: ns / 1.5,
+                penetrations_per_million: 0.0,
+                band: "mixed",
+                instances: 0,
+                moving: 0,
+                ratio_to_static: f64::NAN,
+                ratio_to_plain: f64::NAN,
+            };
+            let committed = load_committed().unwrap();
+            let before = render("table:summary", &committed).unwrap();
+            let mut report = load_committed().unwrap();
+            let mut api = row("nefertiti", "octoproxy-cpu-scene-api", 13.0);
+            api.ratio_to_plain = 1.04;
+            report.rows.push(api);
+            for (n, still, moving) in [(1, 20.0, 30.0), (100, 40.0, 100.0)] {
+                let scene = format!("instances-{n}");
+                let mut r = row(&scene, "octoproxy-cpu", still);
+                r.instances = n;
+                report.rows.push(r.clone());
+                r.moving = n.div_ceil(2);
+                r.ns_per_particle_step = moving;
+                r.ratio_to_static = moving / still;
+                r.penetrations_per_million = 1.0;
+                report.rows.push(r);
+            }
+            // The mesh scenes' regions are what they were.
+            assert_eq!(render("table:summary", &report).unwrap(), before);
+            let text = render("table:instances", &report).unwrap();
+            assert!(
+                text.contains("| 1 | octoproxy-cpu | 20.0 | 30.0 | 1.50× |"),
+                "{text}"
+            );
+            assert!(
+                text.contains("| 100 | octoproxy-cpu | 40.0 | 100.0 | 2.50× |"),
+                "{text}"
+            );
+            assert!(
+                text.contains("not met on this machine): `octoproxy-cpu` 2.50×"),
+                "{text}"
+            );
+            assert!(
+                text.contains("13.0 ns per particle-step against 12.5"),
+                "{text}"
+            );
+            // A run before the scene cases says how to run them.
+            let old = render("table:instances", &committed).unwrap();
+            assert!(old.contains("predates the instance cases"), "{old}");
+        }
+
         #[test]
         fn numbers_print_as_the_tables_print_them() {
             assert_eq!(thousands(6_396_032), "6,396,032");
@@ -1759,6 +2355,29 @@ mod json {
                 Value::Number(x) => Ok(*x),
                 Value::Null => Ok(f64::NAN),
                 v => bail!("\"{key}\" is {v:?}, not a number"),
+            }
+        }
+
+        /// Whether the object has `key`.
+        fn has(&self, key: &str) -> bool {
+            matches!(self, Value::Object(fields) if fields.iter().any(|(k, _)| k == key))
+        }
+
+        /// [`Value::num`], or `default` when there is no `key`.
+        fn num_or(&self, key: &str, default: f64) -> Result<f64> {
+            if self.has(key) {
+                self.num(key)
+            } else {
+                Ok(default)
+            }
+        }
+
+        /// [`Value::count`], or `default` when there is no `key`.
+        fn count_or(&self, key: &str, default: usize) -> Result<usize> {
+            if self.has(key) {
+                self.count(key)
+            } else {
+                Ok(default)
             }
         }
 
@@ -1958,6 +2577,11 @@ mod json {
             ratio_to_floor: r.num("ratio_to_floor")?,
             penetrations_per_million: r.num("penetrations_per_million_particle_steps")?,
             band: known("speed band", r.str("speed_band")?, bands)?,
+            // The scene cases' fields: absent on the other rows, and in runs before them.
+            instances: r.count_or("instances", 0)?,
+            moving: r.count_or("moving", 0)?,
+            ratio_to_static: r.num_or("ratio_to_static", f64::NAN)?,
+            ratio_to_plain: r.num_or("ratio_to_plain", f64::NAN)?,
         })
     }
 
@@ -2010,6 +2634,10 @@ mod json {
                     ratio_to_floor: 1.0,
                     penetrations_per_million: f64::NAN,
                     band: "slow",
+                    instances: 0,
+                    moving: 0,
+                    ratio_to_static: f64::NAN,
+                    ratio_to_plain: f64::NAN,
                 }],
             };
             let back = parse_report(&report.json()).unwrap();
@@ -2023,6 +2651,22 @@ mod json {
             );
             assert_eq!(r.ns_per_particle_step, 1.25);
             assert!(r.penetrations_per_million.is_nan());
+            assert_eq!((r.instances, r.moving), (0, 0));
+            assert!(r.ratio_to_static.is_nan() && r.ratio_to_plain.is_nan());
+            assert_eq!(back.json(), report.json());
+            // The scene cases' fields read back too.
+            let mut report = report;
+            let r = &mut report.rows[0];
+            (r.instances, r.moving, r.ratio_to_static) = (100, 50, 1.5);
+            let mut api = r.clone();
+            (api.instances, api.moving, api.ratio_to_static) = (0, 0, f64::NAN);
+            (api.method, api.ratio_to_plain) = ("octoproxy-cpu-scene-api".into(), 1.02);
+            report.rows.push(api);
+            let back = parse_report(&report.json()).unwrap();
+            let (a, b) = (&back.rows[0], &back.rows[1]);
+            assert_eq!((a.instances, a.moving, a.ratio_to_static), (100, 50, 1.5));
+            assert_eq!(b.ratio_to_plain, 1.02);
+            assert!(!a.is_mesh_case() && !b.is_mesh_case());
             assert_eq!(back.json(), report.json());
         }
 

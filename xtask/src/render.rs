@@ -1,9 +1,11 @@
 //! A small software renderer for pictures people look at: a shaded mesh (optionally cut
-//! away on the camera's side), particles and their trails as depth-tested splats, to PNG.
+//! away on the camera's side), particles and their trails as depth-tested splats, and a
+//! legend in an 8×8 bitmap font, to PNG.
 
 use std::path::Path;
 
 use anyhow::{Context, Result};
+use font8x8::legacy::BASIC_LEGACY;
 use glam::{Mat3, Vec3};
 
 /// An orthographic camera looking at `center` from yaw/pitch angles (radians).
@@ -165,6 +167,46 @@ impl Canvas {
         }
     }
 
+    /// Fills the pixel rectangle `[x0, x1) × [y0, y1)` (clipped to the canvas), over
+    /// everything drawn.
+    pub fn rect(&mut self, x0: usize, y0: usize, x1: usize, y1: usize, color: [f32; 3]) {
+        for y in y0..y1.min(self.height) {
+            for x in x0..x1.min(self.width) {
+                self.rgb[y * self.width + x] = color;
+            }
+        }
+    }
+
+    /// Writes `text` in the 8×8 font with its top left corner at pixel `(x, y)`, `scale`
+    /// pixels a font pixel, over everything drawn. Characters the font lacks print as `?`.
+    pub fn text(&mut self, x: usize, y: usize, text: &str, scale: usize, color: [f32; 3]) {
+        for (i, ch) in text.chars().enumerate() {
+            let glyph = BASIC_LEGACY
+                .get(ch as usize)
+                .copied()
+                .unwrap_or(BASIC_LEGACY[b'?' as usize]);
+            for (row, bits) in glyph.iter().enumerate() {
+                for col in 0..8 {
+                    if bits & (1 << col) != 0 {
+                        let px = x + (i * 8 + col) * scale;
+                        let py = y + row * scale;
+                        self.rect(px, py, px + scale, py + scale, color);
+                    }
+                }
+            }
+        }
+    }
+
+    /// A legend in the top left corner: a swatch and a label a line.
+    pub fn legend(&mut self, entries: &[([f32; 3], &str)]) {
+        let (x, mut y, scale) = (16, 16, 2);
+        for (color, label) in entries {
+            self.rect(x, y, x + 16, y + 16, *color);
+            self.text(x + 26, y, label, scale, [0.2, 0.2, 0.22]);
+            y += 24;
+        }
+    }
+
     /// Writes an 8-bit RGB PNG.
     pub fn save_png(&self, path: &Path) -> Result<()> {
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
@@ -201,3 +243,5 @@ impl Canvas {
 pub const FRONT: [f32; 3] = [0.93, 0.45, 0.12];
 /// Colour of back-side particles.
 pub const BACK: [f32; 3] = [0.15, 0.42, 0.85];
+/// Colour of particles hit by a moving collider.
+pub const HIT: [f32; 3] = [0.1, 0.68, 0.28];

@@ -82,6 +82,9 @@ fn demo_writes_a_picture() {
         "ms per step:",
         "backend:",
         "picture:",
+        "instances:",
+        "hits:",
+        "crushed:",
     ] {
         assert!(stdout.contains(key), "summary lacks {key}: {stdout}");
     }
@@ -324,7 +327,7 @@ fn bad_input_gets_one_readable_line() {
             &[
                 "sim", "--mesh", "box.obj", "--proxy", "p", "--emit", "5", "-o", "o.ply",
             ],
-            "not both",
+            "give one of --mesh, --proxy and --scene",
         ),
         (
             &[

@@ -1,57 +1,16 @@
 //! The command line end to end: the demo, bake → sim round trips, frames, and readable
 //! one-line errors for bad input.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+mod common;
 
-fn octoproxy(args: &[&str], dir: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_octoproxy"))
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .expect("octoproxy runs")
-}
+use std::path::Path;
 
-/// A fresh directory under the system's temporary one, removed when the test passes (and
-/// kept, to look into, when it fails).
-struct Scratch(PathBuf);
-
-impl std::ops::Deref for Scratch {
-    type Target = Path;
-    fn deref(&self) -> &Path {
-        &self.0
-    }
-}
-
-impl Drop for Scratch {
-    fn drop(&mut self) {
-        if !std::thread::panicking() {
-            let _ = std::fs::remove_dir_all(&self.0);
-        }
-    }
-}
-
-fn scratch(name: &str) -> Scratch {
-    let dir = std::env::temp_dir().join(format!("octoproxy-cli-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    Scratch(dir)
-}
+use common::{assert_one_line_error, octoproxy, scratch};
 
 /// A closed box as ascii OBJ (outward faces, quads).
 const BOX_OBJ: &str =
     "v -1 -1 -1\nv 1 -1 -1\nv -1 1 -1\nv 1 1 -1\nv -1 -1 1\nv 1 -1 1\nv -1 1 1\nv 1 1 1\n\
 f 1 3 4 2\nf 5 6 8 7\nf 1 2 6 5\nf 3 7 8 4\nf 1 5 7 3\nf 2 4 8 6\n";
-
-fn assert_one_line_error(out: &Output, needle: &str) {
-    assert!(!out.status.success(), "expected failure");
-    let err = String::from_utf8_lossy(&out.stderr);
-    let lines: Vec<&str> = err.lines().filter(|l| !l.trim().is_empty()).collect();
-    let last = lines.last().copied().unwrap_or("");
-    assert!(last.starts_with("error: "), "stderr: {err}");
-    assert!(last.contains(needle), "expected {needle:?} in {last:?}");
-    assert!(!err.contains("panicked"), "stderr: {err}");
-}
 
 #[test]
 fn demo_writes_a_picture() {

@@ -2,18 +2,13 @@
 //! samples, `bake --scene` and the baked file, `sim --scene` with hit records, events and a
 //! restart from its output, `check --scene`, and one-line errors for bad scenes.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+mod common;
 
+use std::path::Path;
+use std::process::Output;
+
+use common::{assert_one_line_error, octoproxy, scratch};
 use octoproxy_cpu::io::read_particles;
-
-fn octoproxy(args: &[&str], dir: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_octoproxy"))
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .expect("octoproxy runs")
-}
 
 fn ok(out: &Output) -> String {
     assert!(
@@ -28,15 +23,6 @@ fn ok(out: &Output) -> String {
     )
 }
 
-fn fails_with(out: &Output, needle: &str) {
-    assert!(!out.status.success(), "expected a failure");
-    let err = String::from_utf8_lossy(&out.stderr);
-    let last = err.lines().rfind(|l| !l.trim().is_empty()).unwrap_or("");
-    assert!(last.starts_with("error: "), "stderr: {err}");
-    assert!(last.contains(needle), "expected {needle:?} in {last:?}");
-    assert!(!err.contains("panicked"), "stderr: {err}");
-}
-
 /// The glTF fixtures (`backend-cpu/tests/data/gltf`).
 fn fixture(name: &str) -> String {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -44,24 +30,6 @@ fn fixture(name: &str) -> String {
         .join(name)
         .display()
         .to_string()
-}
-
-/// A fresh directory, removed when the test passes.
-struct Scratch(PathBuf);
-
-impl Drop for Scratch {
-    fn drop(&mut self) {
-        if !std::thread::panicking() {
-            let _ = std::fs::remove_dir_all(&self.0);
-        }
-    }
-}
-
-fn scratch(name: &str) -> Scratch {
-    let dir = std::env::temp_dir().join(format!("octoproxy-scene-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    Scratch(dir)
 }
 
 /// The index of a property among a cloud's extra columns.
@@ -84,7 +52,7 @@ fn list_instances_names_every_node_with_a_mesh_in_depth_first_order() {
             &fixture("blender/blender_keys.gltf"),
             "--list-instances",
         ],
-        &dir.0,
+        &dir,
     ));
     let rows: Vec<&str> = text
         .lines()
@@ -105,7 +73,7 @@ fn list_instances_names_every_node_with_a_mesh_in_depth_first_order() {
 #[test]
 fn a_baked_scene_steps_with_hits_and_events_and_a_restart_continues_it() {
     let dir = scratch("baked");
-    let d = &dir.0;
+    let d = &dir;
     let glb = fixture("blender/blender_sampled.glb");
     ok(&octoproxy(
         &[
@@ -212,7 +180,7 @@ fn a_baked_scene_steps_with_hits_and_events_and_a_restart_continues_it() {
         1
     );
     // Building a baked scene again is refused.
-    fails_with(
+    assert_one_line_error(
         &octoproxy(
             &[
                 "sim",
@@ -234,7 +202,7 @@ fn a_baked_scene_steps_with_hits_and_events_and_a_restart_continues_it() {
 #[test]
 fn a_scene_steps_the_same_on_the_gpu_as_on_the_cpu() {
     let dir = scratch("gpu");
-    let d = &dir.0;
+    let d = &dir;
     let gltf = fixture("blender/blender_keys.gltf");
     let run = |backend: &str, out: &str| {
         octoproxy(
@@ -307,7 +275,7 @@ fn check_scene_finds_no_penetration_in_animated_gltf_scenes() {
                 "--steps",
                 steps,
             ],
-            &dir.0,
+            &dir,
         ));
         assert!(text.contains("penetrations: 0"), "{file}: {text}");
     }
@@ -316,9 +284,9 @@ fn check_scene_finds_no_penetration_in_animated_gltf_scenes() {
 #[test]
 fn bad_scenes_get_one_readable_line() {
     let dir = scratch("bad");
-    let d = &dir.0;
+    let d = &dir;
     // A skin is a deforming mesh: the node is named.
-    fails_with(
+    assert_one_line_error(
         &octoproxy(
             &[
                 "sim",
@@ -333,7 +301,7 @@ fn bad_scenes_get_one_readable_line() {
         ),
         "deforming meshes",
     );
-    fails_with(
+    assert_one_line_error(
         &octoproxy(
             &["check", "--scene", &fixture("khronos/SimpleMorph.gltf")],
             d,
@@ -343,7 +311,7 @@ fn bad_scenes_get_one_readable_line() {
     // A truncated GLB names the file.
     let glb = std::fs::read(fixture("blender/blender_sampled.glb")).unwrap();
     std::fs::write(d.join("cut.glb"), &glb[..glb.len() / 2]).unwrap();
-    fails_with(
+    assert_one_line_error(
         &octoproxy(
             &["sim", "--scene", "cut.glb", "--emit", "10", "-o", "o.ply"],
             d,
@@ -352,7 +320,7 @@ fn bad_scenes_get_one_readable_line() {
     );
     // A damaged baked scene names the file.
     std::fs::write(d.join("bad.octoscene"), b"OCTOSCN\0 not a scene").unwrap();
-    fails_with(
+    assert_one_line_error(
         &octoproxy(
             &[
                 "sim",
@@ -368,19 +336,19 @@ fn bad_scenes_get_one_readable_line() {
         "bad.octoscene",
     );
     // check --scene takes built-in names and scene files, nothing else.
-    fails_with(
+    assert_one_line_error(
         &octoproxy(&["check", "--scene", "teapot.obj"], d),
         "nor a scene file (.gltf, .glb, .octoscene)",
     );
-    fails_with(
+    assert_one_line_error(
         &octoproxy(&["bake", "--scene", "teapot.obj", "-o", "x.octoscene"], d),
         "bake reads glTF 2.0 scenes",
     );
-    fails_with(
+    assert_one_line_error(
         &octoproxy(&["sim", "--mesh", "a.obj", "--list-instances"], d),
         "--list-instances goes with --scene",
     );
-    fails_with(
+    assert_one_line_error(
         &octoproxy(
             &[
                 "sim",
@@ -397,7 +365,7 @@ fn bad_scenes_get_one_readable_line() {
         ),
         "--event-capacity goes with --events",
     );
-    fails_with(
+    assert_one_line_error(
         &octoproxy(
             &[
                 "sim",

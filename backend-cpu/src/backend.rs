@@ -100,11 +100,14 @@ impl HitEvents for CpuEvents<'_> {
 }
 
 /// One particle's scene step: the plain step where the scene is one static proxy at the
-/// identity and the particle's state is that instance's, else the scene step. The counts of
-/// the report it adds to (crushed, sides lost).
+/// identity (`plain`, `view.plain_proxy()` hoisted out of the loop) and the particle's state
+/// is that instance's, else the scene step. The counts of the report it adds to (crushed,
+/// sides lost).
 #[inline(always)]
+#[allow(clippy::too_many_arguments)]
 fn step_one(
     view: &SceneView<'_>,
+    plain: Option<(u32, &ProxyView<'_>)>,
     p: &mut Particle,
     sh: &mut SceneHint,
     ss: &mut SceneSlots,
@@ -112,7 +115,7 @@ fn step_one(
     hit: Option<&mut Hit>,
     events: &mut impl HitEvents,
 ) -> (u64, u64) {
-    match view.plain_proxy() {
+    match plain {
         Some((c, proxy)) if sh.first_slot >> SLOT_INSTANCE_SHIFT == c && sh.hint_instance == c => {
             step_plain(proxy, c, p, sh, params, hit, events);
         }
@@ -168,6 +171,7 @@ impl CpuBackend {
     ) -> (u64, u64) {
         let add = |a: (u64, u64), b: (u64, u64)| (a.0 + b.0, a.1 + b.1);
         let particles_len = self.particles.len();
+        let plain = view.plain_proxy();
         let Self {
             particles,
             scene_hints,
@@ -206,7 +210,7 @@ impl CpuBackend {
                             lost: &mut lost,
                         };
                         let h = if hits { Some(h) } else { None };
-                        let c = step_one(view, p, sh, ss, params, h, &mut sink);
+                        let c = step_one(view, plain, p, sh, ss, params, h, &mut sink);
                         (add(counts, c), out, lost)
                     },
                 )
@@ -227,12 +231,14 @@ impl CpuBackend {
             states
                 .zip(hit_buf.par_iter_mut())
                 .with_min_len(1024)
-                .map(|(((p, sh), ss), h)| step_one(view, p, sh, ss, params, Some(h), &mut ()))
+                .map(|(((p, sh), ss), h)| {
+                    step_one(view, plain, p, sh, ss, params, Some(h), &mut ())
+                })
                 .reduce(|| (0, 0), add)
         } else {
             states
                 .with_min_len(1024)
-                .map(|((p, sh), ss)| step_one(view, p, sh, ss, params, None, &mut ()))
+                .map(|((p, sh), ss)| step_one(view, plain, p, sh, ss, params, None, &mut ()))
                 .reduce(|| (0, 0), add)
         }
     }

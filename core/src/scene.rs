@@ -1746,11 +1746,16 @@ fn step_near_one_static<T: PathTrace, E: HitEvents>(
 /// left it as `lp` (local) with `hint`: caged, or in the root cube and not known to be in an
 /// empty leaf (whose label is its side).
 fn must_keep(view: &ProxyView<'_>, lp: &Particle, hint: LeafHint) -> bool {
+    if lp.side & SIDE_CAGE_MASK != 0 {
+        return true;
+    }
+    // In an empty leaf (the common case): its label is the side.
+    if hint != LeafHint::NONE && hint.z_depth_label & LeafHint::SURFACE == 0 {
+        return false;
+    }
     let root = view.root_aabb();
     let l = Vec3::from_array(lp.position);
-    let in_root = l.cmpge(root.min).all() && l.cmple(root.max).all();
-    lp.side & SIDE_CAGE_MASK != 0
-        || in_root && (hint == LeafHint::NONE || hint.z_depth_label & LeafHint::SURFACE != 0)
+    l.cmpge(root.min).all() && l.cmple(root.max).all()
 }
 
 /// Whether a particle at world `x` at fraction `u` of the step, riding with instance `c` for

@@ -216,10 +216,16 @@ fn substeps(inst: Instance, v: vec3<f32>, u0: f32, u1: f32, dt: f32) -> u32 {
 
 // core's `must_keep` (the loaded proxy).
 fn must_keep(lp: Particle, hint: vec2<u32>) -> bool {
+    if (lp.side & SIDE_CAGE_MASK) != 0u {
+        return true;
+    }
+    // In an empty leaf (the common case): its label is the side.
+    if any(hint != vec2<u32>(0u)) && (hint.y & HINT_SURFACE) == 0u {
+        return false;
+    }
     let root = root_aabb();
     let l = lp.position;
-    let in_root = all(l >= root.min) && all(l <= root.max);
-    return (lp.side & SIDE_CAGE_MASK) != 0u || (in_root && (all(hint == vec2<u32>(0u)) || (hint.y & HINT_SURFACE) != 0u));
+    return all(l >= root.min) && all(l <= root.max);
 }
 
 fn derived_side(inst: Instance, x: vec3<f32>, u: f32) -> u32 {

@@ -1205,6 +1205,11 @@ fn penetration_inner(u: &mut Unstructured<'_>) -> Result<()> {
             }
         }
     }
+    // A third of the inputs with bytes left also set the same mesh moving: instances of its
+    // proxy posed, turned, scaled and moved as the `moving` target draws them.
+    if u.len() >= 64 && u.ratio(1u8, 3)? {
+        moving_scene(u, &[&mesh], &[words.clone()], scene)?;
+    }
     Ok(())
 }
 
@@ -1218,7 +1223,9 @@ fn penetration_inner(u: &mut Unstructured<'_>) -> Result<()> {
 /// on the surface and then stepped again, a restart from a rested frame): a
 /// particle never ends a step on the other side from where it started (by exact winding
 /// number) farther than one dmax-leaf diagonal from the surface, nor passes through the other
-/// side that deep on the way.
+/// side that deep on the way. A third of the inputs then set the same mesh moving as 1 to 5
+/// instances (translating, turning, scaling, as in the `moving` target) and check every step
+/// in each instance's frame.
 pub fn penetration(data: &[u8]) {
     let _ = penetration_inner(&mut Unstructured::new(data));
 }
@@ -1423,17 +1430,31 @@ fn moving_shapes() -> &'static [(Mesh, [Vec<u32>; 2])] {
 }
 
 fn moving_inner(u: &mut Unstructured<'_>) -> Result<()> {
+    let shapes = moving_shapes();
+    let dmax = u.int_in_range(0usize..=1)?;
+    let meshes: Vec<&Mesh> = shapes.iter().map(|(m, _)| m).collect();
+    let proxies: Vec<Vec<u32>> = shapes.iter().map(|(_, w)| w[dmax].clone()).collect();
+    moving_scene(u, &meshes, &proxies, 1.0)
+}
+
+/// A moving scene drawn from the input over the given closed meshes and their proxies (each
+/// about `size` wide): 1 to 5 instances in a region three sizes wide, most moving, turning and
+/// some scaling, one in 40 a hostile pose that must be refused or take part; particles outside
+/// them all at up to the region's width a step; every step checked against each instance's
+/// mesh by exact ground truth, and every hit record well formed.
+fn moving_scene(
+    u: &mut Unstructured<'_>,
+    meshes: &[&Mesh],
+    proxies: &[Vec<u32>],
+    size: f32,
+) -> Result<()> {
     use crate::moving::{outside_all, pose, scene_check, Tally};
     use glam::Quat;
     use octoproxy_core::{Backend, Pose};
     use octoproxy_cpu::{CpuBackend, Scene, SceneBuildError};
 
-    let shapes = moving_shapes();
-    let dmax = u.int_in_range(0usize..=1)?;
-    let meshes: Vec<&Mesh> = shapes.iter().map(|(m, _)| m).collect();
-    let proxies: Vec<Vec<u32>> = shapes.iter().map(|(_, w)| w[dmax].clone()).collect();
     let mut scene = Scene::new();
-    for w in &proxies {
+    for w in proxies {
         scene
             .add_proxy(w.clone())
             .expect("the shapes bake to valid proxies");
@@ -1441,13 +1462,14 @@ fn moving_inner(u: &mut Unstructured<'_>) -> Result<()> {
     // Instances: a proxy, a start pose, and a motion per step (velocity in scene widths, a
     // turn about an axis, a growth), or a hostile pose that must be refused.
     let n = u.int_in_range(1u32..=5)?;
-    let region = 3.0f32;
+    let region = 3.0 * size;
+    let last_proxy = proxies.len() as u32 - 1;
     let mut motions = Vec::new();
     // A hostile pose that passed the pose checks (a scale of 1e-30, a translation of 1e30)
     // may still be refused when the scene is prepared: f32 cannot resolve a leaf there.
     let mut hostile_accepted = false;
-    for i in 0..n {
-        let proxy = u.int_in_range(0u32..=4)?;
+    for _ in 0..n {
+        let proxy = u.int_in_range(0u32..=last_proxy)?;
         let t = Vec3::new(
             range(u, 0.0, region)?,
             range(u, 0.0, region)?,
@@ -1464,7 +1486,7 @@ fn moving_inner(u: &mut Unstructured<'_>) -> Result<()> {
         if u.ratio(1u8, 40)? {
             // A hostile pose: a clear error, never a panic, and the scene is unchanged.
             let bad = Pose {
-                translation: [wild_f32(u, 10.0)?, 0.0, 0.0],
+                translation: [wild_f32(u, 10.0 * size)?, 0.0, 0.0],
                 scale: wild_f32(u, 2.0)?,
                 rotation: [wild_f32(u, 1.0)?, 0.0, 0.0, 1.0],
             };
@@ -1502,17 +1524,16 @@ fn moving_inner(u: &mut Unstructured<'_>) -> Result<()> {
         } else {
             0.0
         };
-        let _ = i;
         motions.push((velocity, axis, turn, grow));
     }
-    let mut check = scene_check(&meshes, &proxies);
+    let mut check = scene_check(meshes, proxies);
     let count = u.int_in_range(1usize..=48)?;
     let mut particles = Vec::new();
     for _ in 0..count {
         let x = Vec3::new(
-            range(u, -0.5, region + 0.5)?,
-            range(u, -0.5, region + 0.5)?,
-            range(u, -0.5, region + 0.5)?,
+            range(u, -0.5 * size, region + 0.5 * size)?,
+            range(u, -0.5 * size, region + 0.5 * size)?,
+            range(u, -0.5 * size, region + 0.5 * size)?,
         );
         let v = Vec3::new(
             range(u, -1.0, 1.0)?,
@@ -1526,7 +1547,7 @@ fn moving_inner(u: &mut Unstructured<'_>) -> Result<()> {
         return Ok(());
     }
     let params = StepParams {
-        gravity: [0.0, -range(u, 0.0, 30.0)?, 0.0],
+        gravity: [0.0, -range(u, 0.0, 30.0)? * size, 0.0],
         dt: 1.0 / 60.0,
         restitution: range(u, 0.0, 1.0)?,
         friction: range(u, 0.0, 1.0)?,

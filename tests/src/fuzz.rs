@@ -1208,7 +1208,7 @@ fn penetration_inner(u: &mut Unstructured<'_>) -> Result<()> {
     // A third of the inputs with bytes left also set the same mesh moving: instances of its
     // proxy posed, turned, scaled and moved as the `moving` target draws them.
     if u.len() >= 64 && u.ratio(1u8, 3)? {
-        moving_scene(u, &[&mesh], &[words.clone()], scene)?;
+        moving_scene(u, &[&mesh], std::slice::from_ref(&words), scene)?;
     }
     Ok(())
 }

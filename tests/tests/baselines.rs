@@ -530,3 +530,39 @@ fn measure_on_the_bunny() {
         }
     });
 }
+
+/// The bench follows a baseline's path piece by piece: the pieces a traced step reports join
+/// end to end, from where the particle was to where it ends, and give the bits `step` gives.
+#[test]
+fn a_traced_step_reports_the_whole_path() {
+    let mesh = cube();
+    let params = StepParams::default();
+    for m in methods(&mesh, 64 << 10, true) {
+        let mut bounced = 0;
+        for (start, v) in [
+            ([0.5, 1.5, 0.5], [0.0, -30.0, 0.0]),
+            ([0.3, 1.2, 0.71], [3.0, -20.0, 1.0]),
+            ([-0.5, 0.5, 0.5], [90.0, 0.0, 0.0]),
+            ([2.0, 2.0, 2.0], [1.0, 1.0, 1.0]),
+        ] {
+            let mut p = Particle::new(start, v);
+            for _ in 0..30 {
+                let mut q = p;
+                let mut pieces = Vec::new();
+                m.step_traced(&mut p, &params, &mut |a, b| pieces.push((a, b)));
+                let from = q.position;
+                m.step(&mut q, &params);
+                assert_eq!(p.position, q.position, "{}: step_traced differs", m.name());
+                assert_eq!(p.velocity, q.velocity, "{}: step_traced differs", m.name());
+                bounced += (pieces.len() > 1) as u32;
+                let mut at = glam::Vec3::from_array(from);
+                for &(a, b) in &pieces {
+                    assert_eq!(a, at, "{}: a piece starts away from the last", m.name());
+                    at = b;
+                }
+                assert_eq!(at.to_array(), p.position, "{}: the path ends elsewhere", m.name());
+            }
+        }
+        assert!(bounced > 0, "{}: no step of several pieces", m.name());
+    }
+}

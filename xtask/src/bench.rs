@@ -22,6 +22,7 @@ use glam::Vec3;
 use octoproxy_core::{initial_side, Backend, Particle, ProxyView, StepParams};
 use octoproxy_cpu::emit::Rng;
 use octoproxy_cpu::ground_truth::GroundTruth;
+use octoproxy_cpu::harness::{deep_on_the_other_side, run_check};
 use octoproxy_cpu::io::{load_mesh, Mesh};
 use octoproxy_cpu::scenes::subdivide;
 use octoproxy_cpu::{bake, BuildParams, CpuBackend, MeshRef};
@@ -320,44 +321,74 @@ fn make_particles(
         .collect()
 }
 
-/// Penetrations per million particle-steps: particles whose step chord crosses the mesh an
-/// odd number of times (or, for closed meshes, whose inside/outside changes) and that end
-/// farther than `tol` from the surface. Each particle counts once at most.
+/// Penetrations per million particle-steps of a baseline method, by the rules of the
+/// campaigns' harness ([`run_check`]) on the pieces of its path that the method traces: a
+/// particle counts once it ends a step farther than `tol` from the surface on the other side
+/// from where it started (for a closed mesh by the exact winding number, or when a piece of its
+/// path went that deep through the mesh; for an open mesh by the parity of the crossings along
+/// its path). Each particle counts once at most.
 fn penetration_rate(
     gt: &GroundTruth,
     closed: bool,
     tol: f32,
     start: &[Particle],
     steps: u32,
-    step: &(dyn Fn(&mut Particle) + Sync),
+    method: &dyn Method,
+    params: &StepParams,
 ) -> f64 {
     let tol = tol as f64;
     let bad: u64 = start
         .par_iter()
         .map(|p0| {
             let mut p = *p0;
-            let mut inside = closed && gt.is_inside(p.position);
+            let inside = closed && gt.is_inside(p.position);
+            let mut crossings = 0u64;
+            let mut tunnel = false;
             for _ in 0..steps {
-                let a = p.position;
-                step(&mut p);
-                let b = p.position;
-                if !b.iter().all(|c| c.is_finite()) {
+                method.step_traced(&mut p, params, &mut |a, b| {
+                    if a == b || tunnel {
+                        return;
+                    }
+                    let k = gt.segment_crossings(a.to_array(), b.to_array());
+                    if !closed {
+                        crossings += k as u64;
+                    } else if k > 0 {
+                        tunnel = deep_on_the_other_side(gt, a, b, inside, tol).is_some();
+                    }
+                });
+                if !p.position.iter().all(|c| c.is_finite()) {
                     return 0;
                 }
-                let far = gt.distance_capped(b, 2.0 * tol) > tol;
-                let crossed = a != b && gt.segment_crossings(a, b) % 2 == 1;
-                let now_inside = closed && gt.is_inside(b);
-                if far && (crossed || now_inside != inside) {
+                let far = gt.distance_capped(p.position, 2.0 * tol) > tol;
+                let other = if closed {
+                    gt.is_inside(p.position) != inside
+                } else {
+                    crossings % 2 == 1
+                };
+                if tunnel || (far && other) {
                     return 1;
-                }
-                if far {
-                    inside = now_inside;
                 }
             }
             0
         })
         .sum();
     bad as f64 * 1e6 / (start.len() as f64 * steps as f64).max(1.0)
+}
+
+/// Penetrations per million particle-steps of octoproxy's step on `view`: the harness the
+/// campaigns use ([`run_check`]), every piece of each particle's traced path against exact
+/// ground truth (winding numbers for a closed mesh, paths through it included; the crossing
+/// parity along the path for an open one).
+fn octo_penetration_rate(
+    view: &ProxyView<'_>,
+    gt: &GroundTruth,
+    closed: bool,
+    start: &[Particle],
+    steps: u32,
+    params: &StepParams,
+) -> f64 {
+    let mut ps = start.to_vec();
+    run_check(view, gt, &mut ps, steps, params, closed).per_million()
 }
 
 /// Times `steps` steps of `run` over a copy of `particles`, after one untimed step (as every
@@ -512,9 +543,8 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
         let check_steps = 60;
         let lut_view = view;
         let nolut_view = view.without_lut();
-        let pen_octo = penetration_rate(&gt, scene.closed, tol, &sample, check_steps, &|p| {
-            octoproxy_core::step_particle(&lut_view, p, &params);
-        });
+        let pen_octo =
+            octo_penetration_rate(&lut_view, &gt, scene.closed, &sample, check_steps, &params);
         let mut pen_methods = Vec::new();
         for (m, _) in &methods {
             pen_methods.push(penetration_rate(
@@ -523,7 +553,8 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
                 tol,
                 &sample,
                 check_steps,
-                &|p| m.step(p, &params),
+                m.as_ref(),
+                &params,
             ));
         }
         bar.inc(1);
@@ -628,10 +659,14 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
                         cpu.step(&params, steps)?;
                         let ns = t.elapsed().as_secs_f64() * 1e9 / (n as f64 * steps as f64);
                         cpu.set_use_lut(true);
-                        let pen =
-                            penetration_rate(&gt, scene.closed, tol, &sample, check_steps, &|p| {
-                                octoproxy_core::step_particle(&nolut_view, p, &params);
-                            });
+                        let pen = octo_penetration_rate(
+                            &nolut_view,
+                            &gt,
+                            scene.closed,
+                            &sample,
+                            check_steps,
+                            &params,
+                        );
                         case_rows.push(row(
                             "octoproxy-cpu-nolut",
                             "cpu",

@@ -19,7 +19,14 @@ pub trait Method: Send + Sync {
     fn memory_bytes(&self) -> usize;
 
     /// Advances one particle by `params.dt`. Never panics, whatever the particle holds.
-    fn step(&self, p: &mut Particle, params: &StepParams);
+    fn step(&self, p: &mut Particle, params: &StepParams) {
+        self.step_traced(p, params, &mut |_, _| {});
+    }
+
+    /// [`Method::step`], calling `trace(from, to)` for every straight piece of the particle's
+    /// path in the step, in order (a move that is put rather than travelled, as the signed
+    /// distance grid's push out, is a piece too): what the bench's penetration check follows.
+    fn step_traced(&self, p: &mut Particle, params: &StepParams, trace: &mut dyn FnMut(Vec3, Vec3));
 }
 
 pub mod parry;
@@ -124,6 +131,7 @@ pub(crate) fn step_by_casting(
     params: &octoproxy_core::StepParams,
     standoff: f64,
     cast: impl Fn(DVec3, DVec3) -> Hit,
+    trace: &mut dyn FnMut(Vec3, Vec3),
 ) {
     let x0 = Vec3::from_array(p.position);
     let v0 = Vec3::from_array(p.velocity);
@@ -151,7 +159,9 @@ pub(crate) fn step_by_casting(
         }
         let xd = x.as_dvec3();
         let Some((t, n)) = cast(xd, d) else {
-            x = (xd + d).as_vec3();
+            let end = (xd + d).as_vec3();
+            trace(x, end);
+            x = end;
             break;
         };
         if bounce == MAX_BOUNCES {
@@ -170,7 +180,9 @@ pub(crate) fn step_by_casting(
         // the path for a grazing hit).
         let cos = (-n.dot(dir)).max(0.01);
         let t_back = (t.clamp(0.0, 1.0) - standoff / cos / len).max(0.0);
-        x = (xd + d * t_back).as_vec3();
+        let back = (xd + d * t_back).as_vec3();
+        trace(x, back);
+        x = back;
         remaining *= (1.0 - t_back) as f32;
         v = respond(v, n.as_vec3(), params.restitution, params.friction);
         collisions += 1;

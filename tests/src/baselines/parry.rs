@@ -5,7 +5,7 @@
 //! parry works in `f32` (its `glamx` vectors); the ray's direction is the whole displacement
 //! `v * t_remaining`, so its time of impact is the fraction of it, and the cast stops at 1.
 
-use glam::DVec3;
+use glam::{DVec3, Vec3};
 use octoproxy_core::{Particle, StepParams};
 use parry3d::math::Vector;
 use parry3d::query::{Ray, RayCast};
@@ -76,7 +76,12 @@ impl Method for ParryTriMesh {
         self.mesh.total_memory_size()
     }
 
-    fn step(&self, p: &mut Particle, params: &StepParams) {
-        super::step_by_casting(p, params, self.standoff, |a, d| self.cast(a, d));
+    fn step_traced(
+        &self,
+        p: &mut Particle,
+        params: &StepParams,
+        trace: &mut dyn FnMut(Vec3, Vec3),
+    ) {
+        super::step_by_casting(p, params, self.standoff, |a, d| self.cast(a, d), trace);
     }
 }

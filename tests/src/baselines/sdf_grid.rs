@@ -328,7 +328,12 @@ impl Method for SdfGrid {
         std::mem::size_of::<Self>() + self.data.len() * 4
     }
 
-    fn step(&self, p: &mut Particle, params: &StepParams) {
+    fn step_traced(
+        &self,
+        p: &mut Particle,
+        params: &StepParams,
+        trace: &mut dyn FnMut(Vec3, Vec3),
+    ) {
         let x0 = Vec3::from_array(p.position);
         let v0 = Vec3::from_array(p.velocity);
         if !x0.is_finite() || !v0.is_finite() {
@@ -337,6 +342,8 @@ impl Method for SdfGrid {
         }
         let mut v = v0 + Vec3::from_array(params.gravity) * params.dt;
         let mut x = x0 + v * params.dt;
+        trace(x0, x);
+        let moved = x;
         let mut collisions = 0;
         if let Some(phi) = self.sample(x) {
             if phi < 0.0 {
@@ -352,6 +359,7 @@ impl Method for SdfGrid {
                     v = respond(v, n, params.restitution, params.friction);
                 }
                 collisions = 1;
+                trace(moved, x);
             }
         }
         super::finish(p, x, v, collisions, false);

@@ -11,7 +11,7 @@
 //! triangle of the leaves it passes is tested with Möller–Trumbore in `f64`, and the nearest hit
 //! is answered as `step_by_casting` in the parent module says.
 
-use glam::DVec3;
+use glam::{DVec3, Vec3};
 use octoproxy_core::{Particle, StepParams};
 use octoproxy_cpu::bake::geom::{self, triangle_overlaps_box};
 use rayon::prelude::*;
@@ -357,7 +357,12 @@ impl Method for TriangleOctree {
             + self.tris.len() * std::mem::size_of::<[[f32; 3]; 3]>()
     }
 
-    fn step(&self, p: &mut Particle, params: &StepParams) {
-        super::step_by_casting(p, params, self.standoff, |a, d| self.cast(a, d));
+    fn step_traced(
+        &self,
+        p: &mut Particle,
+        params: &StepParams,
+        trace: &mut dyn FnMut(Vec3, Vec3),
+    ) {
+        super::step_by_casting(p, params, self.standoff, |a, d| self.cast(a, d), trace);
     }
 }

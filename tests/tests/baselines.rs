@@ -560,7 +560,12 @@ fn a_traced_step_reports_the_whole_path() {
                     assert_eq!(a, at, "{}: a piece starts away from the last", m.name());
                     at = b;
                 }
-                assert_eq!(at.to_array(), p.position, "{}: the path ends elsewhere", m.name());
+                assert_eq!(
+                    at.to_array(),
+                    p.position,
+                    "{}: the path ends elsewhere",
+                    m.name()
+                );
             }
         }
         assert!(bounced > 0, "{}: no step of several pieces", m.name());

@@ -2301,7 +2301,9 @@ mod docs {
                 .rows
                 .iter()
                 .find(|r| {
-                    r.scene == "nefertiti" && r.method == "octoproxy-cpu" && r.particles == 1_000_000
+                    r.scene == "nefertiti"
+                        && r.method == "octoproxy-cpu"
+                        && r.particles == 1_000_000
                 })
                 .map(|r| r.ns_per_particle_step)
                 .expect("the committed run has Nefertiti at 1M particles");

@@ -32,6 +32,9 @@ pub enum CpuError {
     /// Step parameters out of range.
     #[error("invalid step parameters: {0}")]
     Params(#[from] octoproxy_core::ParamError),
+    /// The particles' radius is not the one the proxy was baked for.
+    #[error("{0}")]
+    Radius(#[from] octoproxy_core::RadiusMismatch),
     /// The scene did not validate against the scene proxies held.
     #[error("invalid scene: {0}")]
     Scene(#[from] SceneError),
@@ -323,6 +326,7 @@ impl Backend for CpuBackend {
             return Err(CpuError::NoProxy);
         };
         let view = proxy.view();
+        octoproxy_core::check_radius(view.header().radius, params.radius)?;
         let view = if *use_lut { view } else { view.without_lut() };
         for _ in 0..steps {
             particles
@@ -368,12 +372,14 @@ impl Backend for CpuBackend {
         params.validate()?;
         let proxies = std::mem::take(&mut self.scene_proxies);
         let views: Vec<ProxyView<'_>> = proxies.iter().map(|p| p.view()).collect();
-        let result = SceneView::new(&views, instances, broad).map(|view| {
-            if hits {
-                self.hits.resize(self.particles.len(), Hit::NONE);
-            }
-            self.step_scene_with(&view, params, hits)
-        });
+        let result = SceneView::new(&views, instances, broad)
+            .and_then(|view| view.check_radius(params.radius).map(|()| view))
+            .map(|view| {
+                if hits {
+                    self.hits.resize(self.particles.len(), Hit::NONE);
+                }
+                self.step_scene_with(&view, params, hits)
+            });
         drop(views);
         self.scene_proxies = proxies;
         let (crushed, sides_lost) = result?;

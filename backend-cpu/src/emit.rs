@@ -2,8 +2,9 @@
 //! just in front of a scene's surface. Deterministic for a given seed.
 
 use glam::{DVec3, Vec3};
-use octoproxy_core::{LeafKind, Particle, ProxyView, SIDE_FRONT};
+use octoproxy_core::{Particle, ProxyView, SIDE_FRONT};
 
+use crate::bake::offset::{in_solid_leaf, OffsetSurface};
 use crate::bake::MeshRef;
 use crate::sides::Sides;
 
@@ -154,7 +155,7 @@ pub fn emit_surface(
     speed: f32,
     seed: u64,
 ) -> Vec<Particle> {
-    emit_surface_where(n, meshes, offset, speed, seed, |_| true)
+    emit_surface_where(n, meshes, 0.0, offset, speed, seed, |_| true)
 }
 
 /// The command line's emitter, [`emit_surface`] for the proxy `view`: one `dmax` leaf of
@@ -164,21 +165,22 @@ pub fn emit_surface(
 /// none). Where the surface is crowded, points are drawn again, so fewer particles start
 /// near it (on the ogre, whose parts overlap, 8 % of the points one leaf in front of the
 /// surface are in solid leaves at `dmax` 8).
+///
+/// For a proxy baked for a particle radius `R`, pass its offset surface (`radius`): each
+/// particle is then put between `R` and `R` plus one leaf along its face's normal, at least
+/// `R` from every triangle and outside the offset surface's band.
 pub fn emit_surface_for(
     view: &ProxyView<'_>,
     n: usize,
     meshes: &[MeshRef<'_>],
+    radius: Option<&OffsetSurface>,
     speed: f32,
     seed: u64,
 ) -> Vec<Particle> {
-    emit_surface_where(n, meshes, view.finest_leaf_size(), speed, seed, |p| {
-        let x = Vec3::from_array(p);
-        !view.locate_leaf(x).is_some_and(|l| {
-            l.kind == LeafKind::Surface
-                && l.two_sided
-                && x.cmpgt(l.aabb.min).all()
-                && x.cmplt(l.aabb.max).all()
-        })
+    let base = radius.map_or(0.0, |s| s.radius() as f64);
+    emit_surface_where(n, meshes, base, view.finest_leaf_size(), speed, seed, |p| {
+        !in_solid_leaf(view, p)
+            && radius.is_none_or(|s| s.outside(p) && s.truth().distance(p) >= s.radius() as f64)
     })
 }
 
@@ -186,6 +188,7 @@ pub fn emit_surface_for(
 fn emit_surface_where(
     n: usize,
     meshes: &[MeshRef<'_>],
+    base: f64,
     offset: f32,
     speed: f32,
     seed: u64,
@@ -206,8 +209,8 @@ fn emit_surface_where(
         let velocity = (rng.unit_vector() * speed).to_array();
         let mut d = offset as f64;
         for _ in 0..=OFFSET_HALVINGS {
-            let p = (on + normal * d).as_vec3();
-            let from = (on + normal * (d / 1024.0)).as_vec3();
+            let p = (on + normal * (base + d)).as_vec3();
+            let from = (on + normal * ((base + d) / 1024.0)).as_vec3();
             let clear = sides.crossings(from.to_array(), p.to_array()) == 0;
             let outside = sides.winding_number(p.to_array()) < 0.5;
             if clear && outside && accept(p.to_array()) && sides.side(p.to_array()) == SIDE_FRONT {
@@ -306,7 +309,7 @@ mod tests {
             };
             let (words, _) = crate::bake(&refs, &params, &()).unwrap();
             let view = ProxyView::new(&words).unwrap();
-            let p = emit_surface_for(&view, 2000, &refs, 1.0, 5);
+            let p = emit_surface_for(&view, 2000, &refs, None, 1.0, 5);
             assert_eq!(p.len(), 2000);
             let mut caged = p.clone();
             sides.cages(&view, &mut caged, false);

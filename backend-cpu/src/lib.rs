@@ -75,7 +75,10 @@ pub mod scenes;
 pub mod sides;
 
 pub use backend::{CpuBackend, CpuError};
-pub use bake::{bake, BuildError, BuildParams, BuildProgress, BuildReport, MeshRef};
+pub use bake::{
+    bake, bake_offset, bake_with_radius, BuildError, BuildParams, BuildProgress, BuildReport,
+    MeshRef,
+};
 pub use octoproxy_core::SceneStepReport;
 pub use scene::{starting_scene_sides, Scene, SceneBuildError, SceneStepError};
 pub use sides::{starting_sides, CageCounts, Sides, StartCounts};

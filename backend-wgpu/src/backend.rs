@@ -90,6 +90,9 @@ pub enum WgpuError {
     /// Step parameters out of range.
     #[error("invalid step parameters: {0}")]
     Params(#[from] ParamError),
+    /// The particles' radius is not the one the proxy was baked for.
+    #[error("{0}")]
+    Radius(#[from] octoproxy_core::RadiusMismatch),
     /// `download_particles` was given a slice of the wrong length.
     #[error("expected room for {expected} particles, got {got}")]
     LengthMismatch {
@@ -162,6 +165,8 @@ pub struct WgpuBackend {
     software: bool,
     pub(crate) kernel: Kernel,
     proxy: Option<wgpu::Buffer>,
+    /// The radius the uploaded proxy was baked for.
+    proxy_radius: f32,
     pub(crate) chunks: Vec<Chunk>,
     pub(crate) count: usize,
     external: bool,
@@ -348,6 +353,7 @@ impl WgpuBackend {
                 run,
             },
             proxy: None,
+            proxy_radius: 0.0,
             chunks: Vec::new(),
             count: 0,
             external: false,
@@ -661,6 +667,9 @@ impl WgpuBackend {
         if self.proxy.is_none() {
             return Err(WgpuError::NoProxy);
         }
+        if !floor {
+            octoproxy_core::check_radius(self.proxy_radius, params.radius)?;
+        }
         if self.count == 0 || steps == 0 {
             return Ok(());
         }
@@ -748,7 +757,7 @@ impl Backend for WgpuBackend {
 
     fn upload_proxy(&mut self, words: &[u32]) -> Result<(), WgpuError> {
         // The very bytes the CPU validated, uploaded as they are.
-        ProxyView::new(words)?;
+        let radius = ProxyView::new(words)?.header().radius;
         self.check_health()?;
         let bytes: &[u8] = bytemuck::cast_slice(words);
         let limits = self.device.limits();
@@ -773,6 +782,7 @@ impl Backend for WgpuBackend {
         self.clear_hints();
         scope.pop().map_err(WgpuError::Gpu)?;
         self.proxy = Some(buffer);
+        self.proxy_radius = radius;
         self.bind();
         Ok(())
     }

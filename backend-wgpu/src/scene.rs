@@ -376,6 +376,7 @@ impl WgpuBackend {
         self.check_health()?;
         let views: Vec<ProxyView<'_>> = self.scene.host.iter().map(|p| p.view()).collect();
         let view = SceneView::new(&views, instances, broad)?;
+        view.check_radius(params.radius)?;
         let plain = view.plain_proxy().map_or(NO_INSTANCE, |(c, _)| c);
         // The tables, as core's bytes: proxy offsets, instances, nodes.
         let mut words: Vec<u32> = self.scene.offsets.clone();

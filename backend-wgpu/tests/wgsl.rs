@@ -177,6 +177,7 @@ fn uniform_layouts_match_rust() {
                 ("dt", offset_of!(StepParams, dt)),
                 ("restitution", offset_of!(StepParams, restitution)),
                 ("friction", offset_of!(StepParams, friction)),
+                ("radius", offset_of!(StepParams, radius)),
                 ("_pad", offset_of!(StepParams, _pad)),
             ]),
             size_of::<StepParams>(),

@@ -10,9 +10,9 @@ use crate::math;
 /// First word of every proxy: the bytes `OCTP` read as a little-endian `u32`.
 pub const MAGIC: u32 = u32::from_le_bytes(*b"OCTP");
 /// Bumped whenever the meaning of any word or bit changes.
-pub const FORMAT_VERSION: u32 = 4;
+pub const FORMAT_VERSION: u32 = 5;
 /// Words in the header, before the node array.
-pub const HEADER_WORDS: usize = 17;
+pub const HEADER_WORDS: usize = 18;
 /// Deepest tree the format supports. Cell bounds are computed on a `2^MAX_DEPTH` grid.
 pub const MAX_DEPTH: u32 = 16;
 /// Deepest lookup table the format supports (`8^MAX_LUT_DEPTH` entries).
@@ -55,6 +55,10 @@ pub mod header {
     pub const ROOT_SIZE: usize = 15;
     /// [`super::checksum`] of the whole buffer, this word read as zero.
     pub const CHECKSUM: usize = 16;
+    /// The particle radius the proxy was baked for, as `f32` bits: `0` for points (the
+    /// proxy's surface is the mesh), else its surface is the mesh's offset surface at this
+    /// distance, and particles of this radius step against it.
+    pub const RADIUS: usize = 17;
 }
 
 /// FNV-1a over the little-endian bytes of every word, [`header::CHECKSUM`] read as zero.

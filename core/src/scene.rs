@@ -514,6 +514,21 @@ pub enum SceneError {
         /// The instance.
         instance: u32,
     },
+    /// An instance's proxy, at its scale, was baked for another radius than the particles'.
+    RadiusMismatch {
+        /// The instance.
+        instance: u32,
+        /// Its proxy's radius times its scale.
+        baked: f32,
+        /// The particles' radius.
+        radius: f32,
+    },
+    /// An instance of a proxy baked for a radius changes its scale in the step: the offset
+    /// surface would have to change with it.
+    ScaledRadius {
+        /// The instance.
+        instance: u32,
+    },
 }
 
 impl core::fmt::Display for SceneError {
@@ -557,6 +572,18 @@ impl core::fmt::Display for SceneError {
             SceneError::NotInBroadPhase { instance } => write!(
                 f,
                 "instance {instance} is active but not in the broad phase, or inactive and in it"
+            ),
+            SceneError::RadiusMismatch {
+                instance,
+                baked,
+                radius,
+            } => write!(
+                f,
+                "instance {instance}: the particles' radius is {radius} but its proxy at its scale was baked for radius {baked}: bake its mesh for radius {radius} divided by its scale"
+            ),
+            SceneError::ScaledRadius { instance } => write!(
+                f,
+                "instance {instance} changes its scale in the step, but its proxy was baked for a particle radius: a scaled offset surface is not the offset surface at the scaled radius; keep its scale fixed"
             ),
         }
     }
@@ -607,6 +634,38 @@ impl core::fmt::Debug for SceneView<'_> {
 }
 
 impl<'a> SceneView<'a> {
+    /// Checks every live, visible instance against particles of `radius`: its proxy's radius
+    /// times its scale must match it ([`crate::check_radius`]), and an instance of a proxy
+    /// baked for a radius must keep its scale through the step.
+    pub fn check_radius(&self, radius: f32) -> Result<(), SceneError> {
+        for (i, inst) in self.instances.iter().enumerate() {
+            let instance = i as u32;
+            if inst.flags & INSTANCE_LIVE == 0 {
+                continue;
+            }
+            let Some(view) = self.proxies.get(inst.proxy as usize) else {
+                continue;
+            };
+            let baked = view.header().radius;
+            let (s0, s1) = (inst.start.scale, inst.end.scale);
+            if s0 == 0.0 && s1 == 0.0 {
+                continue;
+            }
+            if baked > 0.0 && s0 != s1 {
+                return Err(SceneError::ScaledRadius { instance });
+            }
+            let baked = baked * s1;
+            if crate::check_radius(baked, radius).is_err() {
+                return Err(SceneError::RadiusMismatch {
+                    instance,
+                    baked,
+                    radius,
+                });
+            }
+        }
+        Ok(())
+    }
+
     /// Validates a scene: every instance's proxy index, poses, flags and half turn; every
     /// pose near enough to the origin for `f32` to resolve its proxy's finest leaf; the
     /// broad phase a tree in depth-first order (each internal node's first child right after

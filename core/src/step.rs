@@ -89,8 +89,13 @@ pub struct StepParams {
     pub restitution: f32,
     /// Coulomb friction coefficient, `>= 0`.
     pub friction: f32,
+    /// The particles' radius, `>= 0` and finite: `0` for points. A proxy is baked for one
+    /// radius (its header's `RADIUS`; `bake --radius`), and backends refuse to step
+    /// particles of another radius against it. The step itself does not read it: the
+    /// proxy's surface is already the offset surface at this distance from the mesh.
+    pub radius: f32,
     /// Padding to 32 bytes; must be zero.
-    pub _pad: [u32; 2],
+    pub _pad: u32,
 }
 
 const _: () = assert!(core::mem::size_of::<StepParams>() == 32);
@@ -107,6 +112,8 @@ pub enum ParamError {
     BadRestitution(f32),
     /// Friction is negative, NaN or infinite.
     BadFriction(f32),
+    /// The radius is negative, NaN or infinite.
+    BadRadius(f32),
 }
 
 impl core::fmt::Display for ParamError {
@@ -121,11 +128,55 @@ impl core::fmt::Display for ParamError {
             ParamError::BadFriction(m) => {
                 write!(f, "friction must be a finite number >= 0, got {m}")
             }
+            ParamError::BadRadius(r) => {
+                write!(f, "radius must be a finite number >= 0, got {r}")
+            }
         }
     }
 }
 
 impl core::error::Error for ParamError {}
+
+/// Particles of one radius stepped against a proxy baked for another
+/// ([`check_radius`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RadiusMismatch {
+    /// The radius the proxy was baked for (times the instance's scale, in a scene).
+    pub baked: f32,
+    /// The particles' radius ([`StepParams::radius`]).
+    pub radius: f32,
+}
+
+impl core::fmt::Display for RadiusMismatch {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(
+            f,
+            "the particles' radius is {} but the proxy was baked for radius {}: bake it with that radius (bake --radius), or step with the radius it was baked for",
+            self.radius, self.baked
+        )
+    }
+}
+
+impl core::error::Error for RadiusMismatch {}
+
+/// Relative tolerance of [`check_radius`]: a scale applied to a proxy's radius in `f32`.
+pub const RADIUS_TOLERANCE: f32 = 1e-5;
+
+/// Whether particles of `radius` may step against a proxy baked for `baked`: both zero, or
+/// equal within a relative [`RADIUS_TOLERANCE`].
+pub fn check_radius(baked: f32, radius: f32) -> Result<(), RadiusMismatch> {
+    let diff = if baked > radius {
+        baked - radius
+    } else {
+        radius - baked
+    };
+    let big = if baked > radius { baked } else { radius };
+    if diff <= big * RADIUS_TOLERANCE {
+        Ok(())
+    } else {
+        Err(RadiusMismatch { baked, radius })
+    }
+}
 
 impl Default for StepParams {
     fn default() -> Self {
@@ -134,7 +185,8 @@ impl Default for StepParams {
             dt: 1.0 / 60.0,
             restitution: 0.5,
             friction: 0.1,
-            _pad: [0; 2],
+            radius: 0.0,
+            _pad: 0,
         }
     }
 }
@@ -153,6 +205,9 @@ impl StepParams {
         }
         if !(self.friction >= 0.0) || !self.friction.is_finite() {
             return Err(ParamError::BadFriction(self.friction));
+        }
+        if !(self.radius >= 0.0) || !self.radius.is_finite() {
+            return Err(ParamError::BadRadius(self.radius));
         }
         Ok(())
     }

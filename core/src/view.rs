@@ -162,6 +162,8 @@ pub struct Header {
     pub root_min: Vec3,
     /// Edge length of the root cube.
     pub root_size: f32,
+    /// The particle radius the proxy was baked for (`0` for points).
+    pub radius: f32,
 }
 
 /// A validated, zero-copy view of an encoded proxy.
@@ -269,6 +271,10 @@ impl<'a> ProxyView<'a> {
             f32::from_bits(h(header::ROOT_MIN + 2)),
         );
         let root_size = f32::from_bits(h(header::ROOT_SIZE));
+        let radius = f32::from_bits(h(header::RADIUS));
+        if !(radius >= 0.0) || !radius.is_finite() || radius.to_bits() == (-0.0f32).to_bits() {
+            return Err(bad(header::RADIUS));
+        }
         if !root_box_is_valid(root_min, root_size, tree_depth) {
             return Err(FormatError::BadRootBox);
         }
@@ -283,6 +289,7 @@ impl<'a> ProxyView<'a> {
             epsilon,
             root_min,
             root_size,
+            radius,
         };
         validate_nodes(nodes, tree_depth, root_size)?;
         let cell_unit = root_size * (1.0 / (1u32 << MAX_DEPTH) as f32);

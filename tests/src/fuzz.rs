@@ -94,7 +94,8 @@ fn step_params(u: &mut Unstructured<'_>, scene: f32) -> Result<StepParams> {
             dt: wild_f32(u, 1.0)?,
             restitution: wild_f32(u, 2.0)?,
             friction: wild_f32(u, 2.0)?,
-            _pad: [0; 2],
+            radius: 0.0,
+            _pad: 0,
         });
     }
     let g = if u.arbitrary()? {
@@ -112,7 +113,8 @@ fn step_params(u: &mut Unstructured<'_>, scene: f32) -> Result<StepParams> {
         dt: *u.choose(&[1.0 / 240.0, 1.0 / 60.0, 1.0 / 30.0, 0.1, 1e-6, 1.0])?,
         restitution: *u.choose(&[0.0, 0.5, 1.0, 0.25, 0.9])?,
         friction: *u.choose(&[0.0, 0.1, 1.0, 0.5, 3.0])?,
-        _pad: [0; 2],
+        radius: 0.0,
+        _pad: 0,
     })
 }
 
@@ -1055,7 +1057,8 @@ fn penetration_inner(u: &mut Unstructured<'_>) -> Result<()> {
             }
         } else if u.ratio(1u8, 3)? {
             let seed = u.arbitrary::<u64>()?;
-            if let Some(e) = emit_surface_for(&view, 1, &[MeshRef::from(&mesh)], 0.0, seed).first()
+            if let Some(e) =
+                emit_surface_for(&view, 1, &[MeshRef::from(&mesh)], None, 0.0, seed).first()
             {
                 position = Vec3::from_array(e.position);
                 emitted_side = Some(e.side);
@@ -1076,7 +1079,8 @@ fn penetration_inner(u: &mut Unstructured<'_>) -> Result<()> {
                 dt: 1.0 / 60.0,
                 restitution: 0.0,
                 friction: 1.0,
-                _pad: [0; 2],
+                radius: 0.0,
+                _pad: 0,
             };
             Some((params, u.int_in_range(10u32..=90)?))
         } else {
@@ -1551,7 +1555,8 @@ fn moving_scene(
         dt: 1.0 / 60.0,
         restitution: range(u, 0.0, 1.0)?,
         friction: range(u, 0.0, 1.0)?,
-        _pad: [0; 2],
+        radius: 0.0,
+        _pad: 0,
     };
     let mut cpu = CpuBackend::new();
     cpu.upload_particles(&particles).expect("upload");

@@ -270,7 +270,8 @@ pub fn random_scene(
         dt: 1.0 / 60.0,
         restitution: rng.range(0.0, 1.0),
         friction: rng.range(0.0, 1.0),
-        _pad: [0; 2],
+        radius: 0.0,
+        _pad: 0,
     };
     let result = run(
         &meshes,

@@ -44,7 +44,8 @@ pub fn parameter_sets(dt: f32) -> [StepParams; 4] {
         dt,
         restitution,
         friction,
-        _pad: [0; 2],
+        radius: 0.0,
+        _pad: 0,
     };
     [
         p([0.0; 3], 1.0, 0.0),

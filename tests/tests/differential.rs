@@ -360,14 +360,16 @@ fn differential(name: &str, mesh: &Mesh, build: &BuildParams, steps: u32, chunk:
             dt: DT,
             restitution: 1.0,
             friction: 0.0,
-            _pad: [0; 2],
+            radius: 0.0,
+            _pad: 0,
         },
         StepParams {
             gravity: [0.0, -9.81, 0.0],
             dt: DT,
             restitution: 0.0,
             friction: 1.0,
-            _pad: [0; 2],
+            radius: 0.0,
+            _pad: 0,
         },
     ]
     .into_iter()
@@ -640,7 +642,8 @@ fn leaf_hints_are_forgotten_when_the_proxy_changes() {
         dt: DT,
         restitution: 0.0,
         friction: 0.5,
-        _pad: [0; 2],
+        radius: 0.0,
+        _pad: 0,
     };
     let mut expected = particles.clone();
     for (view, steps) in [(&view_a, 10), (&view_b, 60)] {

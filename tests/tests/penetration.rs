@@ -70,14 +70,16 @@ fn check_with(
             dt: DT,
             restitution: 1.0,
             friction: 0.0,
-            _pad: [0; 2],
+            radius: 0.0,
+            _pad: 0,
         },
         StepParams {
             gravity: [0.0, -9.81, 0.0],
             dt: DT,
             restitution: 0.0,
             friction: 1.0,
-            _pad: [0; 2],
+            radius: 0.0,
+            _pad: 0,
         },
         StepParams {
             dt: DT,
@@ -522,7 +524,8 @@ fn particles_resting_in_creases_and_apexes_hold() {
                 dt: DT,
                 restitution,
                 friction,
-                _pad: [0; 2],
+                radius: 0.0,
+                _pad: 0,
             };
             // Those above the surface, so that they fall onto it.
             let drop = [0.0, 2.0 * view.header().root_size, 0.0];
@@ -674,7 +677,8 @@ fn stopped_on_a_solid_leaf(view: &ProxyView<'_>, start: [f32; 3]) {
         dt: DT,
         restitution: 0.5,
         friction: 0.0,
-        _pad: [0; 2],
+        radius: 0.0,
+        _pad: 0,
     };
     let mut p = Particle::new(start, [0.0, -1.0, 0.0]);
     p.side = SIDE_BACK;

@@ -42,7 +42,8 @@ fn particles_reflect_off_a_tilted_open_sheet_about_its_normal() {
         dt: 1.0 / 60.0,
         restitution: 1.0,
         friction: 0.0,
-        _pad: [0; 2],
+        radius: 0.0,
+        _pad: 0,
     };
     let mut rng = Rng::new(11);
     let v = Vec3::new(0.0, -3.0, 0.0);

@@ -115,7 +115,7 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
         ..BuildParams::default()
     };
     let dome_mesh = octoproxy_cpu::scenes::hemisphere([0.0; 3], 1.0, 96, 24);
-    let dome = scene::bake_meshes(vec![dome_mesh], &build)?;
+    let dome = scene::bake_meshes(vec![dome_mesh], &build, 0.0)?;
     let view = dome.view()?;
     let paddle_mesh = paddle_mesh();
     let t = Instant::now();

@@ -73,6 +73,9 @@ pub struct BuildFlags {
     pub dmax: Option<u32>,
     pub epsilon: Option<f32>,
     pub lut_depth: Option<u32>,
+    /// The particle radius (`--radius`): a bake for it, and the radius stepped. Not counted
+    /// by [`BuildFlags::any`]: with a proxy file it is a step parameter.
+    pub radius: Option<f32>,
 }
 
 impl BuildFlags {
@@ -83,6 +86,7 @@ impl BuildFlags {
             "--dmax" => self.dmax = Some(number(parser, name)?),
             "--epsilon" => self.epsilon = Some(number(parser, name)?),
             "--lut-depth" => self.lut_depth = Some(number(parser, name)?),
+            "--radius" => self.radius = Some(number(parser, name)?),
             _ => return Ok(false),
         }
         Ok(true)
@@ -94,6 +98,15 @@ impl BuildFlags {
             || self.dmax.is_some()
             || self.epsilon.is_some()
             || self.lut_depth.is_some()
+    }
+
+    /// The particle radius, 0 when not given, checked.
+    pub fn radius(&self) -> Result<f32> {
+        let r = self.radius.unwrap_or(0.0);
+        if !(r >= 0.0) || !r.is_finite() {
+            anyhow::bail!("--radius must be a finite number >= 0, got {r}");
+        }
+        Ok(r)
     }
 
     /// The parameters, defaults filled in, checked.
@@ -117,4 +130,6 @@ pub const BUILD_HELP: &str =
     "  --dmin N          depth below which nodes always subdivide (default 4)
   --dmax N          maximum depth, 2..=16 (default 8)
   --epsilon X       normal-variance tolerance, >= 0 (default 0.01)
-  --lut-depth N     lookup-table depth, 0..=8, clamped to the tree depth (default 5)";
+  --lut-depth N     lookup-table depth, 0..=8, clamped to the tree depth (default 5)
+  --radius R        the particles' radius, >= 0: bake the offset surface at R from the mesh
+                    (default 0; with sim --proxy, the proxy's own; not in check yet)";

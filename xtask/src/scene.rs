@@ -5,8 +5,9 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
 use octoproxy_core::ProxyView;
+use octoproxy_cpu::bake::offset::OffsetSurface;
 use octoproxy_cpu::io::{load_mesh, Mesh};
-use octoproxy_cpu::{bake, BuildParams, BuildReport, MeshRef};
+use octoproxy_cpu::{bake, bake_offset, BuildParams, BuildReport, MeshRef};
 
 use crate::progress::BakeBars;
 
@@ -17,6 +18,8 @@ pub struct Scene {
     pub triangles: usize,
     pub bake_time: Option<Duration>,
     pub report: Option<BuildReport>,
+    /// The offset surface baked, for a particle radius (`bake_meshes` with a radius).
+    pub offset: Option<OffsetSurface>,
 }
 
 impl Scene {
@@ -46,14 +49,24 @@ pub fn load_meshes(paths: &[PathBuf]) -> Result<Vec<Mesh>> {
     Ok(meshes)
 }
 
-/// Bakes meshes into one proxy, with progress bars.
-pub fn bake_meshes(meshes: Vec<Mesh>, params: &BuildParams) -> Result<Scene> {
+/// Bakes meshes into one proxy, with progress bars; for particles of `radius`, the proxy of
+/// their offset surface at that distance (kept with the scene, for starting particles).
+pub fn bake_meshes(meshes: Vec<Mesh>, params: &BuildParams, radius: f32) -> Result<Scene> {
     let refs: Vec<MeshRef<'_>> = meshes.iter().map(MeshRef::from).collect();
     let bars = BakeBars::default();
     let t = Instant::now();
-    let result = bake(&refs, params, &bars);
+    let result = if radius > 0.0 {
+        OffsetSurface::new(&refs, radius, params.dmax, &bars).and_then(|surface| {
+            bake_offset(&surface, params, &bars).map(|(words, mut report)| {
+                report.triangles_in = refs.iter().map(|m| m.triangles.len()).sum();
+                (words, report, Some(surface))
+            })
+        })
+    } else {
+        bake(&refs, params, &bars).map(|(words, report)| (words, report, None))
+    };
     bars.finish();
-    let (words, report) = result.context("baking the proxy")?;
+    let (words, report, offset) = result.context("baking the proxy")?;
     let bake_time = t.elapsed();
     let triangles = report.triangles_in;
     Ok(Scene {
@@ -62,6 +75,7 @@ pub fn bake_meshes(meshes: Vec<Mesh>, params: &BuildParams) -> Result<Scene> {
         triangles,
         bake_time: Some(bake_time),
         report: Some(report),
+        offset,
     })
 }
 
@@ -86,6 +100,7 @@ pub fn read_proxy(path: &Path) -> Result<Scene> {
         triangles: 0,
         bake_time: None,
         report: None,
+        offset: None,
     })
 }
 
@@ -117,6 +132,30 @@ pub fn print_bake_summary(scene: &Scene) -> Result<()> {
                 r.coarse_solid_leaves, r.passes
             );
         }
+    }
+    if h.radius > 0.0 {
+        let leaf = view.finest_leaf_size();
+        match &scene.report {
+            Some(r) => eprintln!(
+                "radius: {} (the offset surface at that distance: {} triangles on a grid of {:.4e}; centres keep at least {:.4e} from the mesh, the radius less {:.2} dmax leaves)",
+                h.radius,
+                r.offset_triangles,
+                r.offset_spacing,
+                h.radius as f64 - r.offset_spacing * 3f64.sqrt(),
+                r.offset_spacing * 3f64.sqrt() / leaf as f64
+            ),
+            None => eprintln!(
+                "radius: {} (baked for particles of that radius: centres keep at least the radius less a dmax leaf diagonal from the mesh)",
+                h.radius
+            ),
+        }
+    }
+    if h.radius > 0.0 && (h.radius as f64) < 3f64.sqrt() * view.finest_leaf_size() as f64 {
+        eprintln!(
+            "warning: the radius {} is less than a dmax leaf's diagonal ({:.4e}): centres may come as near the mesh as the radius less that diagonal, so the radius means little; raise dmax",
+            h.radius,
+            3f64.sqrt() * view.finest_leaf_size() as f64
+        );
     }
     eprintln!(
         "proxy: {} nodes, depth {} (dmin {}, dmax {}, epsilon {}), lookup table depth {}",

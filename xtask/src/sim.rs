@@ -9,6 +9,7 @@ use glam::Vec3;
 use octoproxy_core::{
     initial_side, StepParams, FLAG_BLOCKED, FLAG_BOUND_HIT, FLAG_INVALID, SIDE_BACK,
 };
+use octoproxy_cpu::bake::offset::OffsetSurface;
 use octoproxy_cpu::emit::{emit_box, emit_surface_for};
 use octoproxy_cpu::io::{read_particles, write_particles, ParticleCloud, PlyEncoding};
 use octoproxy_cpu::sides::{count_in_shell, count_in_solid, CageCounts, Sides};
@@ -232,12 +233,13 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
         bail!("--start-time goes with an animated --scene");
     }
     let defaults = StepParams::default();
-    let params = StepParams {
+    let mut params = StepParams {
         gravity: o.gravity.unwrap_or(defaults.gravity),
         dt: o.dt.unwrap_or(defaults.dt),
         restitution: o.restitution.unwrap_or(defaults.restitution),
         friction: o.friction.unwrap_or(defaults.friction),
-        _pad: [0; 2],
+        radius: o.build.radius()?,
+        _pad: 0,
     };
     params.validate()?;
     let build_params = o.build.params()?;
@@ -249,23 +251,46 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     // The scene.
     let scene = match &o.proxy {
         Some(path) => scene::read_proxy(path)?,
-        None => scene::bake_meshes(scene::load_meshes(&o.meshes)?, &build_params)?,
+        None => scene::bake_meshes(scene::load_meshes(&o.meshes)?, &build_params, params.radius)?,
     };
     scene::print_bake_summary(&scene)?;
     let view = scene.view()?;
+    if o.build.radius.is_none() {
+        // A proxy file steps the radius it was baked for, unless told otherwise.
+        params.radius = view.header().radius;
+    }
+    octoproxy_core::check_radius(view.header().radius, params.radius).map_err(|e| {
+        anyhow::anyhow!(
+            "{}: {e}",
+            o.proxy
+                .as_deref()
+                .unwrap_or(Path::new("the proxy"))
+                .display()
+        )
+    })?;
 
     // The particles.
     let refs: Vec<MeshRef<'_>> = scene.meshes.iter().map(MeshRef::from).collect();
-    let mut cloud = particles_in(&o, &view, &refs, || scene_box(&scene, &view))?;
+    let mut cloud = particles_in(&o, &view, &refs, scene.offset.as_ref(), || {
+        scene_box(&scene, &view)
+    })?;
     if o.emit_surface {
         eprintln!(
-            "sides: emitted {} particles in front of the surface, each within one dmax leaf of its face",
-            cloud.particles.len()
+            "sides: emitted {} particles in front of the surface, each within one dmax leaf of its face{}",
+            cloud.particles.len(),
+            if params.radius > 0.0 {
+                " beyond the radius"
+            } else {
+                ""
+            }
         );
         if cloud.particles.len() < o.emit.unwrap_or(0) {
             eprintln!("  (the surface had room for no more)");
         }
-        let refs: Vec<MeshRef<'_>> = scene.meshes.iter().map(MeshRef::from).collect();
+        let refs: Vec<MeshRef<'_>> = match &scene.offset {
+            Some(s) => vec![s.mesh_ref()],
+            None => scene.meshes.iter().map(MeshRef::from).collect(),
+        };
         let cages = Sides::new(&refs).cages(&view, &mut cloud.particles, false);
         report_cages(&cages, cloud.particles.len());
     } else {
@@ -354,6 +379,43 @@ fn starting_sides(
     cloud: &mut ParticleCloud,
 ) -> Result<()> {
     let n = cloud.particles.len();
+    if let Some(offset) = &scene.offset {
+        // Particles of a radius: out of the band first, then sides from the offset surface.
+        let t = Instant::now();
+        let placed = offset.place(&mut cloud.particles, Some(view));
+        eprintln!(
+            "radius: {} of {n} particles started nearer the mesh than the offset surface (about the radius) and were moved out along the way from their nearest surface point{}",
+            placed.moved,
+            if placed.stuck > 0 {
+                format!(
+                    "; {} could not be moved out (wedged between surfaces) and stay inside the band, behind the offset surface",
+                    placed.stuck
+                )
+            } else {
+                String::new()
+            }
+        );
+        let refs = [offset.mesh_ref()];
+        let sides = Sides::new(&refs);
+        let counts = sides.assign(&mut cloud.particles, cloud.has_side);
+        let ms = t.elapsed().as_secs_f64() * 1e3;
+        eprintln!(
+            "sides: from the offset surface (exact, {ms:.0} ms): {} in front, {} behind{}",
+            n - counts.behind - counts.non_finite,
+            counts.behind,
+            if cloud.has_side {
+                format!(
+                    "; {} of the file's sides contradict it and are kept",
+                    counts.contradicting
+                )
+            } else {
+                String::new()
+            }
+        );
+        let cages = sides.cages(view, &mut cloud.particles, cloud.has_side);
+        report_cages(&cages, n);
+        return Ok(());
+    }
     if !scene.meshes.is_empty() {
         let t = Instant::now();
         let refs: Vec<MeshRef<'_>> = scene.meshes.iter().map(MeshRef::from).collect();
@@ -489,7 +551,7 @@ fn instanced_from(path: &Path, build: &BuildFlags) -> Result<Instanced> {
 fn one_instance(o: &Opts) -> Result<Instanced> {
     let scene = match &o.proxy {
         Some(path) => scene::read_proxy(path)?,
-        None => scene::bake_meshes(scene::load_meshes(&o.meshes)?, &o.build.params()?)?,
+        None => scene::bake_meshes(scene::load_meshes(&o.meshes)?, &o.build.params()?, 0.0)?,
     };
     scene::print_bake_summary(&scene)?;
     Instanced::one(scene.words, scene.meshes)
@@ -499,13 +561,17 @@ fn one_instance(o: &Opts) -> Result<Instanced> {
 /// with hit records, events and each particle's sides for the instances it is near.
 fn run_scene(o: Opts) -> Result<()> {
     let out = o.out.clone().context("sim needs --out FILE (or -o FILE)")?;
+    if o.build.radius.is_some() {
+        bail!("--radius with --scene, --hits or --events is not supported yet: step particles of a radius with --mesh or --proxy alone");
+    }
     let defaults = StepParams::default();
     let params = StepParams {
         gravity: o.gravity.unwrap_or(defaults.gravity),
         dt: o.dt.unwrap_or(defaults.dt),
         restitution: o.restitution.unwrap_or(defaults.restitution),
         friction: o.friction.unwrap_or(defaults.friction),
-        _pad: [0; 2],
+        radius: 0.0,
+        _pad: 0,
     };
     params.validate()?;
     let every = o.every.unwrap_or(1);
@@ -543,7 +609,9 @@ fn run_scene(o: Opts) -> Result<()> {
 
     // The particles and their sides.
     let refs: Vec<MeshRef<'_>> = inst.meshes[0].iter().map(MeshRef::from).collect();
-    let mut cloud = particles_in(&o, &only_view(&inst.scene), &refs, || inst.world_box())?;
+    let mut cloud = particles_in(&o, &only_view(&inst.scene), &refs, None, || {
+        inst.world_box()
+    })?;
     let sides = match take_slots(&mut cloud)? {
         Some(sides) => {
             eprintln!(
@@ -566,6 +634,7 @@ fn run_scene(o: Opts) -> Result<()> {
                     triangles: 0,
                     bake_time: None,
                     report: None,
+                    offset: None,
                 };
                 starting_sides(&one, &view, &mut cloud)?;
             }
@@ -717,6 +786,7 @@ fn particles_in(
     o: &Opts,
     view: &octoproxy_core::ProxyView<'_>,
     meshes: &[MeshRef<'_>],
+    offset: Option<&OffsetSurface>,
     scene_box: impl FnOnce() -> (Vec3, Vec3),
 ) -> Result<ParticleCloud> {
     if let Some(path) = &o.particles {
@@ -734,7 +804,7 @@ fn particles_in(
     let speed = o.emit_speed.unwrap_or(0.0);
     let seed = o.seed.unwrap_or(1);
     let particles = if o.emit_surface {
-        emit_surface_for(view, n, meshes, speed, seed)
+        emit_surface_for(view, n, meshes, offset, speed, seed)
     } else {
         let (min, max) = match o.emit_box {
             Some(b) => (Vec3::new(b[0], b[1], b[2]), Vec3::new(b[3], b[4], b[5])),

@@ -33,6 +33,7 @@ mod encode;
 mod flat;
 pub mod geom;
 mod label;
+pub mod offset;
 
 use std::collections::HashSet;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -40,7 +41,7 @@ use std::time::{Duration, Instant};
 
 use crate::ground_truth::GroundTruth;
 use glam::{DVec3, UVec3};
-use octoproxy_core::format::{quantize_root_size, ROOT_SIZE_MANTISSA_BITS};
+use octoproxy_core::format::{header, quantize_root_size, ROOT_SIZE_MANTISSA_BITS};
 use octoproxy_core::{ulp, MAX_DEPTH, MAX_LUT_DEPTH};
 use rayon::prelude::*;
 
@@ -246,6 +247,13 @@ pub struct BuildReport {
     pub root_min: [f32; 3],
     /// Root cube edge length.
     pub root_size: f32,
+    /// The particle radius baked for (`0`: the mesh itself; see [`bake_with_radius`]).
+    pub radius: f32,
+    /// Triangles of the offset surface baked in the mesh's place (0 without a radius).
+    pub offset_triangles: usize,
+    /// The grid spacing that surface was extracted at (0 without a radius): every point of
+    /// it is at least `radius - spacing * √3` from the mesh.
+    pub offset_spacing: f64,
     /// Wall time per stage.
     pub timings: Vec<(&'static str, Duration)>,
 }
@@ -339,6 +347,63 @@ pub fn bake(
     progress: &dyn BuildProgress,
 ) -> Result<(Vec<u32>, BuildReport), BuildError> {
     bake_in_passes(meshes, params, progress, MAX_PASSES)
+}
+
+/// Bakes the meshes of one scene for particles of `radius`: the proxy of the offset surface
+/// at that distance from every triangle ([`offset`]), `radius` in its header. Centres of
+/// particles that start at least `radius` plus half a `dmax` leaf diagonal from every
+/// triangle then never come nearer than `radius` less half a leaf diagonal (the guarantee of
+/// the march, for the offset surface). A `radius` of 0 is [`bake`].
+pub fn bake_with_radius(
+    meshes: &[MeshRef<'_>],
+    params: &BuildParams,
+    radius: f32,
+    progress: &dyn BuildProgress,
+) -> Result<(Vec<u32>, BuildReport), BuildError> {
+    params.validate()?;
+    if !(radius >= 0.0) || !radius.is_finite() {
+        return Err(BuildError::BadParam(format!(
+            "radius must be a finite number >= 0, got {radius}"
+        )));
+    }
+    if radius == 0.0 {
+        return bake(meshes, params, progress);
+    }
+    let t = Instant::now();
+    let surface = offset::OffsetSurface::new(meshes, radius, params.dmax, progress)?;
+    let (words, mut report) = bake_offset(&surface, params, progress)?;
+    report.timings.insert(0, ("offset", t.elapsed()));
+    let mut check = BuildReport::default();
+    gather(meshes, &mut check)?;
+    report.triangles_in = check.triangles_in;
+    report.degenerate_skipped = check.degenerate_skipped;
+    Ok((words, report))
+}
+
+/// Bakes an offset surface built for `params.dmax` ([`offset::OffsetSurface`]), its radius
+/// in the header: what [`bake_with_radius`] does once it has the surface. A host that also
+/// places starting particles ([`offset::OffsetSurface::place`]) builds the surface once.
+pub fn bake_offset(
+    surface: &offset::OffsetSurface,
+    params: &BuildParams,
+    progress: &dyn BuildProgress,
+) -> Result<(Vec<u32>, BuildReport), BuildError> {
+    params.validate()?;
+    if surface.dmax() != params.dmax {
+        return Err(BuildError::BadParam(format!(
+            "the offset surface was built for dmax {}, the bake asks for dmax {}: build it for the bake's dmax",
+            surface.dmax(),
+            params.dmax
+        )));
+    }
+    let (mut words, mut report) = bake(&[surface.mesh_ref()], params, progress)?;
+    let radius = surface.radius();
+    words[header::RADIUS] = radius.to_bits();
+    octoproxy_core::format::seal(&mut words);
+    report.radius = radius;
+    report.offset_triangles = surface.mesh().triangles.len();
+    report.offset_spacing = surface.mesh().spacing;
+    Ok((words, report))
 }
 
 /// [`bake`] with at most `max_passes` subdivide–label passes before the last one, which

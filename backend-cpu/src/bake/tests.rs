@@ -372,7 +372,8 @@ fn particles_bounce_off_a_closed_box_from_both_sides() {
         dt: 0.01,
         restitution: 0.5,
         friction: 0.1,
-        _pad: [0; 2],
+        radius: 0.0,
+        _pad: 0,
     };
     // Outside, falling onto the top; inside, falling onto the floor from within.
     let mut outside = Particle::new([0.1, 2.0, 0.2], [0.0, -3.0, 0.0]);

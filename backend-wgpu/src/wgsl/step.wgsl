@@ -20,7 +20,8 @@ struct StepParams {
     dt: f32,
     restitution: f32,
     friction: f32,
-    _pad: vec2<u32>,
+    radius: f32,
+    _pad: u32,
 }
 
 fn respond(v: vec3<f32>, n: vec3<f32>, restitution: f32, friction: f32) -> vec3<f32> {

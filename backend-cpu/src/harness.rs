@@ -43,6 +43,9 @@ pub struct CheckReport {
     /// Of those, particles whose path went through a closed mesh: some point of it deeper
     /// than the tolerance on the other side, though maybe no step ended there.
     pub tunnels: u64,
+    /// Of those, particles of a radius whose path came nearer the mesh than the radius less
+    /// a leaf diagonal ([`run_check_radius`]).
+    pub too_near: u64,
     /// Particles whose state became NaN or infinite.
     pub non_finite: u64,
     /// Steps stopped by the shell rule.
@@ -378,7 +381,51 @@ pub fn run_check_kicked(
     closed: bool,
     kick: impl Fn(u32, usize, &mut Particle) + Sync,
 ) -> CheckReport {
+    check_paths(view, gt, particles, steps, params, closed, kick, None)
+}
+
+/// [`run_check`] for particles of a radius, stepped against a proxy baked for it: `gt` is
+/// the offset surface's ground truth (closed: crossing it is a penetration, as for any closed
+/// mesh), and every piece of every path is also checked against the scene's own triangles,
+/// `mesh`: a point of it nearer than `clearance` (the radius less a `dmax` leaf diagonal) is
+/// too near ([`CheckReport::too_near`], counted in the penetrations too). Pieces are sampled
+/// at their ends and every half leaf between.
+pub fn run_check_radius(
+    view: &ProxyView<'_>,
+    gt: &GroundTruth,
+    particles: &mut [Particle],
+    steps: u32,
+    params: &StepParams,
+    mesh: &GroundTruth,
+    clearance: f64,
+) -> CheckReport {
+    let p = *params;
+    check_paths(
+        view,
+        gt,
+        particles,
+        steps,
+        |_| p,
+        true,
+        |_, _, _| {},
+        Some((mesh, clearance)),
+    )
+}
+
+/// The check itself, with an optional clearance from a mesh ([`run_check_radius`]).
+#[allow(clippy::too_many_arguments)]
+fn check_paths(
+    view: &ProxyView<'_>,
+    gt: &GroundTruth,
+    particles: &mut [Particle],
+    steps: u32,
+    params: impl Fn(u32) -> StepParams + Sync,
+    closed: bool,
+    kick: impl Fn(u32, usize, &mut Particle) + Sync,
+    clear: Option<(&GroundTruth, f64)>,
+) -> CheckReport {
     let tol = tolerance(view) as f64;
+    let half_leaf = 0.5 * view.finest_leaf_size();
     struct State {
         start: [f32; 3],
         inside: bool,
@@ -389,6 +436,7 @@ pub fn run_check_kicked(
         blocked: u64,
         bound: u64,
         tunnelled: bool,
+        near: bool,
     }
     let mut states: Vec<State> = particles
         .par_iter()
@@ -402,6 +450,7 @@ pub fn run_check_kicked(
             blocked: 0,
             bound: 0,
             tunnelled: false,
+            near: false,
         })
         .collect();
     particles
@@ -434,13 +483,22 @@ pub fn run_check_kicked(
                         gt.segment_crossings(a.to_array(), b.to_array())
                     };
                     counts.push(k);
+                    if let Some((mesh, min)) = clear {
+                        if !is_jump && !s.near {
+                            let n = (((b - a).length() / half_leaf).ceil() as usize).clamp(1, 4096);
+                            s.near = (0..=n).any(|i| {
+                                let q = a.lerp(b, i as f32 / n as f32).to_array();
+                                mesh.distance_capped(q, min) < min
+                            });
+                        }
+                    }
                     if !closed {
                         s.crossings += k as u64;
                     } else if k > 0 && !s.tunnelled && !is_jump {
                         s.tunnelled = deep_on_the_other_side(gt, a, b, s.inside, tol).is_some();
                     }
                 }
-                s.bad |= s.tunnelled;
+                s.bad |= s.tunnelled || s.near;
                 if p.flags & FLAG_INVALID != 0 || !Vec3::from_array(p.position).is_finite() {
                     s.non_finite = true;
                     break;
@@ -471,6 +529,7 @@ pub fn run_check_kicked(
             report.penetrations += 1;
             report.escapes += s.escaped as u64;
             report.tunnels += s.tunnelled as u64;
+            report.too_near += s.near as u64;
             if report.examples.len() < 5 {
                 report.examples.push((i, s.start, p.position));
             }

@@ -4,13 +4,14 @@
 //! (`octoproxy_cpu::harness::run_check`).
 
 use std::ffi::OsString;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{bail, Result};
 use octoproxy_core::StepParams;
+use octoproxy_cpu::bake::offset::OffsetSurface;
 use octoproxy_cpu::ground_truth::GroundTruth;
-use octoproxy_cpu::harness::{run_check, Start, Starter};
+use octoproxy_cpu::harness::{run_check, run_check_radius, Start, Starter};
 use octoproxy_cpu::io::read_particles;
 use octoproxy_cpu::io::Mesh;
 use octoproxy_cpu::scenes::{self, MeshExt};
@@ -118,9 +119,8 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
         }
     }
     params.validate()?;
-    if build.radius.is_some() {
-        bail!("check --radius is not supported yet: check particles of a radius with sim --mesh MESH --radius R, and the tests (tests/tests/radius.rs)");
-    }
+    let radius = build.radius()?;
+    params.radius = radius;
     if particles_file.is_some() && (emit.is_some() || starts.is_some()) {
         bail!("give either --particles or --emit (with --starts), not both");
     }
@@ -147,6 +147,9 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
                 Some(build.params()?)
             };
             let scene = Instanced::from_file(&path, build.as_ref())?;
+            if radius > 0.0 {
+                bail!("check --scene FILE --radius is not supported yet: check a radius with --mesh or a built-in --scene NAME");
+            }
             return check_scene(scene, particles_file.as_deref(), emit, seed, steps, &params);
         }
     }
@@ -158,8 +161,19 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     };
     let mesh = scenes::merge(&mesh_list);
     let closed = mesh.is_closed();
-    let baked = scene::bake_meshes(mesh_list, &build.params()?, 0.0)?;
+    let baked = scene::bake_meshes(mesh_list, &build.params()?, radius)?;
     let view = baked.view()?;
+    if let Some(offset) = &baked.offset {
+        return check_radius(
+            &view,
+            offset,
+            &mesh,
+            particles_file.as_deref(),
+            (starts, emit, seed),
+            steps,
+            &params,
+        );
+    }
     let t = Instant::now();
     let gt = GroundTruth::new(&mesh.positions, &mesh.triangles);
     eprintln!(
@@ -411,6 +425,94 @@ fn check_scene(
             "{} penetrations and {non_finite} NaN particles",
             tally.penetrations
         );
+    }
+    Ok(())
+}
+
+/// `check --radius`: particles of a radius against the proxy of the offset surface, started
+/// as `--starts` says relative to that surface (a closed mesh: its outside is outside the
+/// band), moved out of the band where they start in it (as `sim` does), and checked against
+/// the offset surface (closed: no crossing) and against the mesh itself (no point of any
+/// path nearer than the radius less a `dmax` leaf diagonal).
+fn check_radius(
+    view: &octoproxy_core::ProxyView<'_>,
+    offset: &OffsetSurface,
+    mesh: &Mesh,
+    particles_file: Option<&Path>,
+    (starts, emit, seed): (Option<Start>, Option<usize>, u64),
+    steps: u32,
+    params: &StepParams,
+) -> Result<()> {
+    let t = Instant::now();
+    let surface = [offset.mesh_ref()];
+    let off_gt = GroundTruth::new(&offset.mesh().positions, &offset.mesh().triangles);
+    let mesh_gt = GroundTruth::new(&mesh.positions, &mesh.triangles);
+    let sides = Sides::new(&surface);
+    eprintln!(
+        "ground truth: the offset surface ({} triangles, closed: winding numbers) and the mesh ({} triangles: exact distance) in {:.0} ms",
+        off_gt.triangle_count(),
+        mesh_gt.triangle_count(),
+        t.elapsed().as_secs_f64() * 1e3
+    );
+    let mut ps = match particles_file {
+        Some(path) => read_particles(path)?.particles,
+        None => {
+            let leaf = view.finest_leaf_size();
+            let size = view.header().root_size;
+            let speeds: Vec<f32> = [0.1 * leaf, leaf, 5.0 * leaf, 0.25 * size, size]
+                .iter()
+                .map(|d| d / params.dt)
+                .collect();
+            let starter = Starter {
+                view,
+                meshes: &surface,
+                sides: &sides,
+                gt: &off_gt,
+                closed: true,
+            };
+            starter.particles(
+                starts.unwrap_or(Start::Outside),
+                emit.unwrap_or(20_000),
+                &speeds,
+                seed,
+            )
+        }
+    };
+    let placed = offset.place(&mut ps, Some(view));
+    sides.assign(&mut ps, false);
+    let cages = sides.cages(view, &mut ps, false);
+    eprintln!(
+        "particles: {} ({} moved out of the band, {} could not be)",
+        ps.len(),
+        placed.moved,
+        placed.stuck
+    );
+    crate::sim::report_cages(&cages, ps.len());
+    let clearance = params.radius as f64 - 3f64.sqrt() * view.finest_leaf_size() as f64;
+    let t = Instant::now();
+    let report = run_check_radius(view, &off_gt, &mut ps, steps, params, &mesh_gt, clearance);
+    let secs = t.elapsed().as_secs_f64();
+    println!(
+        "{} particles × {steps} steps = {} particle-steps in {secs:.1} s",
+        report.particles, report.particle_steps
+    );
+    println!(
+        "penetrations: {} ({:.3} per million particle-steps), of which {} came nearer the mesh than the radius less a leaf diagonal ({clearance:.4e}) and {} went through the offset surface within a step",
+        report.penetrations,
+        report.per_million(),
+        report.too_near,
+        report.tunnels
+    );
+    println!("NaN or infinite: {}", report.non_finite);
+    println!(
+        "collisions: {}; steps stopped by the shell rule: {}, by the leaf bound: {}",
+        report.collisions, report.blocked_steps, report.bound_hits
+    );
+    for (i, a, b) in &report.examples {
+        println!("  particle {i}: {a:?} -> {b:?}");
+    }
+    if report.penetrations > 0 {
+        bail!("{} penetrations", report.penetrations);
     }
     Ok(())
 }

@@ -699,3 +699,86 @@ f 1 3 4 2\nf 5 6 8 7\nf 1 2 6 5\nf 3 7 8 4\nf 1 5 7 3\nf 2 4 8 6\n";
     let y: f32 = first.split_whitespace().nth(1).unwrap().parse().unwrap();
     assert!(y.abs() < 0.03, "{first}");
 }
+
+/// Particles of a radius: `bake --radius` records it, `sim --proxy` steps it (and refuses
+/// another), `sim --mesh --radius` moves starts out of the band and says so, and `check
+/// --radius` checks paths against the mesh's distance; bad radii are one-line errors.
+#[test]
+fn a_radius_bakes_steps_and_checks() {
+    let dir = scratch("radius");
+    std::fs::write(dir.join("cube.obj"), BOX_OBJ).unwrap();
+    let out = octoproxy(
+        &[
+            "bake", "--mesh", "cube.obj", "--dmax", "5", "--radius", "0.2", "-o", "r.octp",
+        ],
+        &dir,
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("radius: 0.2 (the offset surface"),
+        "{stderr}"
+    );
+    let out = octoproxy(
+        &[
+            "sim", "--proxy", "r.octp", "--emit", "200", "--steps", "5", "-o", "a.ply",
+        ],
+        &dir,
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let out = octoproxy(
+        &[
+            "sim", "--proxy", "r.octp", "--radius", "0.1", "--emit", "200", "-o", "b.ply",
+        ],
+        &dir,
+    );
+    assert_one_line_error(&out, "but the proxy was baked for radius 0.2");
+    let out = octoproxy(
+        &[
+            "sim", "--mesh", "cube.obj", "--dmax", "5", "--radius", "0.2", "--emit", "300",
+            "--steps", "5", "-o", "c.ply",
+        ],
+        &dir,
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(out.status.success(), "{stderr}");
+    assert!(stderr.contains("were moved out along the way"), "{stderr}");
+    let out = octoproxy(
+        &[
+            "check", "--scene", "comb", "--dmax", "5", "--radius", "0.15", "--emit", "400",
+            "--steps", "10", "--starts", "shell",
+        ],
+        &dir,
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout).to_string();
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.contains("penetrations: 0 "), "{stdout}");
+    assert!(
+        stdout.contains("of which 0 came nearer the mesh"),
+        "{stdout}"
+    );
+    for bad in ["-1", "nan", "inf"] {
+        let out = octoproxy(
+            &[
+                "bake", "--mesh", "cube.obj", "--radius", bad, "-o", "d.octp",
+            ],
+            &dir,
+        );
+        assert_one_line_error(&out, "radius");
+    }
+    let out = octoproxy(
+        &[
+            "sim", "--scene", "x.gltf", "--radius", "0.1", "--emit", "5", "-o", "e.ply",
+        ],
+        &dir,
+    );
+    assert_one_line_error(&out, "not supported yet");
+}

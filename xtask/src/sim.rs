@@ -548,24 +548,42 @@ fn instanced_from(path: &Path, build: &BuildFlags) -> Result<Instanced> {
 }
 
 /// `--mesh` or `--proxy` as a scene of one instance at the identity.
-fn one_instance(o: &Opts) -> Result<Instanced> {
-    let scene = match &o.proxy {
+/// With `--radius`, a mesh is baked for it, and its offset surface comes back too; the
+/// radius stepped is the flag's, else the proxy's own.
+fn one_instance(o: &Opts) -> Result<(Instanced, Option<OffsetSurface>, f32)> {
+    let mut scene = match &o.proxy {
         Some(path) => scene::read_proxy(path)?,
-        None => scene::bake_meshes(scene::load_meshes(&o.meshes)?, &o.build.params()?, 0.0)?,
+        None => scene::bake_meshes(
+            scene::load_meshes(&o.meshes)?,
+            &o.build.params()?,
+            o.build.radius()?,
+        )?,
     };
     scene::print_bake_summary(&scene)?;
-    Instanced::one(scene.words, scene.meshes)
+    let baked = scene.view()?.header().radius;
+    let radius = o.build.radius.unwrap_or(baked);
+    octoproxy_core::check_radius(baked, radius).map_err(|e| {
+        anyhow::anyhow!(
+            "{}: {e}",
+            o.proxy
+                .as_deref()
+                .unwrap_or(Path::new("the proxy"))
+                .display()
+        )
+    })?;
+    let offset = scene.offset.take();
+    Ok((Instanced::one(scene.words, scene.meshes)?, offset, radius))
 }
 
 /// `sim` through the scene API: a scene file, or a mesh or proxy as a scene of one instance,
 /// with hit records, events and each particle's sides for the instances it is near.
 fn run_scene(o: Opts) -> Result<()> {
     let out = o.out.clone().context("sim needs --out FILE (or -o FILE)")?;
-    if o.build.radius.is_some() {
-        bail!("--radius with --scene, --hits or --events is not supported yet: step particles of a radius with --mesh or --proxy alone");
+    if o.build.radius.is_some() && o.scene.is_some() {
+        bail!("--radius with --scene is not supported yet (a glTF scene baked for a radius needs one bake per distinct world scale): step particles of a radius with --mesh or --proxy");
     }
     let defaults = StepParams::default();
-    let params = StepParams {
+    let mut params = StepParams {
         gravity: o.gravity.unwrap_or(defaults.gravity),
         dt: o.dt.unwrap_or(defaults.dt),
         restitution: o.restitution.unwrap_or(defaults.restitution),
@@ -581,9 +599,13 @@ fn run_scene(o: Opts) -> Result<()> {
     if o.emit_surface && o.scene.is_some() {
         bail!("--emit-surface needs --mesh (with --scene, emit in a box)");
     }
-    let mut inst = match &o.scene {
-        Some(path) => instanced_from(path, &o.build)?,
-        None => one_instance(&o)?,
+    let (mut inst, mut offset) = match &o.scene {
+        Some(path) => (instanced_from(path, &o.build)?, None),
+        None => {
+            let (inst, offset, radius) = one_instance(&o)?;
+            params.radius = radius;
+            (inst, offset)
+        }
     };
     let start = o.start_time.unwrap_or(0.0);
     inst.hold_at(start)?;
@@ -609,7 +631,7 @@ fn run_scene(o: Opts) -> Result<()> {
 
     // The particles and their sides.
     let refs: Vec<MeshRef<'_>> = inst.meshes[0].iter().map(MeshRef::from).collect();
-    let mut cloud = particles_in(&o, &only_view(&inst.scene), &refs, None, || {
+    let mut cloud = particles_in(&o, &only_view(&inst.scene), &refs, offset.as_ref(), || {
         inst.world_box()
     })?;
     let sides = match take_slots(&mut cloud)? {
@@ -623,7 +645,10 @@ fn run_scene(o: Opts) -> Result<()> {
             // One mesh or proxy at the identity: a side per particle, as the plain step has.
             let view = only_view(&inst.scene);
             if o.emit_surface {
-                let refs: Vec<MeshRef<'_>> = inst.meshes[0].iter().map(MeshRef::from).collect();
+                let refs: Vec<MeshRef<'_>> = match &offset {
+                    Some(s) => vec![s.mesh_ref()],
+                    None => inst.meshes[0].iter().map(MeshRef::from).collect(),
+                };
                 let cages = Sides::new(&refs).cages(&view, &mut cloud.particles, false);
                 report_cages(&cages, cloud.particles.len());
             } else {
@@ -634,7 +659,7 @@ fn run_scene(o: Opts) -> Result<()> {
                     triangles: 0,
                     bake_time: None,
                     report: None,
-                    offset: None,
+                    offset: offset.take(),
                 };
                 starting_sides(&one, &view, &mut cloud)?;
             }

@@ -747,6 +747,35 @@ fn a_radius_bakes_steps_and_checks() {
     let stderr = String::from_utf8_lossy(&out.stderr).to_string();
     assert!(out.status.success(), "{stderr}");
     assert!(stderr.contains("were moved out along the way"), "{stderr}");
+    // Through the scene API, with hit records: the centre at contact.
+    let out = octoproxy(
+        &[
+            "sim",
+            "--mesh",
+            "cube.obj",
+            "--dmax",
+            "5",
+            "--radius",
+            "0.2",
+            "--hits",
+            "--emit",
+            "300",
+            "--emit-speed",
+            "2",
+            "--steps",
+            "10",
+            "-o",
+            "h.ply",
+        ],
+        &dir,
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(out.status.success(), "{stderr}");
+    assert!(stderr.contains("were moved out along the way"), "{stderr}");
+    assert!(
+        stderr.contains("particles collided in the last step"),
+        "{stderr}"
+    );
     let out = octoproxy(
         &[
             "check", "--scene", "comb", "--dmax", "5", "--radius", "0.15", "--emit", "400",

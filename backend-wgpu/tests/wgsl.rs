@@ -558,6 +558,8 @@ const TWINS: &[(&str, &str, Twin)] = &[
 /// the twins above, every function of `step.rs` and `query.rs` has a row.
 const HOST_ONLY: &[(&str, &str, &str)] = &[
     ("step.rs", "fmt", "ParamError's Display: errors are the host's"),
+    ("step.rs", "check_radius", "the host checks the particles' radius against the proxy's before stepping"),
+    ("scene.rs", "check_radius", "SceneView::check_radius: the host checks every instance's radius before stepping"),
     ("query.rs", "surface_box", "ProxyView::surface_box: the host's scene check (how instances' shells overlap)"),
     ("step.rs", "default", "StepParams::default: the host fills the uniform"),
     ("step.rs", "validate", "StepParams::validate: the host checks parameters before uploading them"),

@@ -822,6 +822,90 @@ fn build_inner(u: &mut Unstructured<'_>) -> Result<()> {
             }
         }
     }
+    if valid && expected_input_error(&meshes).is_none() && params.dmax <= 5 && u.ratio(1u8, 3)? {
+        radius_case(u, &refs, &params)?;
+    }
+    Ok(())
+}
+
+/// The same soup baked for a particle radius (some of them hostile): a clear error, or an
+/// offset surface that is closed, within `h√3` of the radius at its vertices, and a proxy
+/// that records the radius.
+fn radius_case(u: &mut Unstructured<'_>, refs: &[MeshRef<'_>], params: &BuildParams) -> Result<()> {
+    use octoproxy_cpu::bake::offset::{is_closed, OffsetSurface, MAX_RADIUS_PER_EXTENT};
+    let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+    for m in refs {
+        for t in m.triangles {
+            for &i in t {
+                let p = Vec3::from_array(m.positions[i as usize]);
+                lo = lo.min(p);
+                hi = hi.max(p);
+            }
+        }
+    }
+    let extent = (hi - lo).max_element();
+    let radius = match u.int_in_range(0u8..=9)? {
+        0 => f32::NAN,
+        1 => -range(u, 0.0, 1.0)?,
+        2 => f32::INFINITY,
+        3 => extent * (MAX_RADIUS_PER_EXTENT as f32) * 2.0,
+        4 => 0.0,
+        _ => range(u, 0.01, 0.5)? * extent,
+    };
+    let sane = radius > 0.0
+        && radius.is_finite()
+        && extent > 0.0
+        && (radius as f64) <= MAX_RADIUS_PER_EXTENT * extent as f64;
+    let surface = match OffsetSurface::new(refs, radius, params.dmax, &()) {
+        Ok(s) => s,
+        Err(e) => {
+            // A bad radius, or a soup the bake itself refuses (all of it degenerate).
+            assert!(
+                matches!(e, BuildError::BadParam(_) | BuildError::Empty { .. }),
+                "radius {radius}: {e:?}, not BadParam"
+            );
+            assert!(!e.to_string().is_empty());
+            return Ok(());
+        }
+    };
+    assert!(
+        sane,
+        "an offset surface for radius {radius} (extent {extent})"
+    );
+    let mesh = surface.mesh();
+    assert!(
+        is_closed(&mesh.triangles),
+        "an offset surface that is not closed"
+    );
+    let slack = mesh.spacing * 3f64.sqrt() * 1.001 + extent as f64 * 1e-5;
+    for v in mesh.positions.iter().step_by(mesh.positions.len() / 50 + 1) {
+        let d = surface.truth().distance(*v);
+        assert!(
+            (d - radius as f64).abs() <= slack,
+            "an offset vertex {d} from the scene, radius {radius}, slack {slack}"
+        );
+    }
+    let small = BuildParams {
+        max_nodes: params.max_nodes.min(200_000),
+        ..*params
+    };
+    match octoproxy_cpu::bake_offset(&surface, &small, &()) {
+        Ok((words, _)) => {
+            let view = ProxyView::new(&words).expect("a radius proxy validates");
+            assert_eq!(view.header().radius, radius);
+        }
+        Err(e) => assert!(
+            matches!(
+                e,
+                BuildError::Resolution { .. }
+                    | BuildError::TooLarge { .. }
+                    | BuildError::TooSmall { .. }
+                    | BuildError::TooManyNodes { .. }
+                    | BuildError::Unsplittable
+            ),
+            "the offset surface of radius {radius} did not bake: {e:?}"
+        ),
+    }
     Ok(())
 }
 

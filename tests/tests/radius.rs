@@ -187,7 +187,7 @@ fn an_open_sheet_and_fins_through_a_plate_keep_centres_at_the_radius() {
     check("sheet", campaign(&sheet, 6, 2.0, 1500, 30, 1));
     let mut fins = vec![scenes::slab([0.0; 3], [2.0, 0.2, 2.0])];
     fins.extend((0..4).map(|i| scenes::slab([i as f32 * 0.4 - 0.6, 0.2, 0.0], [0.01, 0.8, 1.5])));
-    check("fins through a plate", campaign(&fins, 6, 1.5, 1500, 30, 2));
+    check("fins through a plate", campaign(&fins, 6, 2.0, 1500, 30, 2));
     let star = vec![scenes::star_prism(7, 1.5, 0.4, 1.0)];
     check("star prism", campaign(&star, 6, 2.0, 1500, 30, 3));
 }
@@ -224,7 +224,8 @@ fn the_radius_is_checked_like_every_parameter() {
     }
     let cube = scenes::cube([0.0; 3], [1.0; 3]);
     let refs = [MeshRef::from(&cube)];
-    for r in [-0.1, f32::NAN, f32::INFINITY, 1e4] {
+    // 1e-3 is far below a leaf's diagonal of the unit cube at dmax 8.
+    for r in [-0.1, f32::NAN, f32::INFINITY, 1e4, 1e-3] {
         let e = bake_with_radius(&refs, &BuildParams::default(), r, &()).unwrap_err();
         assert!(matches!(e, BuildError::BadParam(_)), "{r}: {e}");
         assert!(e.to_string().contains("radius"), "{e}");

@@ -18,6 +18,11 @@
 //! triangles on the linear interpolation's zero set, facing away from the band. A corner with
 //! `d >= R` is outside.
 //!
+//! **Resolution.** The radius must exceed the cell diagonal `h√3`: then every tetrahedron
+//! holding a point of the scene has every corner nearer than `R`, so the scene lies strictly
+//! inside the band and no path reaches it without crossing the surface. A smaller radius is
+//! an error (it would mean less than a leaf anyway).
+//!
 //! **Accuracy.** A point of the surface lies in a tetrahedron with a corner at `d >= R`, at
 //! most the cell diagonal `h√3` from it, so its distance to the scene is at least `R - h√3`;
 //! any point outside the band is at least that far too (a point nearer than `R - h√3` has
@@ -130,6 +135,12 @@ impl OffsetGrid {
             )));
         }
         let h = spacing(extent, r, dmax);
+        if r <= h * 3f64.sqrt() {
+            return Err(BuildError::BadParam(format!(
+                "radius {radius} is not more than the offset grid's cell diagonal at dmax {dmax} ({:.4e}, about a dmax leaf's diagonal): the band would slip between the grid's points; raise dmax (or bake without a radius: a point proxy keeps centres to the surface itself)",
+                h * 3f64.sqrt()
+            )));
+        }
         // Two cells of margin past the band on every side: the boundary vertices are outside.
         let lo = lo - DVec3::splat(r + 2.0 * h);
         let span = (hi + DVec3::splat(r + 2.0 * h)) - lo;
@@ -292,7 +303,31 @@ fn extract(
         });
         out.triangles.push(tri);
     }
+    if !is_closed(&out.triangles) {
+        return Err(BuildError::BadParam(format!(
+            "the offset surface of radius {radius} at dmax {dmax} does not close at f32 precision (the scene is too small for its distance from the origin): move it nearer the origin or lower dmax"
+        )));
+    }
     Ok(out)
+}
+
+/// Whether every edge of `triangles` is used exactly once in each direction.
+pub fn is_closed(triangles: &[[u32; 3]]) -> bool {
+    let mut edges: Vec<(u64, bool)> = triangles
+        .par_iter()
+        .flat_map_iter(|t| {
+            (0..3).map(move |k| {
+                let (a, b) = (t[k], t[(k + 1) % 3]);
+                let (lo, hi) = (a.min(b) as u64, a.max(b) as u64);
+                (lo << 32 | hi, a < b)
+            })
+        })
+        .collect();
+    edges.par_sort_unstable();
+    edges.len().is_multiple_of(2)
+        && edges
+            .chunks_exact(2)
+            .all(|w| w[0].0 == w[1].0 && w[0].1 != w[1].1 && w[0].0 >> 32 != (w[0].0 & 0xffff_ffff))
 }
 
 /// The ground truth of every triangle of `meshes`, one soup.

@@ -308,7 +308,7 @@ fn march_in_frame(c: u32, inst: Instance, x: vec3<f32>, v: vec3<f32>, u0: f32, u
         var lp = Particle(la, side, lv, 0u);
         observe(stop, !stop, HitFrame(c, pa, !fixed, inst, ua, ub, h, dt));
         var hint = vec2<u32>(0u);
-        let local = StepParams(vec3<f32>(0.0), h, params.restitution, params.friction, params._pad);
+        let local = StepParams(vec3<f32>(0.0), h, params.restitution, params.friction, params.radius, params._pad);
         outcome = march_after(&lp, local, &hint, collided);
         collided = NO_LEAF;
         side = lp.side;

@@ -861,7 +861,12 @@ fn radius_case(u: &mut Unstructured<'_>, refs: &[MeshRef<'_>], params: &BuildPar
         Err(e) => {
             // A bad radius, or a soup the bake itself refuses (all of it degenerate).
             assert!(
-                matches!(e, BuildError::BadParam(_) | BuildError::Empty { .. }),
+                matches!(
+                    e,
+                    BuildError::BadParam(_)
+                        | BuildError::Empty { .. }
+                        | BuildError::TooLarge { .. }
+                ),
                 "radius {radius}: {e:?}, not BadParam"
             );
             assert!(!e.to_string().is_empty());

@@ -143,7 +143,14 @@ impl OffsetGrid {
         }
         // Two cells of margin past the band on every side: the boundary vertices are outside.
         let lo = lo - DVec3::splat(r + 2.0 * h);
-        let span = (hi + DVec3::splat(r + 2.0 * h)) - lo;
+        let top = hi + DVec3::splat(r + 2.0 * h);
+        if lo.abs().max(top.abs()).max_element() >= f32::MAX as f64 / 4.0 {
+            // The surface's vertices, and the proxy's root cube around them, must be f32.
+            return Err(BuildError::TooLarge {
+                extent: (top - lo).max_element(),
+            });
+        }
+        let span = top - lo;
         let cells = [0, 1, 2].map(|a| (span[a] / h).ceil() as u64 + 1);
         if cells.iter().any(|&c| c >= (1 << 21) - 1) {
             return Err(BuildError::BadParam(format!(

@@ -4,9 +4,9 @@
 use glam::{DVec3, Vec3};
 use octoproxy_core::{Particle, ProxyView, SIDE_FRONT};
 
-use crate::bake::offset::{in_solid_leaf, OffsetSurface};
+use crate::bake::offset::OffsetSurface;
 use crate::bake::MeshRef;
-use crate::sides::Sides;
+use crate::sides::{in_solid_leaf, Sides};
 
 /// A small, fast, seedable generator (xorshift64*), so emission needs no dependency.
 #[derive(Clone, Debug)]

@@ -592,17 +592,21 @@ pub struct StartCounts {
 pub fn count_in_solid(view: &ProxyView<'_>, particles: &[Particle]) -> usize {
     particles
         .par_iter()
-        .filter(|p| {
-            let x = Vec3::from_array(p.position);
-            x.is_finite()
-                && view.locate_leaf(x).is_some_and(|l| {
-                    l.kind == LeafKind::Surface
-                        && l.two_sided
-                        && x.cmpgt(l.aabb.min).all()
-                        && x.cmplt(l.aabb.max).all()
-                })
-        })
+        .filter(|p| in_solid_leaf(view, p.position))
         .count()
+}
+
+/// Whether `p` is strictly inside a solid (two-sided) surface leaf of `view`, where a
+/// particle starts caged ([`Sides::cage`]).
+pub fn in_solid_leaf(view: &ProxyView<'_>, p: [f32; 3]) -> bool {
+    let x = Vec3::from_array(p);
+    x.is_finite()
+        && view.locate_leaf(x).is_some_and(|l| {
+            l.kind == LeafKind::Surface
+                && l.two_sided
+                && x.cmpgt(l.aabb.min).all()
+                && x.cmplt(l.aabb.max).all()
+        })
 }
 
 /// Gives every particle its starting side from `meshes` by [the rule](self), and cages those

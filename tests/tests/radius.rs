@@ -11,10 +11,11 @@ use octoproxy_core::{
     step_particle_traced, Backend, FormatError, ParamError, Particle, Pose, ProxyView, SceneError,
     StepParams,
 };
-use octoproxy_cpu::bake::offset::{in_solid_leaf, OffsetSurface};
+use octoproxy_cpu::bake::offset::OffsetSurface;
 use octoproxy_cpu::emit::{emit_surface_for, Rng};
 use octoproxy_cpu::ground_truth::GroundTruth;
 use octoproxy_cpu::io::Mesh;
+use octoproxy_cpu::sides::in_solid_leaf;
 use octoproxy_cpu::{
     bake, bake_offset, bake_with_radius, scenes, BuildError, BuildParams, CpuBackend, CpuError,
     MeshRef, Scene, SceneStepError, Sides,

@@ -255,19 +255,7 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     };
     scene::print_bake_summary(&scene)?;
     let view = scene.view()?;
-    if o.build.radius.is_none() {
-        // A proxy file steps the radius it was baked for, unless told otherwise.
-        params.radius = view.header().radius;
-    }
-    octoproxy_core::check_radius(view.header().radius, params.radius).map_err(|e| {
-        anyhow::anyhow!(
-            "{}: {e}",
-            o.proxy
-                .as_deref()
-                .unwrap_or(Path::new("the proxy"))
-                .display()
-        )
-    })?;
+    params.radius = stepped_radius(&o, view.header().radius)?;
 
     // The particles.
     let refs: Vec<MeshRef<'_>> = scene.meshes.iter().map(MeshRef::from).collect();
@@ -548,6 +536,22 @@ fn instanced_from(path: &Path, build: &BuildFlags) -> Result<Instanced> {
 }
 
 /// `--mesh` or `--proxy` as a scene of one instance at the identity.
+/// The radius stepped against a proxy baked for `baked`: `--radius`, else the proxy's own;
+/// one that does not match it is an error naming the proxy file.
+fn stepped_radius(o: &Opts, baked: f32) -> Result<f32> {
+    let radius = o.build.radius.unwrap_or(baked);
+    octoproxy_core::check_radius(baked, radius).map_err(|e| {
+        anyhow::anyhow!(
+            "{}: {e}",
+            o.proxy
+                .as_deref()
+                .unwrap_or(Path::new("the proxy"))
+                .display()
+        )
+    })?;
+    Ok(radius)
+}
+
 /// With `--radius`, a mesh is baked for it, and its offset surface comes back too; the
 /// radius stepped is the flag's, else the proxy's own.
 fn one_instance(o: &Opts) -> Result<(Instanced, Option<OffsetSurface>, f32)> {
@@ -560,17 +564,7 @@ fn one_instance(o: &Opts) -> Result<(Instanced, Option<OffsetSurface>, f32)> {
         )?,
     };
     scene::print_bake_summary(&scene)?;
-    let baked = scene.view()?.header().radius;
-    let radius = o.build.radius.unwrap_or(baked);
-    octoproxy_core::check_radius(baked, radius).map_err(|e| {
-        anyhow::anyhow!(
-            "{}: {e}",
-            o.proxy
-                .as_deref()
-                .unwrap_or(Path::new("the proxy"))
-                .display()
-        )
-    })?;
+    let radius = stepped_radius(o, scene.view()?.header().radius)?;
     let offset = scene.offset.take();
     Ok((Instanced::one(scene.words, scene.meshes)?, offset, radius))
 }

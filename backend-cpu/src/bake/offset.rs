@@ -37,7 +37,9 @@ use rayon::prelude::*;
 
 use super::{BuildError, BuildProgress, MeshRef};
 use crate::ground_truth::GroundTruth;
-use octoproxy_core::{LeafKind, Particle, ProxyView};
+use octoproxy_core::{Particle, ProxyView};
+
+use crate::sides::in_solid_leaf;
 
 /// Largest radius, in multiples of the scene's extent, that [`offset_mesh`] accepts.
 pub const MAX_RADIUS_PER_EXTENT: f64 = 1000.0;
@@ -692,16 +694,4 @@ impl OffsetSurface {
         }
         None
     }
-}
-
-/// Whether `p` is strictly inside a solid (two-sided) surface leaf of `view`, where a
-/// particle starts caged.
-pub fn in_solid_leaf(view: &ProxyView<'_>, p: [f32; 3]) -> bool {
-    let x = glam::Vec3::from_array(p);
-    view.locate_leaf(x).is_some_and(|l| {
-        l.kind == LeafKind::Surface
-            && l.two_sided
-            && x.cmpgt(l.aabb.min).all()
-            && x.cmplt(l.aabb.max).all()
-    })
 }

@@ -351,9 +351,10 @@ pub fn bake(
 
 /// Bakes the meshes of one scene for particles of `radius`: the proxy of the offset surface
 /// at that distance from every triangle ([`offset`]), `radius` in its header. Centres of
-/// particles that start at least `radius` plus half a `dmax` leaf diagonal from every
-/// triangle then never come nearer than `radius` less half a leaf diagonal (the guarantee of
-/// the march, for the offset surface). A `radius` of 0 is [`bake`].
+/// particles that start outside the band (surely so at `radius` plus a `dmax` leaf diagonal
+/// from every triangle; [`offset::OffsetSurface::place`] moves the others out) then never
+/// come nearer than `radius` less a leaf diagonal (the guarantee of the march, for the offset
+/// surface). The radius must exceed about a leaf diagonal. A `radius` of 0 is [`bake`].
 pub fn bake_with_radius(
     meshes: &[MeshRef<'_>],
     params: &BuildParams,

@@ -9,14 +9,16 @@
 //! of an open sheet and the inside of a thick solid are all front.
 //!
 //! **Extraction.** The exact unsigned distance `d` (a BVH over the triangles, the same one
-//! the ground truth uses) is sampled on a grid of spacing `h`, at most half a `dmax` leaf of
-//! the proxy that will be baked, and only near the offset surface: a block of the grid is
+//! the ground truth uses) is sampled on a grid of spacing `h`, at most one `dmax` leaf of the
+//! proxy that will be baked ([`spacing`]), and only near the offset surface: a block of the grid is
 //! skipped whole when the distance at its centre is farther from `R` than the block's half
 //! diagonal (`d` is 1-Lipschitz). Each cell is cut into six tetrahedra around its main
 //! diagonal (the Kuhn triangulation, which matches across faces, so the surface has no
 //! cracks) and each tetrahedron with corners on both sides of `d = R` gives one or two
 //! triangles on the linear interpolation's zero set, facing away from the band. A corner with
-//! `d >= R` is outside.
+//! `d >= R` is outside, and corner values are kept a thousandth of `h` from zero, so no two
+//! cuts meet: the surface is closed (checked after welding; an error where `f32` cannot keep
+//! its vertices apart).
 //!
 //! **Resolution.** The radius must exceed the cell diagonal `h√3`: then every tetrahedron
 //! holding a point of the scene has every corner nearer than `R`, so the scene lies strictly
@@ -27,8 +29,8 @@
 //! most the cell diagonal `h√3` from it, so its distance to the scene is at least `R - h√3`;
 //! any point outside the band is at least that far too (a point nearer than `R - h√3` has
 //! every corner of its tetrahedron inside), and a point at `R + h√3` or farther is outside.
-//! With `h` at most half a leaf, `h√3` is at most half a `dmax` leaf's diagonal: a centre that
-//! never crosses the surface stays at least `R` less half a leaf diagonal from every triangle.
+//! With `h` at most a leaf, `h√3` is at most a `dmax` leaf's diagonal: a centre that never
+//! crosses the surface stays at least `R` less a leaf diagonal from every triangle.
 
 use std::collections::HashMap;
 

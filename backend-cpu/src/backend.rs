@@ -1,6 +1,6 @@
 //! [`CpuBackend`]: the core step run over particles in parallel with rayon.
 
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 
 use octoproxy_core::scene::{step_plain, FLAG_CRUSHED, FLAG_SIDES_LOST, SLOT_INSTANCE_SHIFT};
 use octoproxy_core::{
@@ -9,6 +9,11 @@ use octoproxy_core::{
     SceneHint, SceneSides, SceneSlots, SceneStepReport, SceneView, StepParams,
 };
 
+use glam::Vec3;
+use octoproxy_core::pairs::{
+    pair_cell, pair_hash, pair_prepare, pair_table_size, pair_velocity, PAIR_HASH_NONE,
+};
+use octoproxy_core::{pair_substeps, PairBody, PairParams, PairReport, PairStep, PairVelocity};
 use rayon::prelude::*;
 
 /// What the CPU backend can report.
@@ -38,6 +43,9 @@ pub enum CpuError {
     /// The scene did not validate against the scene proxies held.
     #[error("invalid scene: {0}")]
     Scene(#[from] SceneError),
+    /// The particle–particle pass's parameters are out of range.
+    #[error("invalid particle collision parameters: {0}")]
+    Pairs(#[from] octoproxy_core::PairParamError),
     /// A slice of the wrong length.
     #[error("expected room for {expected} particles, got {got}")]
     LengthMismatch {
@@ -74,6 +82,124 @@ pub struct CpuBackend {
     events: Vec<HitEvent>,
     events_lost: u64,
     use_lut: bool,
+    /// The particle–particle pass's scratch, kept between steps, and its report.
+    pairs: PairBuffers,
+    pair_report: PairReport,
+}
+
+/// The pass's buffers on the CPU: core's scratch, with the keys as one `u64` each (hash
+/// above index: the same total order as core's `[hash, index]`), and each particle's place
+/// in the sorted order (to gather the velocities back in the caller's order).
+#[derive(Debug, Default)]
+struct PairBuffers {
+    keys: Vec<u64>,
+    bodies: Vec<PairBody>,
+    vel: Vec<PairVelocity>,
+    vel_next: Vec<PairVelocity>,
+    ranges: Vec<[u32; 2]>,
+    rank: Vec<AtomicU32>,
+}
+
+/// Buckets of the pass's table each thread fills at a time.
+const RANGE_CHUNK: usize = 4096;
+
+impl PairBuffers {
+    /// One substep of the pass over `particles` with the constants `s`: their velocities
+    /// change, nothing else. Returns the particle-iterations that hit the neighbour cap.
+    fn substep(&mut self, particles: &mut [Particle], s: &PairStep, iterations: u32) -> u64 {
+        let n = particles.len();
+        let t = pair_table_size(n);
+        self.keys.resize(n, 0);
+        self.bodies.resize(n, PairBody::default());
+        self.vel.resize(n, [0.0; 4]);
+        self.vel_next.resize(n, [0.0; 4]);
+        self.ranges.resize(t, [0, 0]);
+        self.rank.resize_with(n, || AtomicU32::new(u32::MAX));
+        let keys = &mut self.keys;
+        keys.par_iter_mut()
+            .zip(particles.par_iter())
+            .enumerate()
+            .with_min_len(4096)
+            .for_each(|(i, (key, p))| {
+                let hash = match pair_prepare(p, s) {
+                    Some(_) => pair_hash(pair_cell(p.position, s), s.mask),
+                    None => PAIR_HASH_NONE,
+                };
+                *key = (hash as u64) << 32 | i as u64;
+            });
+        keys.par_sort_unstable();
+        let none = (PAIR_HASH_NONE as u64) << 32;
+        let valid = keys.partition_point(|&k| k < none);
+        let keys = &keys[..valid];
+        let (bodies, vel) = (&mut self.bodies[..valid], &mut self.vel[..valid]);
+        let rank = &self.rank;
+        bodies
+            .par_iter_mut()
+            .zip(vel.par_iter_mut())
+            .enumerate()
+            .with_min_len(4096)
+            .for_each(|(k, (body, v))| {
+                let i = keys[k] as u32;
+                let p = &particles[i as usize];
+                let w = pair_prepare(p, s).map_or(Vec3::ZERO, |(w, _)| w);
+                *body = PairBody {
+                    position: p.position,
+                    index: i,
+                    cell: pair_cell(p.position, s),
+                    hash: (keys[k] >> 32) as u32,
+                };
+                *v = [w.x, w.y, w.z, 0.0];
+                rank[i as usize].store(k as u32, Ordering::Relaxed);
+            });
+        // Each chunk of the table is a run of the sorted keys: find where it starts, walk it.
+        self.ranges
+            .par_chunks_mut(RANGE_CHUNK)
+            .enumerate()
+            .for_each(|(c, chunk)| {
+                chunk.fill([0, 0]);
+                let h0 = (c * RANGE_CHUNK) as u64;
+                let mut k = keys.partition_point(|&key| key >> 32 < h0);
+                while k < keys.len() && ((keys[k] >> 32) - h0) < chunk.len() as u64 {
+                    let h = ((keys[k] >> 32) - h0) as usize;
+                    let start = k;
+                    while k < keys.len() && keys[k] >> 32 == keys[start] >> 32 {
+                        k += 1;
+                    }
+                    chunk[h] = [start as u32, k as u32];
+                }
+            });
+        let ranges = &self.ranges[..];
+        let mut capped = 0u64;
+        let (mut a, mut b) = (&mut self.vel, &mut self.vel_next);
+        for _ in 0..iterations {
+            let bodies = &self.bodies[..valid];
+            let read = &a[..valid];
+            capped += b[..valid]
+                .par_iter_mut()
+                .enumerate()
+                .with_min_len(1024)
+                .map(|(k, out)| {
+                    let (v, cap) = pair_velocity(k, bodies, read, ranges, s);
+                    *out = v;
+                    cap as u64
+                })
+                .sum::<u64>();
+            std::mem::swap(&mut a, &mut b);
+        }
+        let vel = &a[..valid];
+        particles
+            .par_iter_mut()
+            .zip(self.rank.par_iter())
+            .with_min_len(4096)
+            .for_each(|(p, rank)| {
+                let k = rank.swap(u32::MAX, Ordering::Relaxed);
+                if k != u32::MAX {
+                    let v = vel[k as usize];
+                    p.velocity = [v[0], v[1], v[2]];
+                }
+            });
+        capped
+    }
 }
 
 /// The event sink of one particle's step on the CPU: events go to the thread's own list, up
@@ -387,6 +513,73 @@ impl Backend for CpuBackend {
         self.report.sides_lost += sides_lost;
         self.scene_steps = self.scene_steps.wrapping_add(1);
         Ok(())
+    }
+
+    fn step_pairs(
+        &mut self,
+        params: &StepParams,
+        pairs: &PairParams,
+        steps: u32,
+    ) -> Result<(), CpuError> {
+        params.validate()?;
+        pairs.validate(params)?;
+        let n = self.particles.len();
+        if n >= PAIR_HASH_NONE as usize {
+            return Err(CpuError::LengthMismatch {
+                expected: PAIR_HASH_NONE as usize - 1,
+                got: n,
+            });
+        }
+        let Self {
+            proxy,
+            particles,
+            hints,
+            use_lut,
+            pairs: buffers,
+            pair_report,
+            ..
+        } = self;
+        let Some(proxy) = proxy else {
+            return Err(CpuError::NoProxy);
+        };
+        let view = proxy.view();
+        octoproxy_core::check_radius(view.header().radius, params.radius)?;
+        let view = if *use_lut { view } else { view.without_lut() };
+        let substeps = pair_substeps(params, pairs);
+        let h = params.dt / substeps as f32;
+        // Gravity is integrated by the pass; the march moves each particle with what it left.
+        let march = StepParams {
+            gravity: [0.0; 3],
+            dt: h,
+            ..*params
+        };
+        march.validate()?;
+        for _ in 0..steps {
+            for _ in 0..substeps {
+                let s0 = PairStep::new(params, pairs, h, n, 0.0);
+                let v_max = particles
+                    .par_iter()
+                    .with_min_len(4096)
+                    .filter_map(|p| pair_prepare(p, &s0).map(|(_, speed)| speed))
+                    .reduce(|| 0.0, f32::max);
+                let s = PairStep::new(params, pairs, h, n, v_max);
+                pair_report.capped += buffers.substep(particles, &s, pairs.iterations);
+                particles
+                    .par_iter_mut()
+                    .zip(hints.par_iter_mut())
+                    .with_min_len(1024)
+                    .for_each(|(p, hint)| {
+                        step_particle_hinted(&view, p, &march, hint);
+                    });
+                pair_report.substeps += 1;
+            }
+            pair_report.steps += 1;
+        }
+        Ok(())
+    }
+
+    fn take_pair_report(&mut self) -> Result<PairReport, CpuError> {
+        Ok(std::mem::take(&mut self.pair_report))
     }
 
     fn take_scene_report(&mut self) -> Result<SceneStepReport, CpuError> {

@@ -896,6 +896,21 @@ impl Backend for WgpuBackend {
         self.wait()
     }
 
+    fn step_pairs(
+        &mut self,
+        _params: &StepParams,
+        _pairs: &octoproxy_core::PairParams,
+        _steps: u32,
+    ) -> Result<(), WgpuError> {
+        Err(WgpuError::Gpu(
+            "the particle-particle pass is not on the GPU yet".to_string(),
+        ))
+    }
+
+    fn take_pair_report(&mut self) -> Result<octoproxy_core::PairReport, WgpuError> {
+        Ok(octoproxy_core::PairReport::default())
+    }
+
     fn upload_scene_proxies(&mut self, key: u64, proxies: &[&[u32]]) -> Result<(), WgpuError> {
         self.upload_scene_proxies_gpu(key, proxies)
     }

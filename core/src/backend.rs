@@ -1,6 +1,7 @@
 //! The `Backend` trait: the one interface every caller (command line, tests, benchmarks)
 //! steps particles through, whatever runs the step.
 
+use crate::pairs::{PairParams, PairReport};
 use crate::particle::Particle;
 use crate::scene::{BroadNode, Hit, HitEvent, Instance, SceneSides};
 use crate::step::StepParams;
@@ -62,6 +63,21 @@ pub trait Backend {
     /// Steps every particle `steps` times. A backend may return before the work is done
     /// (a GPU queues it); [`Backend::finish`] waits, and a download always sees it.
     fn step(&mut self, params: &StepParams, steps: u32) -> Result<(), Self::Error>;
+
+    /// Steps every particle `steps` times with the particle–particle pass
+    /// ([`crate::pairs`]): each step is [`crate::pair_substeps`] substeps of the pass (it
+    /// changes velocities only) followed by the march of every particle against the proxy
+    /// over the substep. Needs `params.radius > 0` and a proxy baked for that radius. May
+    /// return before the work is done, as [`Backend::step`].
+    fn step_pairs(
+        &mut self,
+        params: &StepParams,
+        pairs: &PairParams,
+        steps: u32,
+    ) -> Result<(), Self::Error>;
+
+    /// What the pass did since the last call (and starts counting again).
+    fn take_pair_report(&mut self) -> Result<PairReport, Self::Error>;
 
     /// Waits until every step asked for is done (for timing). Backends that step
     /// synchronously have nothing to wait for.

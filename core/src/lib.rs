@@ -49,6 +49,7 @@ extern crate alloc;
 mod backend;
 pub mod format;
 mod math;
+pub mod pairs;
 mod particle;
 mod query;
 pub mod scene;
@@ -57,6 +58,10 @@ mod view;
 
 pub use backend::{Backend, EventCount, SceneStepReport};
 pub use format::{Label, NodeRecord, FORMAT_VERSION, MAX_DEPTH, MAX_LUT_DEPTH};
+pub use pairs::{
+    collide_pairs, pair_substeps, PairBody, PairParamError, PairParams, PairReport, PairScratch,
+    PairStep, PairVelocity,
+};
 pub use particle::*;
 pub use query::{Aabb, LeafInfo, LeafKind, NO_LEAF};
 pub use scene::{

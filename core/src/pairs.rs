@@ -1,0 +1,608 @@
+//! Particles that collide with each other: Green's uniform grid, hashed, with position-based
+//! contacts and Coulomb static friction (Macklin et al. 2014), solved by Jacobi iterations.
+//!
+//! A step with the pass is `substeps` rounds of: integrate gravity over the substep
+//! ([`pair_prepare`]), put every valid particle in a cell of edge [`PairStep::cell`] and hash
+//! the cell into a table of a power-of-two size ([`pair_cell`], [`pair_hash`]), sort the
+//! particles by (hash, index) — a total order, so any correct sort gives the same array —,
+//! find each bucket's range in the sorted order ([`pair_range_marks`]), and run
+//! [`PairParams::iterations`] Jacobi iterations in which every particle visits the 27 cells
+//! around its own, in a fixed order, and changes only its own velocity
+//! ([`pair_velocity`]). Then each particle's displacement over the substep is marched against
+//! the scene with gravity already integrated (the step with zero gravity and the substep's
+//! `dt`): the scene comes last, so no neighbour can push a particle through a surface.
+//!
+//! **The contact** between particles `i` and `j` (centres `x`, velocities `v`, radius `R`,
+//! substep `h`) is speculative: with `n` the unit vector from `j` to `i`, `gap = |x_i − x_j| −
+//! 2R` and `v_n = (v_i − v_j)·n`, the pair is in contact when `gap + v_n·h < 0` (it would
+//! close within the substep). The relative normal velocity is then raised to
+//! `e·(−v_n) + (1 − e)·(−gap/h)` (restitution `e`: reflected, or arriving just touching),
+//! and, when the pair overlaps, to at least `−β·gap/h` (the overlap removed at the rate
+//! `β`, [`PairParams::relaxation`]). The tangential relative velocity loses up to `μ` times
+//! that normal change (Coulomb's cone on impulses): all of it below the cone (static
+//! friction: touching particles stop sliding, so piles stand), `μ·Δv_n` above it. Particle
+//! `i` takes `share_i` of the pair's change and `j` the rest, `share_i = ½ + ½·s·σ` with `s`
+//! the height of `i` above `j` along `−gravity` in diameters (clamped to ±1) and `σ`
+//! [`PairParams::stacking`] (Macklin's mass scaling: a particle resting on another takes the
+//! correction, so stacks do not sink into each other). With `σ = 0`, or without gravity, each
+//! takes half: momentum is kept exactly, and an elastic frictionless pair leaves with the
+//! velocities its contact normal gives. Each particle averages its pairs' changes (the sum
+//! divided by its count of contacts). Coincident centres take the normal `±y` by index (the
+//! higher index goes up), so the pair's normals stay opposite.
+//!
+//! **No tunnelling between particles.** Within a substep, positions move in straight lines. A
+//! pair whose constraint holds after the iterations (`gap + v_n·h ≥ 0`) ends in the half-space
+//! `(x_i − x_j)·n ≥ 2R`, and so does every point between: the relative path never enters the
+//! other particle. The cell edge is `2R + 2·v_max·h` (times a margin), with `v_max` the
+//! largest speed of the substep, so every pair that could close within the substep lies in
+//! neighbouring cells. The neighbours a particle visits per iteration are capped
+//! ([`PairParams::max_candidates`]); a particle that hits the cap is counted
+//! ([`PairReport::capped`]), never looped over without end.
+//!
+//! **Determinism.** A particle sums its contacts in one order (the 27 cells z, then y, then
+//! x, from −1 to 1; within a bucket, the sorted order), reads only the last iteration's
+//! velocities, and writes only its own. Every float operation is IEEE (`+ − × ÷ √`, floor,
+//! comparisons), so any order of particles, a GPU's included, gives the same bits.
+//!
+//! Cell coordinates saturate at ±[`PAIR_CELL_LIMIT`]; particles whose position or velocity is
+//! not finite are left out of the pass (the march then flags them), as are those with
+//! [`crate::FLAG_INVALID`]'s cause.
+
+use bytemuck::{Pod, Zeroable};
+use glam::Vec3;
+
+use crate::math;
+use crate::particle::Particle;
+use crate::step::StepParams;
+
+/// Cell coordinates are clamped to `±PAIR_CELL_LIMIT` (as floats, before the conversion to
+/// integers, on both backends): particles beyond share the last cell.
+pub const PAIR_CELL_LIMIT: f32 = 1_073_741_824.0;
+
+/// The hash of a particle left out of the pass: after every table index in the sort.
+pub const PAIR_HASH_NONE: u32 = u32::MAX;
+
+/// The cell edge is this many times `2R + 2·v_max·h`: rounding of `x / cell` cannot lose a
+/// pair at the search distance.
+pub const PAIR_CELL_MARGIN: f32 = 1.0625;
+
+/// Most substeps a step is split into.
+pub const MAX_PAIR_SUBSTEPS: u32 = 256;
+
+/// Most Jacobi iterations per substep.
+pub const MAX_PAIR_ITERATIONS: u32 = 64;
+
+/// Largest cap on the neighbours one particle visits per iteration.
+pub const MAX_PAIR_CANDIDATES: u32 = 4096;
+
+/// The automatic substeps keep `|g|·h² ≤ PAIR_COMPRESSION·R`: what gravity closes between
+/// two resting particles in one substep, before the contacts see it, is a small part of the
+/// radius.
+pub const PAIR_COMPRESSION: f32 = 0.01;
+
+/// The pass's parameters: what a caller chooses.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PairParams {
+    /// Restitution `e` of particle–particle contacts, in `[0, 1]`.
+    pub restitution: f32,
+    /// Coulomb friction `μ` of particle–particle contacts, `>= 0`.
+    pub friction: f32,
+    /// Rate `β` in `(0, 1]` at which an overlap is removed per substep.
+    pub relaxation: f32,
+    /// Stack stabilisation `σ` in `[0, 1]`: how much of a pair's correction goes to the
+    /// upper particle beyond half (0: half each, momentum exact; 1: a particle directly on
+    /// another takes it all).
+    pub stacking: f32,
+    /// Jacobi iterations per substep, `1..=MAX_PAIR_ITERATIONS`.
+    pub iterations: u32,
+    /// Substeps per step; 0 chooses them ([`pair_substeps`]).
+    pub substeps: u32,
+    /// Most neighbours (bucket entries) one particle visits per iteration,
+    /// `1..=MAX_PAIR_CANDIDATES`.
+    pub max_candidates: u32,
+}
+
+impl Default for PairParams {
+    fn default() -> Self {
+        Self {
+            restitution: 0.1,
+            friction: 0.5,
+            relaxation: 0.5,
+            stacking: 1.0,
+            iterations: 4,
+            substeps: 0,
+            max_candidates: 512,
+        }
+    }
+}
+
+/// Why pass parameters were rejected.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
+pub enum PairParamError {
+    /// The particles have no radius (the pass needs `StepParams::radius > 0`).
+    NoRadius,
+    /// Restitution outside `[0, 1]`.
+    BadRestitution(f32),
+    /// Friction negative, NaN or infinite.
+    BadFriction(f32),
+    /// Relaxation outside `(0, 1]`.
+    BadRelaxation(f32),
+    /// Stacking outside `[0, 1]`.
+    BadStacking(f32),
+    /// Iterations outside `1..=MAX_PAIR_ITERATIONS`.
+    BadIterations(u32),
+    /// Substeps above `MAX_PAIR_SUBSTEPS`.
+    BadSubsteps(u32),
+    /// Candidate cap outside `1..=MAX_PAIR_CANDIDATES`.
+    BadCandidates(u32),
+}
+
+impl core::fmt::Display for PairParamError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match *self {
+            Self::NoRadius => write!(
+                f,
+                "particles that collide with each other need a radius greater than 0 (--radius)"
+            ),
+            Self::BadRestitution(e) => {
+                write!(f, "particle restitution must be in [0, 1], got {e}")
+            }
+            Self::BadFriction(m) => {
+                write!(f, "particle friction must be finite and >= 0, got {m}")
+            }
+            Self::BadRelaxation(b) => write!(f, "particle relaxation must be in (0, 1], got {b}"),
+            Self::BadStacking(s) => write!(f, "particle stacking must be in [0, 1], got {s}"),
+            Self::BadIterations(n) => write!(
+                f,
+                "particle iterations must be 1 to {MAX_PAIR_ITERATIONS}, got {n}"
+            ),
+            Self::BadSubsteps(n) => write!(
+                f,
+                "particle substeps must be 0 (automatic) to {MAX_PAIR_SUBSTEPS}, got {n}"
+            ),
+            Self::BadCandidates(n) => write!(
+                f,
+                "the neighbour cap must be 1 to {MAX_PAIR_CANDIDATES}, got {n}"
+            ),
+        }
+    }
+}
+
+impl core::error::Error for PairParamError {}
+
+impl PairParams {
+    /// Checks every field, and that the step's particles have a radius.
+    pub fn validate(&self, step: &StepParams) -> Result<(), PairParamError> {
+        if !(step.radius > 0.0) {
+            return Err(PairParamError::NoRadius);
+        }
+        if !(0.0..=1.0).contains(&self.restitution) {
+            return Err(PairParamError::BadRestitution(self.restitution));
+        }
+        if !(self.friction >= 0.0) || !self.friction.is_finite() {
+            return Err(PairParamError::BadFriction(self.friction));
+        }
+        if !(self.relaxation > 0.0 && self.relaxation <= 1.0) {
+            return Err(PairParamError::BadRelaxation(self.relaxation));
+        }
+        if !(0.0..=1.0).contains(&self.stacking) {
+            return Err(PairParamError::BadStacking(self.stacking));
+        }
+        if !(1..=MAX_PAIR_ITERATIONS).contains(&self.iterations) {
+            return Err(PairParamError::BadIterations(self.iterations));
+        }
+        if self.substeps > MAX_PAIR_SUBSTEPS {
+            return Err(PairParamError::BadSubsteps(self.substeps));
+        }
+        if !(1..=MAX_PAIR_CANDIDATES).contains(&self.max_candidates) {
+            return Err(PairParamError::BadCandidates(self.max_candidates));
+        }
+        Ok(())
+    }
+}
+
+/// The substeps of a step with the pass: [`PairParams::substeps`] when set, else the fewest
+/// that keep `|g|·h² ≤ PAIR_COMPRESSION·R` (at least 1, at most [`MAX_PAIR_SUBSTEPS`]).
+/// Speed does not enter: contacts are speculative and the cells grow with it.
+pub fn pair_substeps(step: &StepParams, pairs: &PairParams) -> u32 {
+    if pairs.substeps != 0 {
+        return pairs.substeps;
+    }
+    let g = Vec3::from_array(step.gravity).length();
+    if !(step.radius > 0.0) || !(g > 0.0) {
+        return 1;
+    }
+    // h = dt / s  ≤  sqrt(κ R / g)  ⇔  s ≥ dt · sqrt(g / (κ R)).
+    let s = step.dt * math::sqrt(g / (PAIR_COMPRESSION * step.radius));
+    if !(s < MAX_PAIR_SUBSTEPS as f32) {
+        return MAX_PAIR_SUBSTEPS;
+    }
+    (libm::ceilf(s) as u32).max(1)
+}
+
+/// One substep's constants, the same bytes on both backends (WGSL's `PairStep`). The host
+/// makes it with [`PairStep::new`] once the substep's largest speed is known.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct PairStep {
+    /// Gravity times the substep: what [`pair_prepare`] adds to each velocity.
+    pub gravity_h: [f32; 3],
+    /// The substep, seconds.
+    pub h: f32,
+    /// Unit vector against gravity (zero without gravity): "up" for the stacking share.
+    pub up: [f32; 3],
+    /// `1 / h`.
+    pub inv_h: f32,
+    /// The particles' radius.
+    pub radius: f32,
+    /// `2R`.
+    pub diameter: f32,
+    /// `1 / (2R)`.
+    pub inv_diameter: f32,
+    /// The cell edge.
+    pub cell: f32,
+    /// `1 / cell`.
+    pub inv_cell: f32,
+    /// The table's size less one (a power of two less one).
+    pub mask: u32,
+    /// Restitution `e`.
+    pub restitution: f32,
+    /// Friction `μ`.
+    pub friction: f32,
+    /// Relaxation `β`.
+    pub relaxation: f32,
+    /// Half of the stacking `σ`.
+    pub half_stacking: f32,
+    /// Neighbour cap per particle per iteration.
+    pub max_candidates: u32,
+    /// Padding; zero.
+    pub _pad: u32,
+}
+
+const _: () = assert!(core::mem::size_of::<PairStep>() == 80);
+
+/// The table size for `n` particles: the power of two at or above `n` (at least 1).
+pub fn pair_table_size(n: usize) -> usize {
+    n.max(1).next_power_of_two()
+}
+
+impl PairStep {
+    /// The constants of a substep of `h` seconds for `n` particles whose largest speed after
+    /// gravity ([`pair_prepare`]'s) is `v_max`.
+    pub fn new(step: &StepParams, pairs: &PairParams, h: f32, n: usize, v_max: f32) -> Self {
+        let g = Vec3::from_array(step.gravity);
+        let gl = g.length();
+        let up = if gl > 0.0 {
+            (-g / gl).to_array()
+        } else {
+            [0.0; 3]
+        };
+        let r = step.radius;
+        let diameter = 2.0 * r;
+        let reach = diameter + 2.0 * v_max * h;
+        let cell = if reach.is_finite() {
+            reach * PAIR_CELL_MARGIN
+        } else {
+            f32::MAX
+        };
+        Self {
+            gravity_h: (g * h).to_array(),
+            h,
+            up,
+            inv_h: 1.0 / h,
+            radius: r,
+            diameter,
+            inv_diameter: 1.0 / diameter,
+            cell,
+            inv_cell: 1.0 / cell,
+            mask: (pair_table_size(n) - 1) as u32,
+            restitution: pairs.restitution,
+            friction: pairs.friction,
+            relaxation: pairs.relaxation,
+            half_stacking: 0.5 * pairs.stacking,
+            max_candidates: pairs.max_candidates,
+            _pad: 0,
+        }
+    }
+}
+
+/// A particle in the pass's sorted order (WGSL's `PairBody`): 32 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct PairBody {
+    /// Its position.
+    pub position: [f32; 3],
+    /// Its index in the caller's order.
+    pub index: u32,
+    /// Its cell.
+    pub cell: [i32; 3],
+    /// Its cell's hash (a table index).
+    pub hash: u32,
+}
+
+/// A particle's velocity in the pass (WGSL's `vec4<f32>`; `w` is zero).
+pub type PairVelocity = [f32; 4];
+
+/// What the pass reports since it was last taken.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct PairReport {
+    /// Steps taken with the pass.
+    pub steps: u64,
+    /// Substeps taken (over all steps).
+    pub substeps: u64,
+    /// Particle-iterations whose neighbour loop stopped at the cap
+    /// ([`PairParams::max_candidates`]): crowds denser than the cap, contacts missed.
+    pub capped: u64,
+}
+
+/// The velocity a valid particle enters the substep with (gravity integrated) and its
+/// speed, or `None` for a particle left out (position or velocity not finite after it).
+#[inline]
+pub fn pair_prepare(p: &Particle, s: &PairStep) -> Option<(Vec3, f32)> {
+    let x = Vec3::from_array(p.position);
+    let v = Vec3::from_array(p.velocity) + Vec3::from_array(s.gravity_h);
+    if !x.is_finite() || !v.is_finite() {
+        return None;
+    }
+    Some((v, math::sqrt(v.dot(v))))
+}
+
+/// The cell of a position: `floor(x / cell)` per axis, clamped to `±PAIR_CELL_LIMIT`.
+#[inline]
+pub fn pair_cell(x: [f32; 3], s: &PairStep) -> [i32; 3] {
+    let mut c = [0i32; 3];
+    for a in 0..3 {
+        let f = math::floor(x[a] * s.inv_cell);
+        let f = if f < -PAIR_CELL_LIMIT {
+            -PAIR_CELL_LIMIT
+        } else if f > PAIR_CELL_LIMIT {
+            PAIR_CELL_LIMIT
+        } else {
+            f
+        };
+        c[a] = f as i32;
+    }
+    c
+}
+
+/// The table index of a cell: a mix of its coordinates' bits, masked.
+#[inline]
+pub fn pair_hash(c: [i32; 3], mask: u32) -> u32 {
+    let mut h = (c[0] as u32).wrapping_mul(0x8da6_b343)
+        ^ (c[1] as u32).wrapping_mul(0xd816_3841)
+        ^ (c[2] as u32).wrapping_mul(0xcb1a_b31f);
+    h ^= h >> 16;
+    h = h.wrapping_mul(0x7feb_352d);
+    h ^= h >> 15;
+    h = h.wrapping_mul(0x846c_a68b);
+    h ^= h >> 16;
+    h & mask
+}
+
+/// Whether sorted position `k` is the first and the last entry of its bucket in `keys` (the
+/// sorted `(hash, index)` keys; entries with [`PAIR_HASH_NONE`] belong to no bucket): the
+/// bucket of hash `h` is `[start, end)` with `start` its first `k` and `end` its last plus 1.
+#[inline]
+pub fn pair_range_marks(keys: &[[u32; 2]], k: usize) -> (bool, bool) {
+    let h = keys[k][0];
+    if h == PAIR_HASH_NONE {
+        return (false, false);
+    }
+    let first = k == 0 || keys[k - 1][0] != h;
+    let last = k + 1 == keys.len() || keys[k + 1][0] != h;
+    (first, last)
+}
+
+/// The change of `me`'s velocity `v` from its contact with `other` (velocity `w`), if the
+/// pair is in contact ([the contact](self)).
+#[inline(always)]
+pub fn pair_impulse(
+    me: &PairBody,
+    v: Vec3,
+    other: &PairBody,
+    w: Vec3,
+    s: &PairStep,
+) -> Option<Vec3> {
+    let x = Vec3::from_array(me.position) - Vec3::from_array(other.position);
+    let d2 = x.dot(x);
+    let (dist, n) = if d2 > 0.0 {
+        let dist = math::sqrt(d2);
+        (dist, x * (1.0 / dist))
+    } else {
+        let up = if me.index > other.index { 1.0 } else { -1.0 };
+        (0.0, Vec3::new(0.0, up, 0.0))
+    };
+    let gap = dist - s.diameter;
+    let vr = v - w;
+    let vn = vr.dot(n);
+    if gap + vn * s.h >= 0.0 {
+        return None;
+    }
+    let closing = if gap >= 0.0 {
+        gap * s.inv_h
+    } else {
+        s.relaxation * gap * s.inv_h
+    };
+    let mut target = s.restitution * -vn + (1.0 - s.restitution) * -closing;
+    if gap < 0.0 && target < -closing {
+        target = -closing;
+    }
+    let jn = target - vn;
+    if !(jn > 0.0) {
+        return None;
+    }
+    let vt = vr - n * vn;
+    let t2 = vt.dot(vt);
+    let mut dv = n * jn;
+    if t2 > 0.0 {
+        let tl = math::sqrt(t2);
+        let limit = s.friction * jn;
+        let keep = if tl <= limit { 1.0 } else { limit / tl };
+        dv -= vt * keep;
+    }
+    let height = x.dot(Vec3::from_array(s.up)) * s.inv_diameter;
+    let height = if height < -1.0 {
+        -1.0
+    } else if height > 1.0 {
+        1.0
+    } else {
+        height
+    };
+    let share = 0.5 + height * s.half_stacking;
+    Some(dv * share)
+}
+
+/// One Jacobi iteration for the particle at sorted position `k`: its velocity after its
+/// contacts with the particles in the 27 cells around it (velocities from `vel`, the last
+/// iteration's), and whether its neighbour loop stopped at the cap. `ranges[h]` is the
+/// bucket of hash `h` (`[start, end)` in the sorted order; `[0, 0]` when empty).
+#[inline]
+pub fn pair_velocity(
+    k: usize,
+    bodies: &[PairBody],
+    vel: &[PairVelocity],
+    ranges: &[[u32; 2]],
+    s: &PairStep,
+) -> (PairVelocity, bool) {
+    let me = bodies[k];
+    let v = Vec3::new(vel[k][0], vel[k][1], vel[k][2]);
+    let mut sum = Vec3::ZERO;
+    let mut contacts = 0u32;
+    let mut visited = 0u32;
+    let mut capped = false;
+    'cells: for dz in -1i32..=1 {
+        for dy in -1i32..=1 {
+            for dx in -1i32..=1 {
+                let c = [me.cell[0] + dx, me.cell[1] + dy, me.cell[2] + dz];
+                let r = ranges[pair_hash(c, s.mask) as usize];
+                for m in r[0]..r[1] {
+                    if visited == s.max_candidates {
+                        capped = true;
+                        break 'cells;
+                    }
+                    visited += 1;
+                    let m = m as usize;
+                    let o = &bodies[m];
+                    if m == k || o.cell != c {
+                        continue;
+                    }
+                    let w = Vec3::new(vel[m][0], vel[m][1], vel[m][2]);
+                    if let Some(dv) = pair_impulse(&me, v, o, w, s) {
+                        sum += dv;
+                        contacts += 1;
+                    }
+                }
+            }
+        }
+    }
+    let out = if contacts > 0 {
+        v + sum * (1.0 / contacts as f32)
+    } else {
+        v
+    };
+    ([out.x, out.y, out.z, 0.0], capped)
+}
+
+/// The caller's scratch for [`collide_pairs`]: `n` keys, bodies and two velocity buffers,
+/// and [`pair_table_size`]`(n)` ranges.
+pub struct PairScratch<'a> {
+    /// `(hash, index)` per particle, sorted in place.
+    pub keys: &'a mut [[u32; 2]],
+    /// The particles in sorted order.
+    pub bodies: &'a mut [PairBody],
+    /// Velocities in sorted order, and the next iteration's.
+    pub vel: &'a mut [PairVelocity],
+    /// The next iteration's velocities.
+    pub vel_next: &'a mut [PairVelocity],
+    /// The table: each hash's `[start, end)` in the sorted order.
+    pub ranges: &'a mut [[u32; 2]],
+}
+
+/// The pass over one substep, on one thread, for callers without a thread pool (the CPU
+/// backend runs the same functions in parallel): integrates gravity into every valid
+/// particle's velocity and applies the contacts. Positions do not change; the caller then
+/// steps every particle with `dt = s.h` and zero gravity. Returns the particles whose
+/// neighbour loop hit the cap, summed over iterations. `s` must come from [`PairStep::new`]
+/// with `n = particles.len()` and `v_max` at least [`pair_max_speed`]'s; scratch slices
+/// shorter than asked give `None` and change nothing.
+pub fn collide_pairs(
+    particles: &mut [Particle],
+    s: &PairStep,
+    iterations: u32,
+    scratch: PairScratch<'_>,
+) -> Option<u64> {
+    let n = particles.len();
+    let t = pair_table_size(n);
+    if scratch.keys.len() < n
+        || scratch.bodies.len() < n
+        || scratch.vel.len() < n
+        || scratch.vel_next.len() < n
+        || scratch.ranges.len() < t
+        || s.mask as usize != t - 1
+        || n >= PAIR_HASH_NONE as usize
+    {
+        return None;
+    }
+    let keys = &mut scratch.keys[..n];
+    for (i, p) in particles.iter().enumerate() {
+        keys[i] = match pair_prepare(p, s) {
+            Some(_) => [pair_hash(pair_cell(p.position, s), s.mask), i as u32],
+            None => [PAIR_HASH_NONE, i as u32],
+        };
+    }
+    keys.sort_unstable();
+    let valid = keys.partition_point(|k| k[0] != PAIR_HASH_NONE);
+    let (bodies, vel, vel_next) = (
+        &mut scratch.bodies[..valid],
+        &mut scratch.vel[..valid],
+        &mut scratch.vel_next[..valid],
+    );
+    for k in 0..valid {
+        let i = keys[k][1] as usize;
+        let p = &particles[i];
+        let (v, _) = pair_prepare(p, s).unwrap_or((Vec3::ZERO, 0.0));
+        bodies[k] = PairBody {
+            position: p.position,
+            index: i as u32,
+            cell: pair_cell(p.position, s),
+            hash: keys[k][0],
+        };
+        vel[k] = [v.x, v.y, v.z, 0.0];
+    }
+    let ranges = &mut scratch.ranges[..t];
+    ranges.fill([0, 0]);
+    for k in 0..valid {
+        let h = keys[k][0] as usize;
+        let (first, last) = pair_range_marks(keys, k);
+        if first {
+            ranges[h][0] = k as u32;
+        }
+        if last {
+            ranges[h][1] = k as u32 + 1;
+        }
+    }
+    let mut capped = 0u64;
+    let (mut a, mut b) = (vel, vel_next);
+    for _ in 0..iterations {
+        for k in 0..valid {
+            let (out, cap) = pair_velocity(k, bodies, a, ranges, s);
+            b[k] = out;
+            capped += cap as u64;
+        }
+        core::mem::swap(&mut a, &mut b);
+    }
+    for k in 0..valid {
+        particles[bodies[k].index as usize].velocity = [a[k][0], a[k][1], a[k][2]];
+    }
+    Some(capped)
+}
+
+/// The largest speed of a valid particle after the substep's gravity (0 when none is
+/// valid): [`PairStep::new`]'s `v_max`. Its `h` and gravity must be the substep's.
+pub fn pair_max_speed(particles: &[Particle], s: &PairStep) -> f32 {
+    particles
+        .iter()
+        .filter_map(|p| pair_prepare(p, s))
+        .fold(0.0, |m, (_, speed)| if speed > m { speed } else { m })
+}

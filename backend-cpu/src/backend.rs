@@ -11,7 +11,8 @@ use octoproxy_core::{
 
 use glam::Vec3;
 use octoproxy_core::pairs::{
-    pair_cell, pair_hash, pair_prepare, pair_table_size, pair_velocity, PAIR_HASH_NONE,
+    pair_cell, pair_hash, pair_is_fast, pair_prepare, pair_table_size, pair_velocity,
+    PAIR_HASH_NONE,
 };
 use octoproxy_core::{pair_substeps, PairBody, PairParams, PairReport, PairStep, PairVelocity};
 use rayon::prelude::*;
@@ -557,12 +558,14 @@ impl Backend for CpuBackend {
         for _ in 0..steps {
             for _ in 0..substeps {
                 let s0 = PairStep::new(params, pairs, h, n, 0.0);
-                let v_max = particles
+                let (v_max, fast) = particles
                     .par_iter()
                     .with_min_len(4096)
                     .filter_map(|p| pair_prepare(p, &s0).map(|(_, speed)| speed))
-                    .reduce(|| 0.0, f32::max);
+                    .map(|speed| (speed, pair_is_fast(speed, &s0) as u64))
+                    .reduce(|| (0.0, 0), |a, b| (a.0.max(b.0), a.1 + b.1));
                 let s = PairStep::new(params, pairs, h, n, v_max);
+                pair_report.fast += fast;
                 pair_report.capped += buffers.substep(particles, &s, pairs.iterations);
                 particles
                     .par_iter_mut()

@@ -280,12 +280,7 @@ impl PairStep {
         };
         let r = step.radius;
         let diameter = 2.0 * r;
-        let reach = diameter + 2.0 * v_max * h;
-        let cell = if reach.is_finite() {
-            reach * PAIR_CELL_MARGIN
-        } else {
-            f32::MAX
-        };
+        let cell = pair_cell_edge(diameter, r, v_max, h);
         Self {
             gravity_h: (g * h).to_array(),
             h,
@@ -305,6 +300,26 @@ impl PairStep {
             _pad: 0,
         }
     }
+}
+
+/// The cell edge of a substep `h` whose largest speed is `v_max`: `2R` plus what two
+/// particles can close in the substep, `2·min(v_max·h, R)`, times [`PAIR_CELL_MARGIN`].
+/// Capped at a radius per particle and substep, so one fast particle cannot make the cells
+/// of a whole pile huge: particles faster than that are counted ([`PairReport::fast`]) and
+/// may pass through other particles (never through the scene); more substeps bring them
+/// under it.
+#[inline]
+pub fn pair_cell_edge(diameter: f32, radius: f32, v_max: f32, h: f32) -> f32 {
+    let d = v_max * h;
+    let d = if d < radius { d } else { radius };
+    (diameter + 2.0 * d) * PAIR_CELL_MARGIN
+}
+
+/// Whether a particle of `speed` moves more than a radius in the substep (see
+/// [`pair_cell_edge`]).
+#[inline]
+pub fn pair_is_fast(speed: f32, s: &PairStep) -> bool {
+    speed * s.h > s.radius
 }
 
 /// A particle in the pass's sorted order (WGSL's `PairBody`): 32 bytes.
@@ -334,6 +349,9 @@ pub struct PairReport {
     /// Particle-iterations whose neighbour loop stopped at the cap
     /// ([`PairParams::max_candidates`]): crowds denser than the cap, contacts missed.
     pub capped: u64,
+    /// Particle-substeps that moved more than a radius ([`pair_cell_edge`]): they may have
+    /// passed through other particles (never through the scene).
+    pub fast: u64,
 }
 
 /// The velocity a valid particle enters the substep with (gravity integrated) and its
@@ -605,4 +623,211 @@ pub fn pair_max_speed(particles: &[Particle], s: &PairStep) -> f32 {
         .iter()
         .filter_map(|p| pair_prepare(p, s))
         .fold(0.0, |m, (_, speed)| if speed > m { speed } else { m })
+}
+
+/// The valid particles that move more than a radius in the substep ([`pair_is_fast`]).
+pub fn pair_fast_count(particles: &[Particle], s: &PairStep) -> u64 {
+    particles
+        .iter()
+        .filter_map(|p| pair_prepare(p, s))
+        .filter(|&(_, speed)| pair_is_fast(speed, s))
+        .count() as u64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    extern crate std;
+    use std::vec;
+    use std::vec::Vec;
+
+    /// The pass over `ps` for one substep of `h` without gravity.
+    fn pass(ps: &mut [Particle], pairs: &PairParams, radius: f32, h: f32) -> u64 {
+        let step = StepParams {
+            gravity: [0.0; 3],
+            dt: h,
+            radius,
+            ..StepParams::default()
+        };
+        pairs.validate(&step).unwrap();
+        let s0 = PairStep::new(&step, pairs, h, ps.len(), 0.0);
+        let s = PairStep::new(&step, pairs, h, ps.len(), pair_max_speed(ps, &s0));
+        let n = ps.len();
+        let (mut keys, mut bodies) = (vec![[0u32; 2]; n], vec![PairBody::default(); n]);
+        let (mut vel, mut vel_next) = (vec![[0f32; 4]; n], vec![[0f32; 4]; n]);
+        let mut ranges = vec![[0u32; 2]; pair_table_size(n)];
+        let scratch = PairScratch {
+            keys: &mut keys,
+            bodies: &mut bodies,
+            vel: &mut vel,
+            vel_next: &mut vel_next,
+            ranges: &mut ranges,
+        };
+        collide_pairs(ps, &s, pairs.iterations, scratch).unwrap()
+    }
+
+    fn elastic() -> PairParams {
+        PairParams {
+            restitution: 1.0,
+            friction: 0.0,
+            iterations: 1,
+            ..PairParams::default()
+        }
+    }
+
+    #[test]
+    fn an_elastic_frictionless_pair_leaves_with_the_velocities_its_normal_gives() {
+        // Oblique: the normal is along x; the y parts are kept, the x parts exchanged.
+        let mut ps = [
+            Particle::new([0.0, 0.0, 0.0], [1.0, 0.5, 0.0]),
+            Particle::new([0.21, 0.0, 0.0], [-2.0, -0.25, 0.0]),
+        ];
+        pass(&mut ps, &elastic(), 0.1, 0.01);
+        let near = |a: [f32; 3], b: [f32; 3]| (0..3).all(|k| (a[k] - b[k]).abs() < 1e-5);
+        assert!(
+            near(ps[0].velocity, [-2.0, 0.5, 0.0]),
+            "{:?}",
+            ps[0].velocity
+        );
+        assert!(
+            near(ps[1].velocity, [1.0, -0.25, 0.0]),
+            "{:?}",
+            ps[1].velocity
+        );
+        // Too far to close within the substep: nothing.
+        let mut far = [
+            Particle::new([0.0, 0.0, 0.0], [1.0, 0.0, 0.0]),
+            Particle::new([0.5, 0.0, 0.0], [-1.0, 0.0, 0.0]),
+        ];
+        pass(&mut far, &elastic(), 0.1, 0.01);
+        assert_eq!(far[0].velocity, [1.0, 0.0, 0.0]);
+    }
+
+    #[test]
+    fn coincident_particles_part_along_y_by_index() {
+        let mut ps = [
+            Particle::new([1.0, 1.0, 1.0], [0.0; 3]),
+            Particle::new([1.0, 1.0, 1.0], [0.0; 3]),
+        ];
+        pass(&mut ps, &PairParams::default(), 0.1, 0.01);
+        assert!(ps[1].velocity[1] > 0.0 && ps[0].velocity[1] < 0.0);
+        assert_eq!(ps[0].velocity[1], -ps[1].velocity[1]);
+        assert_eq!((ps[0].velocity[0], ps[0].velocity[2]), (0.0, 0.0));
+    }
+
+    #[test]
+    fn invalid_particles_are_left_out_and_far_cells_saturate() {
+        let mut ps = [
+            Particle::new([f32::NAN, 0.0, 0.0], [0.0; 3]),
+            Particle::new([0.0, 0.0, 0.0], [0.0; 3]),
+            Particle::new([0.15, 0.0, 0.0], [f32::INFINITY, 0.0, 0.0]),
+            Particle::new([1e38, -1e38, 0.0], [0.0; 3]),
+            Particle::new([1e38, -1e38, 0.0], [0.0; 3]),
+        ];
+        pass(&mut ps, &PairParams::default(), 0.1, 0.01);
+        assert!(ps[0].velocity == [0.0; 3] && ps[1].velocity == [0.0; 3]);
+        assert_eq!(ps[2].velocity[0], f32::INFINITY);
+        // The two far ones share the saturated cell and see each other.
+        assert!(ps[4].velocity[1] > 0.0);
+        let s = PairStep::new(
+            &StepParams {
+                radius: 0.1,
+                ..StepParams::default()
+            },
+            &PairParams::default(),
+            0.01,
+            4,
+            0.0,
+        );
+        assert_eq!(
+            pair_cell([1e38, -1e38, 3.0e9], &s),
+            [1 << 30, -(1 << 30), 1 << 30]
+        );
+    }
+
+    #[test]
+    fn a_crowd_beyond_the_cap_is_counted_not_looped_over() {
+        let mut ps: Vec<Particle> = (0..40)
+            .map(|i| Particle::new([i as f32 * 1e-4, 0.0, 0.0], [0.0; 3]))
+            .collect();
+        let pairs = PairParams {
+            max_candidates: 8,
+            iterations: 2,
+            ..PairParams::default()
+        };
+        assert_eq!(pass(&mut ps, &pairs, 0.1, 0.01), 80);
+        assert!(ps.iter().all(|p| p.velocity.iter().all(|c| c.is_finite())));
+    }
+
+    #[test]
+    fn parameters_are_checked() {
+        let step = StepParams {
+            radius: 0.1,
+            ..StepParams::default()
+        };
+        let ok = PairParams::default();
+        assert_eq!(ok.validate(&step), Ok(()));
+        let no_radius = StepParams::default();
+        assert_eq!(ok.validate(&no_radius), Err(PairParamError::NoRadius));
+        for (bad, err) in [
+            (
+                PairParams {
+                    restitution: f32::NAN,
+                    ..ok
+                },
+                "restitution",
+            ),
+            (
+                PairParams {
+                    friction: -1.0,
+                    ..ok
+                },
+                "friction",
+            ),
+            (
+                PairParams {
+                    relaxation: 0.0,
+                    ..ok
+                },
+                "relaxation",
+            ),
+            (
+                PairParams {
+                    stacking: 2.0,
+                    ..ok
+                },
+                "stacking",
+            ),
+            (
+                PairParams {
+                    iterations: 0,
+                    ..ok
+                },
+                "iterations",
+            ),
+            (
+                PairParams {
+                    substeps: 100_000,
+                    ..ok
+                },
+                "substeps",
+            ),
+            (
+                PairParams {
+                    max_candidates: 0,
+                    ..ok
+                },
+                "neighbour cap",
+            ),
+        ] {
+            let e = bad.validate(&step).unwrap_err();
+            assert!(std::format!("{e}").contains(err), "{e}");
+        }
+        // Automatic substeps: g h² ≤ κ R.
+        let s = pair_substeps(&step, &ok);
+        let h = step.dt / s as f32;
+        assert!(9.81 * h * h <= PAIR_COMPRESSION * 0.1 * 1.0001);
+        let h_fewer = step.dt / (s - 1).max(1) as f32;
+        assert!(s == 1 || 9.81 * h_fewer * h_fewer > PAIR_COMPRESSION * 0.1);
+    }
 }

@@ -1,0 +1,507 @@
+//! Particles that collide with each other (`octoproxy_core::pairs`): a head-on pair keeps
+//! momentum and energy, a column settles in a box, and poured sand comes to rest in piles
+//! that stand, every centre at its radius from the mesh by exact ground truth.
+
+use glam::Vec3;
+use octoproxy_core::{Backend, PairParams, Particle, ProxyView, StepParams};
+use octoproxy_cpu::bake::offset::OffsetSurface;
+use octoproxy_cpu::ground_truth::GroundTruth;
+use octoproxy_cpu::io::Mesh;
+use octoproxy_cpu::{bake_offset, scenes, BuildParams, CpuBackend, MeshRef, Sides};
+
+/// A scene baked for a radius, with what the checks need.
+struct Baked {
+    words: Vec<u32>,
+    surface: OffsetSurface,
+    truth: GroundTruth,
+    leaf: f32,
+    radius: f32,
+}
+
+fn bake_for(meshes: &[Mesh], dmax: u32, radius: f32) -> Baked {
+    let refs: Vec<MeshRef<'_>> = meshes.iter().map(MeshRef::from).collect();
+    let params = BuildParams {
+        dmax,
+        ..BuildParams::default()
+    };
+    let surface = OffsetSurface::new(&refs, radius, dmax, &()).unwrap();
+    let (words, _) = bake_offset(&surface, &params, &()).unwrap();
+    let leaf = ProxyView::new(&words).unwrap().finest_leaf_size();
+    let all = scenes::merge(meshes);
+    let truth = GroundTruth::new(&all.positions, &all.triangles);
+    Baked {
+        words,
+        surface,
+        truth,
+        leaf,
+        radius,
+    }
+}
+
+impl Baked {
+    /// Sides and cages for starting particles, from the offset surface.
+    fn start(&self, ps: &mut [Particle]) {
+        let view = ProxyView::new(&self.words).unwrap();
+        let placed = self.surface.place(ps, Some(&view));
+        assert_eq!(placed.stuck, 0);
+        let offset = [self.surface.mesh_ref()];
+        let sides = Sides::new(&offset);
+        sides.assign(ps, false);
+        sides.cages(&view, ps, false);
+    }
+}
+
+/// Largest overlap between neighbours, as a fraction of the diameter (brute force).
+fn max_overlap(ps: &[Particle], radius: f32) -> f32 {
+    let mut worst = 0.0f32;
+    for (i, a) in ps.iter().enumerate() {
+        for b in &ps[i + 1..] {
+            let d = (Vec3::from_array(a.position) - Vec3::from_array(b.position)).length();
+            worst = worst.max((2.0 * radius - d) / (2.0 * radius));
+        }
+    }
+    worst
+}
+
+/// The scene of the column and head-on tests: a closed box, particles inside it.
+fn tall_box(r: f32) -> Baked {
+    bake_for(&[scenes::cube([-0.5, 0.0, -0.5], [0.5, 4.0, 0.5])], 6, r)
+}
+
+#[test]
+fn a_column_settles_in_a_box() {
+    let r = 0.15;
+    let baked = tall_box(r);
+    let mut ps: Vec<Particle> = (0..10)
+        .map(|i| Particle::new([0.0, 0.2 + 0.32 * i as f32, 0.0], [0.0; 3]))
+        .collect();
+    baked.start(&mut ps);
+    let mut cpu = CpuBackend::new();
+    cpu.upload_proxy(&baked.words).unwrap();
+    cpu.upload_particles(&ps).unwrap();
+    let step = StepParams {
+        radius: r,
+        ..StepParams::default()
+    };
+    let bound = (r - baked.leaf * 3f32.sqrt()) as f64;
+    for _ in 0..300 {
+        cpu.step_pairs(&step, &PairParams::default(), 1).unwrap();
+        cpu.download_particles(&mut ps).unwrap();
+        for p in &ps {
+            assert!(
+                baked.truth.distance(p.position) >= bound,
+                "{p:?} too near a wall"
+            );
+            assert!(baked.truth.is_inside(p.position), "{p:?} left the box");
+        }
+    }
+    let vmax = ps
+        .iter()
+        .map(|p| Vec3::from_array(p.velocity).length())
+        .fold(0.0, f32::max);
+    // At rest: what gravity adds in one substep, and no more.
+    let h = step.dt / octoproxy_core::pair_substeps(&step, &PairParams::default()) as f32;
+    assert!(vmax <= 9.81 * h, "the column still moves at {vmax}");
+    let overlap = max_overlap(&ps, r);
+    assert!(overlap < 0.01, "overlap {overlap} of the diameter");
+    assert!(ps
+        .windows(2)
+        .all(|w| w[1].position[1] > w[0].position[1] + 1.9 * r));
+    // Stacked on the floor, in order: the bottom one a radius above it.
+    assert!((ps[0].position[1] - r).abs() < baked.leaf * 3f32.sqrt());
+    assert_eq!(cpu.take_pair_report().unwrap().capped, 0);
+}
+
+#[test]
+fn a_head_on_pair_keeps_momentum_and_energy() {
+    let r = 0.15;
+    let baked = tall_box(r);
+    for (e, mu) in [(1.0, 0.0), (0.5, 0.3)] {
+        let mut ps = vec![
+            Particle::new([-0.3, 2.0, 0.01], [1.5, 0.2, 0.0]),
+            Particle::new([0.3, 2.0, -0.01], [-0.5, -0.1, 0.0]),
+        ];
+        baked.start(&mut ps);
+        let mut cpu = CpuBackend::new();
+        cpu.upload_proxy(&baked.words).unwrap();
+        cpu.upload_particles(&ps).unwrap();
+        let step = StepParams {
+            gravity: [0.0; 3],
+            dt: 1.0 / 60.0,
+            radius: r,
+            ..StepParams::default()
+        };
+        let pairs = PairParams {
+            restitution: e,
+            friction: mu,
+            ..PairParams::default()
+        };
+        let momentum =
+            |ps: &[Particle]| Vec3::from_array(ps[0].velocity) + Vec3::from_array(ps[1].velocity);
+        let energy = |ps: &[Particle]| {
+            ps.iter()
+                .map(|p| Vec3::from_array(p.velocity).length_squared())
+                .sum::<f32>()
+        };
+        let (p0, e0) = (momentum(&ps), energy(&ps));
+        let v0 = [
+            Vec3::from_array(ps[0].velocity),
+            Vec3::from_array(ps[1].velocity),
+        ];
+        let mut touched = None;
+        for _ in 0..12 {
+            let before = ps.clone();
+            cpu.step_pairs(&step, &pairs, 1).unwrap();
+            cpu.download_particles(&mut ps).unwrap();
+            if touched.is_none() && ps[0].velocity != before[0].velocity {
+                touched = Some(before);
+            }
+            let d = (Vec3::from_array(ps[0].position) - Vec3::from_array(ps[1].position)).length();
+            assert!(d > 2.0 * r * 0.999, "they passed into each other: {d}");
+        }
+        let before = touched.expect("they never met");
+        let p1 = momentum(&ps);
+        assert!(
+            (p1 - p0).length() <= 0.02 * p0.length().max(1e-3),
+            "momentum {p0} -> {p1}"
+        );
+        // The normal at contact, and the velocities it gives.
+        let n = (Vec3::from_array(before[0].position) - Vec3::from_array(before[1].position))
+            .normalize();
+        let vn = (v0[0] - v0[1]).dot(n);
+        let want0 = v0[0] - n * ((1.0 + e) * vn * 0.5);
+        let got0 = Vec3::from_array(ps[0].velocity);
+        if e == 1.0 && mu == 0.0 {
+            let e1 = energy(&ps);
+            assert!((e1 - e0).abs() <= 0.02 * e0, "energy {e0} -> {e1}");
+            assert!(
+                (got0 - want0).length() <= 0.02 * v0[0].length(),
+                "{got0} != {want0}"
+            );
+        } else {
+            assert!(energy(&ps) < e0, "an inelastic contact must lose energy");
+            // They part, at most as fast as restitution says (a contact found ahead of
+            // time also gives up closing the gap it had left: docs/method.md).
+            let vn1 = (got0 - Vec3::from_array(ps[1].velocity)).dot(n);
+            assert!(
+                vn1 > 0.0 && vn1 <= -e * vn * 1.02,
+                "normal speed {vn} -> {vn1}"
+            );
+        }
+    }
+}
+
+/// What a pour found once it came to rest.
+struct Rest {
+    /// How far the pile's top came down in the last second.
+    sank: f32,
+    radius: f32,
+    particles: usize,
+    slow: usize,
+    unsupported: usize,
+    overlap: f32,
+    too_near: usize,
+    inside: usize,
+    impact: f32,
+}
+
+impl Rest {
+    fn check(&self, name: &str) {
+        eprintln!(
+            "{name}: {} particles, {} slower than 2 % of the impact speed {:.2}, {} unsupported, the largest overlap {:.3} of the diameter, {} nearer the mesh than R less a leaf diagonal, {} inside it, the top sank {:.4} R in the last second",
+            self.particles, self.slow, self.impact, self.unsupported, self.overlap, self.too_near, self.inside, self.sank / self.radius
+        );
+        assert!(
+            self.slow * 100 >= self.particles * 98,
+            "{name}: not at rest"
+        );
+        assert_eq!(self.unsupported, 0, "{name}: particles resting on nothing");
+        assert!(self.overlap < 0.1, "{name}: overlaps");
+        assert_eq!(
+            self.too_near + self.inside,
+            0,
+            "{name}: centres too near the mesh"
+        );
+        assert!(
+            self.sank.abs() < 0.25 * self.radius,
+            "{name}: the pile creeps"
+        );
+    }
+}
+
+/// Pours a block of `nx·ny·nz` particles from `drop` above `top` (the highest point of the
+/// scene under them) and steps `seconds` of simulated time at `dt`.
+fn pour(
+    baked: &Baked,
+    n: [usize; 3],
+    centre: [f32; 2],
+    top: f32,
+    drop: f32,
+    dt: f32,
+    seconds: f32,
+) -> Rest {
+    let r = baked.radius;
+    let gap = 2.2 * r;
+    let mut ps = Vec::new();
+    for iy in 0..n[1] {
+        for iz in 0..n[2] {
+            for ix in 0..n[0] {
+                let jitter = ((ix * 7 + iy * 13 + iz * 29) % 11) as f32 * 0.01 * r;
+                ps.push(Particle::new(
+                    [
+                        centre[0] + (ix as f32 - n[0] as f32 / 2.0) * gap + jitter,
+                        top + drop + r + iy as f32 * gap,
+                        centre[1] + (iz as f32 - n[2] as f32 / 2.0) * gap - jitter,
+                    ],
+                    [0.0; 3],
+                ));
+            }
+        }
+    }
+    baked.start(&mut ps);
+    let mut cpu = CpuBackend::new();
+    cpu.upload_proxy(&baked.words).unwrap();
+    cpu.upload_particles(&ps).unwrap();
+    let step = StepParams {
+        dt,
+        radius: r,
+        restitution: 0.1,
+        friction: 0.5,
+        ..StepParams::default()
+    };
+    let pairs = PairParams::default();
+    let steps = (seconds / dt).round() as u32;
+    let t0 = std::time::Instant::now();
+    // The pile's height (its highest tenth of centres) a second before the end.
+    let height = |ps: &[Particle]| {
+        let mut ys: Vec<f32> = ps.iter().map(|p| p.position[1]).collect();
+        ys.sort_by(f32::total_cmp);
+        ys[ys.len() * 9 / 10]
+    };
+    let mut standing = 0.0;
+    for s in 0..steps {
+        cpu.step_pairs(&step, &pairs, 1).unwrap();
+        if s + 1 == steps - (1.0 / dt).round() as u32 {
+            cpu.download_particles(&mut ps).unwrap();
+            standing = height(&ps);
+        }
+    }
+    let report = cpu.take_pair_report().unwrap();
+    eprintln!("  {steps} steps in {:.1?}; {report:?}", t0.elapsed());
+    assert_eq!(report.capped, 0);
+    cpu.download_particles(&mut ps).unwrap();
+    let sank = standing - height(&ps);
+    let impact = (2.0 * 9.81 * drop).sqrt();
+    let slow = ps
+        .iter()
+        .filter(|p| Vec3::from_array(p.velocity).length() < 0.02 * impact)
+        .count();
+    // Neighbours within a diameter and a bit, by a grid of cells of the diameter.
+    let cell = 2.0 * r;
+    let mut grid: std::collections::HashMap<[i32; 3], Vec<usize>> = Default::default();
+    let key = |x: [f32; 3]| x.map(|c| (c / cell).floor() as i32);
+    for (i, p) in ps.iter().enumerate() {
+        grid.entry(key(p.position)).or_default().push(i);
+    }
+    let mut overlap = 0.0f32;
+    let mut unsupported = 0;
+    let mut too_near = 0;
+    let mut inside = 0;
+    let bound = (r - baked.leaf * 3f32.sqrt()) as f64;
+    for (i, p) in ps.iter().enumerate() {
+        let x = Vec3::from_array(p.position);
+        let k = key(p.position);
+        let mut touching = false;
+        for dz in -1..=1 {
+            for dy in -1..=1 {
+                for dx in -1..=1 {
+                    let Some(list) = grid.get(&[k[0] + dx, k[1] + dy, k[2] + dz]) else {
+                        continue;
+                    };
+                    for &j in list {
+                        if j == i {
+                            continue;
+                        }
+                        let d = (x - Vec3::from_array(ps[j].position)).length();
+                        let o = (2.0 * r - d) / (2.0 * r);
+                        overlap = overlap.max(o);
+                        touching |= d <= 2.0 * r * 1.05;
+                    }
+                }
+            }
+        }
+        let dist = baked.truth.distance(p.position);
+        if dist < bound {
+            too_near += 1;
+        }
+        if baked.truth.is_inside(p.position) {
+            inside += 1;
+        }
+        if !touching && dist > (r + 2.0 * baked.leaf * 3f32.sqrt()) as f64 {
+            unsupported += 1;
+        }
+    }
+    Rest {
+        sank,
+        radius: r,
+        particles: ps.len(),
+        slow,
+        unsupported,
+        overlap,
+        too_near,
+        inside,
+        impact,
+    }
+}
+
+#[test]
+fn sand_poured_on_a_plate_comes_to_rest() {
+    let r = 0.05;
+    let plate = scenes::slab([0.0, -0.1, 0.0], [3.0, 0.2, 3.0]);
+    let t = std::time::Instant::now();
+    let baked = bake_for(&[plate], 7, r);
+    eprintln!("baked in {:.1?}", t.elapsed());
+    for dt in [1.0 / 60.0, 0.004] {
+        let rest = pour(&baked, [17, 17, 17], [0.0, 0.0], 0.0, 0.3, dt, 3.0);
+        rest.check(&format!("a plate at dt {dt}"));
+    }
+}
+
+/// Sand poured onto Spot standing on a floor keeps every centre at its radius from the
+/// mesh and its neighbours. It does not all come to rest yet: on the cow's slopes the pile
+/// creeps, because a contact on the scene only feels its own particle's weight (the stack
+/// above it takes its corrections in the pass), so friction on a slope holds less than a pile
+/// needs. Issue 23 stays open on it; the rest is measured and printed, not claimed.
+#[test]
+fn sand_poured_on_a_shared_mesh_keeps_its_distance() {
+    let Some(mut cow) = octoproxy_tests::meshes::load("spot.obj.gz") else {
+        return;
+    };
+    // Spot, 1.2 long, standing on a floor.
+    let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
+    for p in &cow.positions {
+        lo = lo.min(Vec3::from_array(*p));
+        hi = hi.max(Vec3::from_array(*p));
+    }
+    let scale = 1.2 / (hi - lo).max_element();
+    let base = Vec3::new((lo.x + hi.x) * 0.5, lo.y, (lo.z + hi.z) * 0.5);
+    for p in &mut cow.positions {
+        *p = ((Vec3::from_array(*p) - base) * scale).to_array();
+    }
+    let top = cow.positions.iter().map(|p| p[1]).fold(f32::MIN, f32::max);
+    let floor = scenes::slab([0.0, -0.1, 0.0], [3.0, 0.2, 3.0]);
+    let baked = bake_for(&[cow, floor], 7, 0.05);
+    let rest = pour(&baked, [13, 13, 13], [0.05, 0.0], top, 0.3, 1.0 / 60.0, 4.0);
+    eprintln!(
+        "Spot on a floor: {} of {} particles slower than 2 % of the impact speed, {} off the floor, the top sank {:.2} R in the last second",
+        rest.slow, rest.particles, rest.unsupported, rest.sank / rest.radius
+    );
+    assert!(rest.overlap < 0.1, "overlaps {}", rest.overlap);
+    assert_eq!(rest.too_near + rest.inside, 0, "centres too near the mesh");
+}
+
+/// The CPU backend's parallel pass is core's one-thread pass (`collide_pairs`) followed by
+/// the march with the substep and no gravity, bit for bit.
+#[test]
+fn the_parallel_pass_is_cores_serial_pass() {
+    let r = 0.15;
+    let baked = tall_box(r);
+    let mut ps: Vec<Particle> = (0..300)
+        .map(|i| {
+            let a = i as f32 * 2.399;
+            Particle::new(
+                [
+                    0.3 * a.cos() * (i % 7) as f32 / 7.0,
+                    0.3 + i as f32 * 0.011,
+                    0.3 * a.sin() * (i % 5) as f32 / 5.0,
+                ],
+                [a.sin(), 0.0, a.cos()],
+            )
+        })
+        .collect();
+    ps.push(Particle::new([0.0, f32::NAN, 0.0], [0.0; 3]));
+    baked.start(&mut ps);
+    let step = StepParams {
+        radius: r,
+        ..StepParams::default()
+    };
+    let pairs = PairParams::default();
+    let mut cpu = CpuBackend::new();
+    cpu.upload_proxy(&baked.words).unwrap();
+    cpu.upload_particles(&ps).unwrap();
+    let view = ProxyView::new(&baked.words).unwrap();
+    let substeps = octoproxy_core::pair_substeps(&step, &pairs);
+    let h = step.dt / substeps as f32;
+    let march = StepParams {
+        gravity: [0.0; 3],
+        dt: h,
+        ..step
+    };
+    let n = ps.len();
+    let (mut keys, mut bodies) = (
+        vec![[0u32; 2]; n],
+        vec![octoproxy_core::PairBody::default(); n],
+    );
+    let (mut vel, mut vel_next) = (vec![[0f32; 4]; n], vec![[0f32; 4]; n]);
+    let mut ranges = vec![[0u32; 2]; octoproxy_core::pairs::pair_table_size(n)];
+    let mut hints = vec![octoproxy_core::LeafHint::NONE; n];
+    let mut got = ps.clone();
+    for _ in 0..40 {
+        cpu.step_pairs(&step, &pairs, 1).unwrap();
+        for _ in 0..substeps {
+            let s0 = octoproxy_core::PairStep::new(&step, &pairs, h, n, 0.0);
+            let v_max = octoproxy_core::pairs::pair_max_speed(&ps, &s0);
+            let s = octoproxy_core::PairStep::new(&step, &pairs, h, n, v_max);
+            let scratch = octoproxy_core::PairScratch {
+                keys: &mut keys,
+                bodies: &mut bodies,
+                vel: &mut vel,
+                vel_next: &mut vel_next,
+                ranges: &mut ranges,
+            };
+            octoproxy_core::collide_pairs(&mut ps, &s, pairs.iterations, scratch).unwrap();
+            for (p, hint) in ps.iter_mut().zip(&mut hints) {
+                octoproxy_core::step_particle_hinted(&view, p, &march, hint);
+            }
+        }
+        cpu.download_particles(&mut got).unwrap();
+        for (a, b) in got.iter().zip(&ps) {
+            assert_eq!(
+                bytemuck::bytes_of(a),
+                bytemuck::bytes_of(b),
+                "{a:?} != {b:?}"
+            );
+        }
+    }
+}
+
+#[test]
+fn the_pass_refuses_what_it_cannot_do() {
+    let baked = tall_box(0.15);
+    let mut cpu = CpuBackend::new();
+    cpu.upload_proxy(&baked.words).unwrap();
+    cpu.upload_particles(&[Particle::new([0.0, 1.0, 0.0], [0.0; 3])])
+        .unwrap();
+    let pairs = PairParams::default();
+    let e = cpu
+        .step_pairs(&StepParams::default(), &pairs, 1)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("radius greater than 0"), "{e}");
+    let other = StepParams {
+        radius: 0.2,
+        ..StepParams::default()
+    };
+    let e = cpu.step_pairs(&other, &pairs, 1).unwrap_err().to_string();
+    assert!(e.contains("0.15") && e.contains("0.2"), "{e}");
+    let step = StepParams {
+        radius: 0.15,
+        ..StepParams::default()
+    };
+    let bad = PairParams {
+        friction: f32::NAN,
+        ..pairs
+    };
+    let e = cpu.step_pairs(&step, &bad, 1).unwrap_err().to_string();
+    assert!(e.contains("particle friction"), "{e}");
+}

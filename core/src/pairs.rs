@@ -372,14 +372,7 @@ pub fn pair_cell(x: [f32; 3], s: &PairStep) -> [i32; 3] {
     let mut c = [0i32; 3];
     for a in 0..3 {
         let f = math::floor(x[a] * s.inv_cell);
-        let f = if f < -PAIR_CELL_LIMIT {
-            -PAIR_CELL_LIMIT
-        } else if f > PAIR_CELL_LIMIT {
-            PAIR_CELL_LIMIT
-        } else {
-            f
-        };
-        c[a] = f as i32;
+        c[a] = f.clamp(-PAIR_CELL_LIMIT, PAIR_CELL_LIMIT) as i32;
     }
     c
 }
@@ -460,13 +453,7 @@ pub fn pair_impulse(
         dv -= vt * keep;
     }
     let height = x.dot(Vec3::from_array(s.up)) * s.inv_diameter;
-    let height = if height < -1.0 {
-        -1.0
-    } else if height > 1.0 {
-        1.0
-    } else {
-        height
-    };
+    let height = height.clamp(-1.0, 1.0);
     let share = 0.5 + height * s.half_stacking;
     Some(dv * share)
 }
@@ -603,9 +590,9 @@ pub fn collide_pairs(
     let mut capped = 0u64;
     let (mut a, mut b) = (vel, vel_next);
     for _ in 0..iterations {
-        for k in 0..valid {
-            let (out, cap) = pair_velocity(k, bodies, a, ranges, s);
-            b[k] = out;
+        for (k, out) in b.iter_mut().enumerate() {
+            let (v, cap) = pair_velocity(k, bodies, a, ranges, s);
+            *out = v;
             capped += cap as u64;
         }
         core::mem::swap(&mut a, &mut b);

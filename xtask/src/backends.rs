@@ -101,6 +101,21 @@ impl Stepper {
         both!(self, b => b.step(params, steps))
     }
 
+    /// Steps with the particle-particle pass.
+    pub fn step_pairs(
+        &mut self,
+        params: &StepParams,
+        pairs: &octoproxy_core::PairParams,
+        steps: u32,
+    ) -> Result<()> {
+        both!(self, b => b.step_pairs(params, pairs, steps))
+    }
+
+    /// What the particle-particle pass did since last asked.
+    pub fn take_pair_report(&mut self) -> Result<octoproxy_core::PairReport> {
+        both!(self, b => b.take_pair_report())
+    }
+
     /// Waits for queued steps (for timing).
     pub fn finish(&mut self) -> Result<()> {
         both!(self, b => b.finish())

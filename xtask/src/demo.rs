@@ -5,7 +5,7 @@
 //! own colour.
 
 use std::ffi::OsString;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
@@ -26,12 +26,16 @@ use crate::render::{Camera, Canvas, BACK, FRONT, HIT};
 use crate::scene;
 
 const HELP: &str = "\
-usage: octoproxy demo [--particles N] [--steps N] [-o PICTURE.png] [--backend auto|cpu|wgpu]
+usage: octoproxy demo [--sand] [--particles N] [--steps N] [-o PICTURE.png] [--backend auto|cpu|wgpu]
 
 Runs a built-in scene (no files needed): an open dome, and a paddle spinning beneath it, both
 instances of one scene. Half the particles rain onto the dome and slide off its front side;
 half are fired up from beneath and hit its back side, and the paddle bats some of them away on
-their way up. The picture colours the particles the paddle hit.";
+their way up. The picture colours the particles the paddle hit.
+
+With --sand: grains of a radius poured from a spout onto a plate with a block on it collide
+with each other (the particle-particle pass) and pile up (default 3000 grains, 480 steps; the
+picture goes to target/octoproxy-sand.png).";
 
 /// The paddle: two blades (each long in x, tall in y, thin in z) either side of a gap at the
 /// hub, so that the fountain's core rises past it; where it spins (about the vertical axis
@@ -90,11 +94,14 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     let mut steps = 90u32;
     let mut out = PathBuf::from("target/octoproxy-demo.png");
     let mut backend = BackendChoice::Auto;
+    let mut sand = false;
+    let (mut n_set, mut steps_set) = (None, None);
     let mut parser = lexopt::Parser::from_args(args);
     while let Some((name, unexpected)) = flags::next_option(&mut parser)? {
         match name.as_str() {
-            "--particles" => n = flags::number(&mut parser, "--particles")?,
-            "--steps" => steps = flags::number(&mut parser, "--steps")?,
+            "--particles" => n_set = Some(flags::number(&mut parser, "--particles")?),
+            "--steps" => steps_set = Some(flags::number(&mut parser, "--steps")?),
+            "--sand" => sand = true,
             "-o" | "--out" => out = flags::path(&mut parser, "--out")?,
             "--backend" => {
                 backend = BackendChoice::parse(&flags::string(&mut parser, "--backend")?)?
@@ -106,9 +113,24 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
             _ => return Err(unexpected.into()),
         }
     }
-    if n == 0 {
+    if n_set == Some(0) {
         anyhow::bail!("--particles must be at least 1");
     }
+    if sand {
+        let out = if out == Path::new("target/octoproxy-demo.png") {
+            PathBuf::from("target/octoproxy-sand.png")
+        } else {
+            out
+        };
+        return crate::sand::run(
+            n_set.unwrap_or(3000),
+            steps_set.unwrap_or(480),
+            &out,
+            backend,
+        );
+    }
+    n = n_set.unwrap_or(n);
+    steps = steps_set.unwrap_or(steps);
 
     let build = BuildParams {
         dmax: 7,

@@ -23,6 +23,7 @@ mod instanced;
 mod plot;
 mod progress;
 mod render;
+mod sand;
 mod scene;
 mod sim;
 

@@ -6,6 +6,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
 use glam::Vec3;
+use octoproxy_core::PairParams;
 use octoproxy_core::{
     initial_side, StepParams, FLAG_BLOCKED, FLAG_BOUND_HIT, FLAG_INVALID, SIDE_BACK,
 };
@@ -55,6 +56,17 @@ stepping:
   --friction F      Coulomb coefficient >= 0 (default 0.1)
   --backend B       auto, cpu or wgpu (default auto: a hardware GPU if present, else cpu)
 
+particles that collide with each other (needs a radius: --radius, or a proxy baked for one):
+  --collide-particles          Green's uniform grid and position-based contacts
+  --particle-restitution E     in [0, 1] (default: --restitution)
+  --particle-friction F        Coulomb coefficient >= 0 (default: --friction)
+  --particle-iterations N      Jacobi iterations per substep, 1..=64 (default 4)
+  --particle-substeps N        substeps per step, 1..=256 (default: the fewest that keep
+                               gravity's closing per substep under 1 % of the radius)
+  --particle-relaxation B      share of an overlap removed per substep, (0, 1] (default 0.5)
+  --particle-stacking S        how much more of a correction the upper particle of a pair
+                               takes, [0, 1] (default 1: a stack does not sink)
+
 output:
   -o, --out FILE    the stepped particles (binary little-endian PLY)
   --ascii           write ascii PLY instead
@@ -102,6 +114,44 @@ struct Opts {
     restitution: Option<f32>,
     friction: Option<f32>,
     backend: Option<BackendChoice>,
+    collide: bool,
+    particle_restitution: Option<f32>,
+    particle_friction: Option<f32>,
+    particle_iterations: Option<u32>,
+    particle_substeps: Option<u32>,
+    particle_relaxation: Option<f32>,
+    particle_stacking: Option<f32>,
+}
+
+impl Opts {
+    /// Whether any option of the particle pass is given.
+    fn any_particle_option(&self) -> bool {
+        self.particle_restitution.is_some()
+            || self.particle_friction.is_some()
+            || self.particle_iterations.is_some()
+            || self.particle_substeps.is_some()
+            || self.particle_relaxation.is_some()
+            || self.particle_stacking.is_some()
+    }
+
+    /// The pass's parameters: `--particle-*`, else `--restitution`/`--friction` as stepped.
+    fn pair_params(&self, params: &StepParams) -> Result<PairParams> {
+        let d = PairParams::default();
+        if self.particle_substeps == Some(0) {
+            bail!("--particle-substeps must be at least 1 (leave it out for the automatic choice)");
+        }
+        let pairs = PairParams {
+            restitution: self.particle_restitution.unwrap_or(params.restitution),
+            friction: self.particle_friction.unwrap_or(params.friction),
+            relaxation: self.particle_relaxation.unwrap_or(d.relaxation),
+            stacking: self.particle_stacking.unwrap_or(d.stacking),
+            iterations: self.particle_iterations.unwrap_or(d.iterations),
+            substeps: self.particle_substeps.unwrap_or(d.substeps),
+            max_candidates: d.max_candidates,
+        };
+        pairs.validate(params)?;
+        Ok(pairs)
+    }
 }
 
 fn parse(args: Vec<OsString>) -> Result<Option<Opts>> {
@@ -138,6 +188,25 @@ fn parse(args: Vec<OsString>) -> Result<Option<Opts>> {
             "--restitution" => o.restitution = Some(flags::number(p, "--restitution")?),
             "--friction" => o.friction = Some(flags::number(p, "--friction")?),
             "--backend" => o.backend = Some(BackendChoice::parse(&flags::string(p, "--backend")?)?),
+            "--collide-particles" => o.collide = true,
+            "--particle-restitution" => {
+                o.particle_restitution = Some(flags::number(p, "--particle-restitution")?)
+            }
+            "--particle-friction" => {
+                o.particle_friction = Some(flags::number(p, "--particle-friction")?)
+            }
+            "--particle-iterations" => {
+                o.particle_iterations = Some(flags::number(p, "--particle-iterations")?)
+            }
+            "--particle-substeps" => {
+                o.particle_substeps = Some(flags::number(p, "--particle-substeps")?)
+            }
+            "--particle-relaxation" => {
+                o.particle_relaxation = Some(flags::number(p, "--particle-relaxation")?)
+            }
+            "--particle-stacking" => {
+                o.particle_stacking = Some(flags::number(p, "--particle-stacking")?)
+            }
             "-h" | "--help" => {
                 println!("{}", help());
                 return Ok(None);
@@ -226,7 +295,13 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     if every == 0 {
         bail!("--every must be at least 1");
     }
+    if o.any_particle_option() && !o.collide {
+        bail!("--particle-* options go with --collide-particles");
+    }
     if o.scene.is_some() || o.hits || o.events.is_some() {
+        if o.collide {
+            bail!("--collide-particles with --scene, --hits or --events is not supported yet (the pass runs with the plain step): collide particles with --mesh or --proxy");
+        }
         return run_scene(o);
     }
     if o.start_time.is_some() {
@@ -256,6 +331,11 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     scene::print_bake_summary(&scene)?;
     let view = scene.view()?;
     params.radius = stepped_radius(&o, view.header().radius)?;
+    let pairs = if o.collide {
+        Some(o.pair_params(&params)?)
+    } else {
+        None
+    };
 
     // The particles.
     let refs: Vec<MeshRef<'_>> = scene.meshes.iter().map(MeshRef::from).collect();
@@ -285,7 +365,12 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
         starting_sides(&scene, &view, &mut cloud)?;
     }
 
-    let mut backend = select_backend(o.backend.unwrap_or(BackendChoice::Auto))?;
+    // The particle pass runs on the CPU until the GPU has it: `auto` picks the CPU for it.
+    let choice = match (o.backend.unwrap_or(BackendChoice::Auto), &pairs) {
+        (BackendChoice::Auto, Some(_)) => BackendChoice::Cpu,
+        (choice, _) => choice,
+    };
+    let mut backend = select_backend(choice)?;
     backend.upload_proxy(&scene.words)?;
     backend.upload_particles(&cloud.particles)?;
     let encoding = if o.ascii {
@@ -315,7 +400,10 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
             steps - done
         };
         let t = Instant::now();
-        backend.step(&params, chunk)?;
+        match &pairs {
+            Some(pairs) => backend.step_pairs(&params, pairs, chunk)?,
+            None => backend.step(&params, chunk)?,
+        }
         backend.finish()?;
         stepping += t.elapsed();
         done += chunk;
@@ -351,6 +439,16 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
         count(FLAG_BOUND_HIT),
         count(FLAG_BLOCKED)
     );
+    if let Some(pairs) = &pairs {
+        let report = backend.take_pair_report()?;
+        eprintln!(
+            "particle pass: {} substeps per step, {} iterations each; {} particle-iterations stopped at the neighbour cap, {} particle-substeps faster than a radius per substep (they may pass through other particles, never the scene: raise --particle-substeps)",
+            octoproxy_core::pair_substeps(&params, pairs),
+            pairs.iterations,
+            report.capped,
+            report.fast
+        );
+    }
     if let Some(dir) = &o.frames {
         eprintln!("frames: {frame} in {}", dir.display());
     }

@@ -811,3 +811,84 @@ fn a_radius_bakes_steps_and_checks() {
     );
     assert_one_line_error(&out, "not supported yet");
 }
+
+#[test]
+fn particles_collide_with_each_other_and_bad_pass_options_are_errors() {
+    let dir = scratch("collide");
+    std::fs::write(dir.join("cube.obj"), BOX_OBJ).unwrap();
+    let out = octoproxy(
+        &[
+            "bake", "--mesh", "cube.obj", "--dmax", "5", "--radius", "0.2", "-o", "r.octp",
+        ],
+        &dir,
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let out = octoproxy(
+        &[
+            "sim",
+            "--proxy",
+            "r.octp",
+            "--emit",
+            "300",
+            "--steps",
+            "10",
+            "--collide-particles",
+            "--particle-friction",
+            "0.8",
+            "-o",
+            "a.ply",
+        ],
+        &dir,
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(out.status.success(), "{stderr}");
+    assert!(stderr.contains("particle pass: "), "{stderr}");
+    assert!(stderr.contains("iterations each"), "{stderr}");
+    for (args, error) in [
+        (
+            vec!["--particle-friction", "0.8"],
+            "--particle-* options go with --collide-particles",
+        ),
+        (
+            vec!["--collide-particles", "--particle-restitution", "2"],
+            "particle restitution must be in [0, 1]",
+        ),
+        (
+            vec!["--collide-particles", "--particle-iterations", "0"],
+            "particle iterations must be 1 to 64",
+        ),
+        (
+            vec!["--collide-particles", "--particle-substeps", "0"],
+            "--particle-substeps must be at least 1",
+        ),
+        (
+            vec!["--collide-particles", "--hits"],
+            "--collide-particles with --scene, --hits or --events is not supported yet",
+        ),
+    ] {
+        let mut all = vec!["sim", "--proxy", "r.octp", "--emit", "10", "-o", "b.ply"];
+        all.extend(args);
+        assert_one_line_error(&octoproxy(&all, &dir), error);
+    }
+    // No radius: points cannot collide with each other.
+    let out = octoproxy(
+        &[
+            "sim",
+            "--mesh",
+            "cube.obj",
+            "--dmax",
+            "5",
+            "--emit",
+            "10",
+            "--collide-particles",
+            "-o",
+            "c.ply",
+        ],
+        &dir,
+    );
+    assert_one_line_error(&out, "need a radius greater than 0");
+}

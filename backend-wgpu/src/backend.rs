@@ -125,6 +125,9 @@ pub enum WgpuError {
     /// The scene did not validate against the scene proxies held.
     #[error("invalid scene: {0}")]
     Scene(#[from] SceneError),
+    /// The particle-particle pass's parameters are out of range.
+    #[error("invalid particle-particle parameters: {0}")]
+    Pairs(#[from] octoproxy_core::PairParamError),
 }
 
 /// The pipelines, layouts and uniform buffers: built once per backend, reused every step.
@@ -145,7 +148,7 @@ pub(crate) struct Chunk {
     pub(crate) count: u32,
     pub(crate) params: wgpu::Buffer,
     /// The chunk's particles' `LeafHint`s (8 bytes each), kept between steps.
-    hints: wgpu::Buffer,
+    pub(crate) hints: wgpu::Buffer,
     bind_group: Option<wgpu::BindGroup>,
     /// The chunk's particles' scene state, made at the first scene step.
     pub(crate) scene: Option<crate::scene::ChunkScene>,
@@ -177,6 +180,8 @@ pub struct WgpuBackend {
     uncaptured: Arc<Mutex<Option<String>>>,
     /// The scene kernel and its buffers ([`Backend::step_scene`]).
     pub(crate) scene: crate::scene::SceneGpu,
+    /// The particle-particle pass's kernels and buffers ([`Backend::step_pairs`]).
+    pub(crate) pairs: crate::pairs::PairGpu,
 }
 
 /// A compute shader's storage-buffer binding.
@@ -363,6 +368,7 @@ impl WgpuBackend {
             lost,
             uncaptured,
             scene: Default::default(),
+            pairs: Default::default(),
         })
     }
 
@@ -577,7 +583,11 @@ impl WgpuBackend {
 
     /// Workgroups for `count` particles: `(x, y)`, folded into rows of at most `fold_width`.
     pub fn dispatch_size(&self, count: u32) -> (u32, u32) {
-        let groups = count.div_ceil(WORKGROUP_SIZE);
+        self.fold(count.div_ceil(WORKGROUP_SIZE))
+    }
+
+    /// `groups` workgroups as `(x, y)`, folded into rows of at most `fold_width`.
+    pub(crate) fn fold(&self, groups: u32) -> (u32, u32) {
         if groups <= self.fold_width {
             (groups, 1)
         } else {
@@ -653,6 +663,37 @@ impl WgpuBackend {
             .poll(wgpu::PollType::wait_indefinitely())
             .map_err(|e| WgpuError::Gpu(e.to_string()))?;
         self.check_health()
+    }
+
+    /// The uploaded proxy and the radius it was baked for, or `None` without a proxy.
+    pub(crate) fn proxy(&self) -> Option<(&wgpu::Buffer, f32)> {
+        self.proxy.as_ref().map(|p| (p, self.proxy_radius))
+    }
+
+    /// Writes the plain kernel's step parameters and run settings for the steps recorded
+    /// next ([`WgpuBackend::record_step`]).
+    pub(crate) fn write_step_params(&self, params: &StepParams) {
+        self.queue
+            .write_buffer(&self.kernel.params, 0, bytemuck::bytes_of(params));
+        let run = RunParams {
+            use_lut: self.use_lut as u32,
+            ..Default::default()
+        };
+        self.queue
+            .write_buffer(&self.kernel.run, 0, bytemuck::bytes_of(&run));
+    }
+
+    /// Records one plain step of every chunk (one dispatch each) in `pass`.
+    pub(crate) fn record_step(&self, pass: &mut wgpu::ComputePass<'_>) {
+        pass.set_pipeline(&self.kernel.step);
+        for chunk in &self.chunks {
+            let Some(group) = &chunk.bind_group else {
+                continue;
+            };
+            let (x, y) = self.dispatch_size(chunk.count);
+            pass.set_bind_group(0, group, &[]);
+            pass.dispatch_workgroups(x, y, 1);
+        }
     }
 
     /// The floor: steps the particles `steps` times with integration only (the same
@@ -898,17 +939,15 @@ impl Backend for WgpuBackend {
 
     fn step_pairs(
         &mut self,
-        _params: &StepParams,
-        _pairs: &octoproxy_core::PairParams,
-        _steps: u32,
+        params: &StepParams,
+        pairs: &octoproxy_core::PairParams,
+        steps: u32,
     ) -> Result<(), WgpuError> {
-        Err(WgpuError::Gpu(
-            "the particle-particle pass is not on the GPU yet".to_string(),
-        ))
+        self.step_pairs_gpu(params, pairs, steps)
     }
 
     fn take_pair_report(&mut self) -> Result<octoproxy_core::PairReport, WgpuError> {
-        Ok(octoproxy_core::PairReport::default())
+        self.take_pair_report_gpu()
     }
 
     fn upload_scene_proxies(&mut self, key: u64, proxies: &[&[u32]]) -> Result<(), WgpuError> {

@@ -22,6 +22,7 @@
 #![warn(missing_docs)]
 
 mod backend;
+mod pairs;
 mod scene;
 pub mod shader;
 
@@ -29,5 +30,6 @@ pub use backend::{
     ChunkParams, RunParams, WgpuBackend, WgpuError, DEFAULT_CHUNK_PARTICLES, HINT_BYTES,
     PARTICLE_BYTES, STEPS_PER_SUBMIT,
 };
+pub use pairs::{PairPassParams, PairSortParams, PairState, PAIR_SORT_BLOCK, PAIR_STORAGE_BUFFERS};
 pub use scene::{SceneParams, OUT_HEADER_WORDS as SCENE_OUT_HEADER_WORDS, SCENE_STORAGE_BUFFERS};
 pub use wgpu;

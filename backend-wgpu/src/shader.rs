@@ -2,14 +2,17 @@
 //! sides cannot drift, followed by the hand-written mirror of core's routine.
 //!
 //! The `.wgsl` files beside this module mirror core's modules: `format.wgsl` (node records,
-//! header, `decode_normal`, `grid_plane`), `query.wgsl` (`locate_inside` and its helpers),
+//! header, `decode_normal`, `grid_plane`), `particle.wgsl` (`Particle`, `StepParams`), `query.wgsl` (`locate_inside` and its helpers),
 //! `step.wgsl` (`step_particle_hinted`, its settles and the march's steps), `pose.wgsl`,
 //! `observe.wgsl` and `scene.wgsl` (scenes: poses, the march's observer, the scene step), and
-//! the entry points. They make two modules: the plain kernel ([`FILES`], whose march observes
-//! nothing: `observe_none.wgsl`) and the scene kernel ([`SCENE_FILES`]). Every function has a
-//! Rust twin or a stated reason for none; the table is in `tests/wgsl.rs`.
+//! the entry points. They make three modules: the plain kernel ([`FILES`], whose march observes
+//! nothing: `observe_none.wgsl`), the scene kernel ([`SCENE_FILES`]) and the
+//! particle-particle pass ([`PAIR_FILES`]: `pairs.wgsl` mirrors core's `pairs` module,
+//! `pairs_kernel.wgsl` runs it stage by stage). Every function has a Rust twin or a stated
+//! reason for none; the table is in `tests/wgsl.rs`.
 
 use octoproxy_core::format::{self, header};
+use octoproxy_core::pairs;
 use octoproxy_core::scene::{self as sc, BROAD_LEAF, SIDE_SLOTS};
 use octoproxy_core::*;
 
@@ -17,28 +20,46 @@ use octoproxy_core::*;
 pub const WORKGROUP_SIZE: u32 = 64;
 
 const FORMAT: (&str, &str) = ("format.wgsl", include_str!("wgsl/format.wgsl"));
+const PARTICLE: (&str, &str) = ("particle.wgsl", include_str!("wgsl/particle.wgsl"));
 const QUERY: (&str, &str) = ("query.wgsl", include_str!("wgsl/query.wgsl"));
 const STEP: (&str, &str) = ("step.wgsl", include_str!("wgsl/step.wgsl"));
+const OBSERVE_NONE: (&str, &str) = ("observe_none.wgsl", include_str!("wgsl/observe_none.wgsl"));
 
 /// The plain kernel's hand-written WGSL files in the order they are joined, each with its name.
-pub const FILES: [(&str, &str); 5] = [
+pub const FILES: [(&str, &str); 6] = [
     FORMAT,
+    PARTICLE,
     QUERY,
-    ("observe_none.wgsl", include_str!("wgsl/observe_none.wgsl")),
+    OBSERVE_NONE,
     STEP,
     ("kernel.wgsl", include_str!("wgsl/kernel.wgsl")),
 ];
 
 /// The scene kernel's files, in the order they are joined: the plain kernel's step with the
 /// scene step around it, and an observer that records hits and events.
-pub const SCENE_FILES: [(&str, &str); 7] = [
+pub const SCENE_FILES: [(&str, &str); 8] = [
     FORMAT,
+    PARTICLE,
     QUERY,
     ("pose.wgsl", include_str!("wgsl/pose.wgsl")),
     ("observe.wgsl", include_str!("wgsl/observe.wgsl")),
     STEP,
     ("scene.wgsl", include_str!("wgsl/scene.wgsl")),
     ("scene_kernel.wgsl", include_str!("wgsl/scene_kernel.wgsl")),
+];
+
+/// The particle-particle pass's files, in the order they are joined: the plain kernel's step
+/// (a grain's support is the surface leaf of its hint, and the scene's response to it is
+/// `respond`), the pass's mirror of core's `pairs` module, and its entry points. The march
+/// that follows the pass is the plain kernel's.
+pub const PAIR_FILES: [(&str, &str); 7] = [
+    FORMAT,
+    PARTICLE,
+    QUERY,
+    OBSERVE_NONE,
+    STEP,
+    ("pairs.wgsl", include_str!("wgsl/pairs.wgsl")),
+    ("pairs_kernel.wgsl", include_str!("wgsl/pairs_kernel.wgsl")),
 ];
 
 /// A constant shared by Rust and WGSL.
@@ -163,6 +184,11 @@ pub fn shared_constants() -> Vec<(&'static str, SharedValue)> {
         ("FLAG_CRUSHED", U32(sc::FLAG_CRUSHED)),
         ("FLAG_SIDES_LOST", U32(sc::FLAG_SIDES_LOST)),
         ("FLAG_SCENE_STATUS", U32(sc::FLAG_SCENE_STATUS)),
+        ("PAIR_CELL_LIMIT", F32(pairs::PAIR_CELL_LIMIT)),
+        ("PAIR_HASH_NONE", U32(pairs::PAIR_HASH_NONE)),
+        ("PAIR_CELL_MARGIN", F32(pairs::PAIR_CELL_MARGIN)),
+        ("PAIR_SORT_BLOCK", U32(crate::pairs::PAIR_SORT_BLOCK)),
+        ("PAIR_SORT_THREADS", U32(crate::pairs::PAIR_SORT_BLOCK / 2)),
     ]
 }
 
@@ -190,6 +216,11 @@ pub fn source() -> String {
 /// The scene kernel's whole shader: the constants, then [`SCENE_FILES`] in order.
 pub fn scene_source() -> String {
     join(&SCENE_FILES, SCENE_FILES.len())
+}
+
+/// The particle-particle pass's whole shader: the constants, then [`PAIR_FILES`] in order.
+pub fn pair_source() -> String {
+    join(&PAIR_FILES, PAIR_FILES.len())
 }
 
 /// The constants and the first `n` of [`FILES`] (each file needs only those before it).

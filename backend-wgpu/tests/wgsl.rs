@@ -8,10 +8,13 @@ use naga::proc::Layouter;
 use naga::valid::{Capabilities, ValidationFlags, Validator};
 use naga::{Expression, Literal, Module, TypeInner};
 use octoproxy_core::{
-    BroadNode, Hit, HitEvent, Instance, Particle, Pose, SceneHint, SceneSlots, StepParams,
+    BroadNode, Hit, HitEvent, Instance, PairBody, PairStep, Particle, Pose, SceneHint, SceneSlots,
+    StepParams,
 };
-use octoproxy_wgpu::shader::{self, SharedValue, FILES, SCENE_FILES};
-use octoproxy_wgpu::{ChunkParams, RunParams, SceneParams};
+use octoproxy_wgpu::shader::{self, SharedValue, FILES, PAIR_FILES, SCENE_FILES};
+use octoproxy_wgpu::{
+    ChunkParams, PairPassParams, PairSortParams, PairState, RunParams, SceneParams,
+};
 
 fn parse(source: &str, what: &str) -> Module {
     let module = naga::front::wgsl::parse_str(source)
@@ -30,16 +33,39 @@ fn scene_whole() -> Module {
     parse(&shader::scene_source(), "the joined scene shader")
 }
 
+fn pair_whole() -> Module {
+    parse(
+        &shader::pair_source(),
+        "the joined particle-particle shader",
+    )
+}
+
 /// A module's files (name, text) and its entry points.
 type ModuleFiles = (
     &'static [(&'static str, &'static str)],
     &'static [&'static str],
 );
 
-/// The two modules, each with its files and entry points.
-const MODULES: [ModuleFiles; 2] = [
+/// The three modules, each with its files and entry points.
+const MODULES: [ModuleFiles; 3] = [
     (&FILES, &["step_kernel", "integrate_kernel"]),
     (&SCENE_FILES, &["scene_kernel"]),
+    (
+        &PAIR_FILES,
+        &[
+            "pair_reset_kernel",
+            "pair_speed_kernel",
+            "pair_step_kernel",
+            "pair_key_kernel",
+            "pair_sort_pass_kernel",
+            "pair_sort_block_kernel",
+            "pair_rank_kernel",
+            "pair_gather_kernel",
+            "pair_start_kernel",
+            "pair_iterate_kernel",
+            "pair_scatter_kernel",
+        ],
+    ),
 ];
 
 #[test]
@@ -357,8 +383,131 @@ fn scene_layouts_match_core() {
 }
 
 #[test]
+fn pair_layouts_match_core() {
+    let module = pair_whole();
+    let layouter = layouter(&module);
+    let cases: [Case; 7] = [
+        (
+            "PairStep",
+            owned(&[
+                ("gravity_h", offset_of!(PairStep, gravity_h)),
+                ("h", offset_of!(PairStep, h)),
+                ("up", offset_of!(PairStep, up)),
+                ("inv_h", offset_of!(PairStep, inv_h)),
+                ("radius", offset_of!(PairStep, radius)),
+                ("diameter", offset_of!(PairStep, diameter)),
+                ("inv_diameter", offset_of!(PairStep, inv_diameter)),
+                ("cell", offset_of!(PairStep, cell)),
+                ("inv_cell", offset_of!(PairStep, inv_cell)),
+                ("mask", offset_of!(PairStep, mask)),
+                ("restitution", offset_of!(PairStep, restitution)),
+                ("friction", offset_of!(PairStep, friction)),
+                ("relaxation", offset_of!(PairStep, relaxation)),
+                ("half_stacking", offset_of!(PairStep, half_stacking)),
+                ("max_candidates", offset_of!(PairStep, max_candidates)),
+                ("scene_friction", offset_of!(PairStep, scene_friction)),
+            ]),
+            size_of::<PairStep>(),
+        ),
+        (
+            "PairBody",
+            owned(&[
+                ("position", offset_of!(PairBody, position)),
+                ("index", offset_of!(PairBody, index)),
+                ("cell", offset_of!(PairBody, cell)),
+                ("hash", offset_of!(PairBody, hash)),
+            ]),
+            size_of::<PairBody>(),
+        ),
+        (
+            "PairState",
+            owned(&[
+                ("step", offset_of!(PairState, step)),
+                ("v_max", offset_of!(PairState, v_max)),
+                ("valid", offset_of!(PairState, valid)),
+                ("fast_lo", offset_of!(PairState, fast_lo)),
+                ("fast_hi", offset_of!(PairState, fast_hi)),
+                ("capped_lo", offset_of!(PairState, capped_lo)),
+                ("capped_hi", offset_of!(PairState, capped_hi)),
+                ("zero", offset_of!(PairState, zero)),
+                ("_pad", offset_of!(PairState, _pad)),
+            ]),
+            size_of::<PairState>(),
+        ),
+        (
+            "PairPassParams",
+            owned(&[
+                ("count", offset_of!(PairPassParams, count)),
+                ("table", offset_of!(PairPassParams, table)),
+                ("_pad0", offset_of!(PairPassParams, _pad0)),
+                ("_pad1", offset_of!(PairPassParams, _pad1)),
+            ]),
+            size_of::<PairPassParams>(),
+        ),
+        (
+            "PairSortParams",
+            owned(&[
+                ("k", offset_of!(PairSortParams, k)),
+                ("j", offset_of!(PairSortParams, j)),
+                ("threads", offset_of!(PairSortParams, threads)),
+                ("block", offset_of!(PairSortParams, block)),
+                ("k_last", offset_of!(PairSortParams, k_last)),
+                ("_pad0", offset_of!(PairSortParams, _pad0)),
+                ("_pad1", offset_of!(PairSortParams, _pad1)),
+                ("_pad2", offset_of!(PairSortParams, _pad2)),
+            ]),
+            size_of::<PairSortParams>(),
+        ),
+        (
+            "ChunkParams",
+            owned(&[
+                ("count", offset_of!(ChunkParams, count)),
+                ("first", offset_of!(ChunkParams, first)),
+                ("_pad1", offset_of!(ChunkParams, _pad1)),
+                ("_pad2", offset_of!(ChunkParams, _pad2)),
+            ]),
+            size_of::<ChunkParams>(),
+        ),
+        (
+            "Particle",
+            owned(&[
+                ("position", offset_of!(Particle, position)),
+                ("side", offset_of!(Particle, side)),
+                ("velocity", offset_of!(Particle, velocity)),
+                ("flags", offset_of!(Particle, flags)),
+            ]),
+            size_of::<Particle>(),
+        ),
+    ];
+    assert_layouts(&module, &layouter, &cases);
+    // The pass's arrays: their strides are core's records' sizes (keys and ranges are
+    // `[u32; 2]`, velocities `PairVelocity`).
+    for (binding, size) in [
+        ("particles", size_of::<Particle>()),
+        ("pair_keys", size_of::<[u32; 2]>()),
+        ("pair_rank", size_of::<u32>()),
+        ("pair_bodies", size_of::<PairBody>()),
+        ("pair_vel", size_of::<octoproxy_core::PairVelocity>()),
+        ("pair_vel_next", size_of::<octoproxy_core::PairVelocity>()),
+        ("pair_ranges", size_of::<[u32; 2]>()),
+        ("pair_supports", size_of::<[f32; 4]>()),
+        ("pair_hints", size_of::<octoproxy_core::LeafHint>()),
+    ] {
+        let (_, var) = module
+            .global_variables
+            .iter()
+            .find(|(_, v)| v.name.as_deref() == Some(binding))
+            .unwrap_or_else(|| panic!("no binding {binding}"));
+        let TypeInner::Array { stride, .. } = module.types[var.ty].inner else {
+            panic!("{binding} is not an array")
+        };
+        assert_eq!(stride as usize, size, "{binding} stride");
+    }
+}
+
+#[test]
 fn shared_constants_have_the_rust_values() {
-    for module in [whole(), scene_whole()] {
+    for module in [whole(), scene_whole(), pair_whole()] {
         shared_constants_of(&module);
     }
 }
@@ -387,7 +536,7 @@ fn shared_constants_of(module: &Module) {
     }
     assert!(checked >= 40, "only {checked} constants checked");
     // The hand-written files define no numeric constants of their own: all come from Rust.
-    for (name, text) in FILES.iter().chain(&SCENE_FILES) {
+    for (name, text) in FILES.iter().chain(&SCENE_FILES).chain(&PAIR_FILES) {
         assert!(
             !text.contains("\nconst "),
             "{name} defines its own const; generate it from Rust instead"
@@ -548,6 +697,34 @@ const TWINS: &[(&str, &str, Twin)] = &[
     // scene_kernel.wgsl
     ("scene_kernel.wgsl", "particle_index", NoTwin("a particle's index from the dispatch grid; the CPU backend iterates")),
     ("scene_kernel.wgsl", "scene_kernel", NoTwin("entry point: one scene step of one particle; CpuBackend's loop over particles (step_one)")),
+    // pairs.wgsl
+    ("pairs.wgsl", "pair_cell_edge", Rust("pairs.rs", "pair_cell_edge")),
+    ("pairs.wgsl", "pair_is_fast", Rust("pairs.rs", "pair_is_fast")),
+    ("pairs.wgsl", "pair_prepare", Rust("pairs.rs", "pair_prepare")),
+    ("pairs.wgsl", "pair_cell", Rust("pairs.rs", "pair_cell")),
+    ("pairs.wgsl", "pair_support", Rust("pairs.rs", "pair_support")),
+    ("pairs.wgsl", "pair_start", Rust("pairs.rs", "pair_start")),
+    ("pairs.wgsl", "pair_hash", Rust("pairs.rs", "pair_hash")),
+    ("pairs.wgsl", "pair_range_marks", Rust("pairs.rs", "pair_range_marks")),
+    ("pairs.wgsl", "pair_impulse", Rust("pairs.rs", "pair_impulse")),
+    ("pairs.wgsl", "pair_velocity", Rust("pairs.rs", "pair_velocity")),
+    // pairs_kernel.wgsl
+    ("pairs_kernel.wgsl", "particle_index", NoTwin("a particle's index from the dispatch grid; the CPU backend iterates")),
+    ("pairs_kernel.wgsl", "count_fast", NoTwin("a 64-bit count in two atomic words; the CPU adds u64s (CpuBackend::step_pairs)")),
+    ("pairs_kernel.wgsl", "count_capped", NoTwin("a 64-bit count in two atomic words; the CPU adds u64s (PairBuffers::substep)")),
+    ("pairs_kernel.wgsl", "key_less", NoTwin("the order of core's [hash, index] keys: Rust compares the arrays (the CPU backend one u64 per key)")),
+    ("pairs_kernel.wgsl", "pair_reset_kernel", NoTwin("entry point: the table cleared (collide_pairs' ranges.fill), the largest speed and the valid count zeroed")),
+    ("pairs_kernel.wgsl", "pair_speed_kernel", NoTwin("entry point: pair_max_speed and pair_fast_count, as atomics (the CPU backend's reduce in step_pairs)")),
+    ("pairs_kernel.wgsl", "pair_step_kernel", NoTwin("entry point: PairStep::new's cell and inv_cell from the largest speed, on the GPU (no read-back)")),
+    ("pairs_kernel.wgsl", "pair_key_kernel", NoTwin("entry point: collide_pairs' keys")),
+    ("pairs_kernel.wgsl", "sort_swaps", NoTwin("a bitonic sort's compare-exchange; the CPU sorts with sort_unstable: the order is total, so the array is the same")),
+    ("pairs_kernel.wgsl", "pair_sort_pass_kernel", NoTwin("entry point: a pass of the bitonic sort over all the keys (the CPU's par_sort_unstable)")),
+    ("pairs_kernel.wgsl", "pair_sort_block_kernel", NoTwin("entry point: the bitonic sort's stages within a block, in workgroup memory (the CPU's par_sort_unstable)")),
+    ("pairs_kernel.wgsl", "pair_rank_kernel", NoTwin("entry point: collide_pairs' range marks and valid count, and each particle's place (the CPU backend's rank)")),
+    ("pairs_kernel.wgsl", "pair_gather_kernel", NoTwin("entry point: collide_pairs' bodies in sorted order")),
+    ("pairs_kernel.wgsl", "pair_start_kernel", NoTwin("entry point: collide_pairs' pair_start in sorted order, from each particle and its hint")),
+    ("pairs_kernel.wgsl", "pair_iterate_kernel", NoTwin("entry point: one Jacobi iteration, collide_pairs' loop body over k")),
+    ("pairs_kernel.wgsl", "pair_scatter_kernel", NoTwin("entry point: collide_pairs' velocities back to the valid particles")),
     // kernel.wgsl
     ("kernel.wgsl", "particle_index", NoTwin("a particle's index from the dispatch grid; the CPU backend iterates")),
     ("kernel.wgsl", "step_kernel", NoTwin("entry point: one step of one particle; CpuBackend's loop over particles")),
@@ -601,6 +778,15 @@ const HOST_ONLY: &[(&str, &str, &str)] = &[
     ("scene.rs", "piece", "path pieces for ground truth, on the host"),
     ("scene.rs", "branch", "path pieces for ground truth, on the host"),
     ("scene.rs", "step_particle_scene_traced", "host-only: ground-truth checks of the path"),
+    ("pairs.rs", "default", "PairParams::default: the host's"),
+    ("pairs.rs", "fmt", "PairParamError's Display: errors are the host's"),
+    ("pairs.rs", "validate", "PairParams::validate: the host checks parameters before stepping"),
+    ("pairs.rs", "pair_substeps", "the host splits each step into substeps and records them"),
+    ("pairs.rs", "pair_table_size", "the host sizes the table and writes PairStep::mask"),
+    ("pairs.rs", "new", "PairStep::new: the host writes every field but the cell; pair_step_kernel computes cell and inv_cell from the GPU's largest speed with pair_cell_edge, as new does"),
+    ("pairs.rs", "collide_pairs", "the pass on one thread; the GPU runs its stages as kernels (pairs_kernel.wgsl), the CPU backend as rayon loops"),
+    ("pairs.rs", "pair_max_speed", "a reduction: pair_speed_kernel's atomicMax over pair_prepare's speeds"),
+    ("pairs.rs", "pair_fast_count", "a reduction: pair_speed_kernel's count over pair_is_fast"),
 ];
 
 /// core's source files, by name.
@@ -612,8 +798,16 @@ fn rust_source(file: &str) -> &'static str {
         "view.rs" => include_str!("../../core/src/view.rs"),
         "particle.rs" => include_str!("../../core/src/particle.rs"),
         "scene.rs" => include_str!("../../core/src/scene.rs"),
+        "pairs.rs" => rust_code(include_str!("../../core/src/pairs.rs")),
         other => panic!("no core source {other} in this test"),
     }
+}
+
+/// A source without its unit tests (`#[cfg(test)] mod tests` at its end).
+fn rust_code(source: &'static str) -> &'static str {
+    source
+        .find("\n#[cfg(test)]\nmod tests")
+        .map_or(source, |at| &source[..at])
 }
 
 /// The names of the functions a Rust source defines (`fn name`, outside comments).
@@ -707,7 +901,7 @@ fn every_rust_twin_exists() {
 
 #[test]
 fn every_step_and_query_function_has_a_twin_or_is_host_only() {
-    for file in ["step.rs", "query.rs", "scene.rs"] {
+    for file in ["step.rs", "query.rs", "scene.rs", "pairs.rs"] {
         let twins: Vec<&str> = TWINS
             .iter()
             .filter_map(|(_, _, t)| match t {

@@ -6,24 +6,6 @@
 // records and events in the scene kernel (observe.wgsl). A Rust `Option<T>` is a
 // `TOption { value, some }`; the twins are listed, and checked, in backend-wgpu/tests/wgsl.rs.
 
-// core's `Particle`: 32 bytes, vec3 members at offsets 0 and 16.
-struct Particle {
-    position: vec3<f32>,
-    side: u32,
-    velocity: vec3<f32>,
-    flags: u32,
-}
-
-// core's `StepParams`: 32 bytes.
-struct StepParams {
-    gravity: vec3<f32>,
-    dt: f32,
-    restitution: f32,
-    friction: f32,
-    radius: f32,
-    _pad: u32,
-}
-
 fn respond(v: vec3<f32>, n: vec3<f32>, restitution: f32, friction: f32) -> vec3<f32> {
     let vn = dot3(v, n);
     if vn >= 0.0 {

@@ -1,0 +1,769 @@
+//! The particle-particle pass on the GPU (`Backend::step_pairs`): core's `pairs` module
+//! mirrored in `wgsl/pairs.wgsl`, run a stage per kernel (`wgsl/pairs_kernel.wgsl`), bit for
+//! bit the CPU backend's pass.
+//!
+//! **Buffers.** The pass sees neighbours across chunks, so its buffers hold every particle:
+//! the keys (padded to the table's size), each particle's place in the sorted order, the
+//! bodies, two velocity buffers (Jacobi iterations ping-pong between them) and the table of
+//! bucket ranges, [`pair_table_size`]`(n)` long. The kernels that read or write the particles
+//! themselves (the largest speed, the keys, the gather and the scatter) run per chunk, as the
+//! step does. One small buffer ([`PairState`]) holds the substep's [`PairStep`], the largest
+//! speed, the count of valid particles and the report's counts; it is the only thing read
+//! back (`Backend::take_pair_report`).
+//!
+//! **A substep** is one compute pass of dispatches, each seeing what the last wrote: reset,
+//! the largest speed (per chunk), the substep's cell (one invocation: `PairStep::new`'s part
+//! that depends on the speed, so nothing is read back), the keys (per chunk), the bitonic
+//! sort (one dispatch per pass, its `(k, j)` from a uniform buffer at a dynamic offset), the
+//! ranks and ranges, the gather (per chunk), the iterations, the scatter (per chunk), then
+//! the plain step kernel over every chunk with no gravity and the substep's `dt`. The plain
+//! kernel binds nothing of the pass.
+
+use bytemuck::{Pod, Zeroable};
+use octoproxy_core::pairs::{pair_table_size, PAIR_HASH_NONE};
+use octoproxy_core::{pair_substeps, PairParams, PairReport, PairStep, StepParams};
+
+use crate::backend::{storage, uniform, ErrorScope, WgpuBackend, WgpuError};
+use crate::shader;
+
+/// The pass's state on the GPU: WGSL's `PairState`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct PairState {
+    /// The substep's constants; the host writes all but `cell` and `inv_cell`.
+    pub step: PairStep,
+    /// The substep's largest speed after gravity, as the bits of an `f32`.
+    pub v_max: u32,
+    /// The valid particles: those before the first key of hash `PAIR_HASH_NONE`.
+    pub valid: u32,
+    /// Particle-substeps that moved more than a radius (low word).
+    pub fast_lo: u32,
+    /// Particle-substeps that moved more than a radius (high word).
+    pub fast_hi: u32,
+    /// Particle-iterations that hit the neighbour cap (low word).
+    pub capped_lo: u32,
+    /// Particle-iterations that hit the neighbour cap (high word).
+    pub capped_hi: u32,
+    /// Zero, read by the kernel at run time (the restitution of a grain's support: a
+    /// constant one would let the compiler fold `v_n * 0.0` to +0, where IEEE gives -0).
+    pub zero: f32,
+    /// Padding.
+    pub _pad: u32,
+}
+
+/// The pass's sizes: WGSL's `PairPassParams`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
+pub struct PairPassParams {
+    /// Particles.
+    pub count: u32,
+    /// The table's size (`pair_table_size(count)`), also the keys' padded length.
+    pub table: u32,
+    /// Padding.
+    pub _pad0: u32,
+    /// Padding.
+    pub _pad1: u32,
+}
+
+/// One dispatch of the bitonic sort: WGSL's `PairSortParams`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
+pub struct PairSortParams {
+    /// The stage: the size of the sorted runs it merges into one (the first stage a block
+    /// dispatch runs).
+    pub k: u32,
+    /// The distance compared by a pass over all the keys.
+    pub j: u32,
+    /// Compare-exchanges of a pass over all the keys (half the padded keys).
+    pub threads: u32,
+    /// The keys one workgroup sorts in its memory: [`PAIR_SORT_BLOCK`], or all of them when
+    /// fewer.
+    pub block: u32,
+    /// The last stage a block dispatch runs.
+    pub k_last: u32,
+    /// Padding.
+    pub _pad0: u32,
+    /// Padding.
+    pub _pad1: u32,
+    /// Padding.
+    pub _pad2: u32,
+}
+
+/// Keys one workgroup of the sort holds in its memory (8 bytes each), two per invocation.
+pub const PAIR_SORT_BLOCK: u32 = 512;
+
+/// Storage buffers the pass's kernels bind at most (`pair_start_kernel`: the proxy, the
+/// particles and their hints, the state, the ranks, the velocities and the supports).
+pub const PAIR_STORAGE_BUFFERS: u32 = 7;
+
+const STATE_BYTES: u64 = core::mem::size_of::<PairState>() as u64;
+/// Where the report's counts start in the state buffer: `fast_lo`.
+const COUNTS_AT: u64 = core::mem::offset_of!(PairState, fast_lo) as u64;
+const KEY_BYTES: u64 = 8;
+const RANK_BYTES: u64 = 4;
+const BODY_BYTES: u64 = core::mem::size_of::<octoproxy_core::PairBody>() as u64;
+const VELOCITY_BYTES: u64 = 16;
+const RANGE_BYTES: u64 = 8;
+const SUPPORT_BYTES: u64 = 16;
+
+/// The pass's pipelines and its one fixed-size buffer.
+#[derive(Debug)]
+struct PairKernel {
+    reset: wgpu::ComputePipeline,
+    speed: wgpu::ComputePipeline,
+    step: wgpu::ComputePipeline,
+    key: wgpu::ComputePipeline,
+    sort_pass: wgpu::ComputePipeline,
+    sort_block: wgpu::ComputePipeline,
+    sort_layout: wgpu::BindGroupLayout,
+    rank: wgpu::ComputePipeline,
+    gather: wgpu::ComputePipeline,
+    start: wgpu::ComputePipeline,
+    iterate: wgpu::ComputePipeline,
+    scatter: wgpu::ComputePipeline,
+    state: wgpu::Buffer,
+}
+
+/// The buffers for `count` particles, and the bind groups of the kernels that run over them
+/// all.
+#[derive(Debug)]
+struct PairBuffers {
+    count: u32,
+    table: u32,
+    keys: wgpu::Buffer,
+    rank: wgpu::Buffer,
+    bodies: wgpu::Buffer,
+    vel: [wgpu::Buffer; 2],
+    supports: wgpu::Buffer,
+    /// The sort's dispatches, whether each is a block's (or a pass over all the keys), and
+    /// their [`PairSortParams`], one every `sort_stride` bytes.
+    sort_blocks: Vec<bool>,
+    sort_stride: u32,
+    reset_group: wgpu::BindGroup,
+    step_group: wgpu::BindGroup,
+    sort_group: wgpu::BindGroup,
+    rank_group: wgpu::BindGroup,
+    /// Iteration `i` reads `vel[i % 2]` and writes the other.
+    iterate_groups: [wgpu::BindGroup; 2],
+}
+
+/// One chunk's bind groups.
+#[derive(Debug)]
+struct ChunkGroups {
+    count: u32,
+    speed: wgpu::BindGroup,
+    key: wgpu::BindGroup,
+    gather: wgpu::BindGroup,
+    start: wgpu::BindGroup,
+    /// The scatter from `vel[i]`: the last iteration's output is `vel[iterations % 2]`.
+    scatter: [wgpu::BindGroup; 2],
+}
+
+/// What a chunk's bind groups were made for: its particles' buffer, offset and count, its
+/// parameters' and hints' buffers, and the proxy.
+type ChunkKey = (
+    wgpu::Buffer,
+    u64,
+    u32,
+    wgpu::Buffer,
+    wgpu::Buffer,
+    wgpu::Buffer,
+);
+
+/// The backend's pass state.
+#[derive(Debug, Default)]
+pub(crate) struct PairGpu {
+    kernel: Option<PairKernel>,
+    buffers: Option<PairBuffers>,
+    chunk_keys: Vec<ChunkKey>,
+    chunk_groups: Vec<ChunkGroups>,
+    /// Steps and substeps since the report was taken (the host counts them).
+    pending: PairReport,
+}
+
+/// The dispatches that sort `table` keys (a power of two), each a block's (`true`) or a pass
+/// over all the keys: the blocks sorted in workgroup memory (every stage up to the block's
+/// size), then for each longer stage `k` its passes at distances `k / 2` down to a block,
+/// and a block dispatch for the distances below.
+fn sort_dispatches(table: u32) -> Vec<(bool, PairSortParams)> {
+    let block = table.min(PAIR_SORT_BLOCK);
+    let params = |k, j, k_last| PairSortParams {
+        k,
+        j,
+        threads: table / 2,
+        block,
+        k_last,
+        ..Default::default()
+    };
+    let mut out = Vec::new();
+    if table < 2 {
+        return out;
+    }
+    out.push((true, params(2, 0, block)));
+    let mut k = 2 * block;
+    while k <= table && k != 0 {
+        let mut j = k / 2;
+        while j >= block {
+            out.push((false, params(k, j, k)));
+            j /= 2;
+        }
+        out.push((true, params(k, 0, k)));
+        k = k.wrapping_mul(2);
+    }
+    out
+}
+
+/// A bind group of `pipeline`'s own layout (made from its shader) with these bindings.
+fn group(
+    device: &wgpu::Device,
+    pipeline: &wgpu::ComputePipeline,
+    label: &str,
+    entries: &[(u32, wgpu::BindingResource<'_>)],
+) -> wgpu::BindGroup {
+    let entries: Vec<wgpu::BindGroupEntry<'_>> = entries
+        .iter()
+        .map(|(binding, resource)| wgpu::BindGroupEntry {
+            binding: *binding,
+            resource: resource.clone(),
+        })
+        .collect();
+    device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some(label),
+        layout: &pipeline.get_bind_group_layout(0),
+        entries: &entries,
+    })
+}
+
+impl WgpuBackend {
+    fn pair_kernel(&mut self) -> Result<(), WgpuError> {
+        if self.pairs.kernel.is_some() {
+            return Ok(());
+        }
+        let limit = self.device.limits().max_storage_buffers_per_shader_stage;
+        if limit < PAIR_STORAGE_BUFFERS {
+            return Err(WgpuError::TooLarge {
+                what: "the particle-particle pass's storage buffers",
+                needed: PAIR_STORAGE_BUFFERS as u64,
+                limit: limit as u64,
+            });
+        }
+        let scope = ErrorScope::push(&self.device);
+        let device = &self.device;
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("octoproxy particle-particle pass"),
+            source: wgpu::ShaderSource::Wgsl(shader::pair_source().into()),
+        });
+        let pipeline = |entry: &str, layout: Option<&wgpu::PipelineLayout>| {
+            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(entry),
+                layout,
+                module: &module,
+                entry_point: Some(entry),
+                compilation_options: Default::default(),
+                cache: None,
+            })
+        };
+        let mut sort_uniform = uniform(11, core::mem::size_of::<PairSortParams>() as u64);
+        if let wgpu::BindingType::Buffer {
+            has_dynamic_offset, ..
+        } = &mut sort_uniform.ty
+        {
+            *has_dynamic_offset = true;
+        }
+        let sort_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("octoproxy pair sort"),
+            entries: &[storage(4, false), sort_uniform],
+        });
+        let sort_pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("octoproxy pair sort"),
+            bind_group_layouts: &[Some(&sort_layout)],
+            immediate_size: 0,
+        });
+        let kernel = PairKernel {
+            reset: pipeline("pair_reset_kernel", None),
+            speed: pipeline("pair_speed_kernel", None),
+            step: pipeline("pair_step_kernel", None),
+            key: pipeline("pair_key_kernel", None),
+            sort_pass: pipeline("pair_sort_pass_kernel", Some(&sort_pipeline_layout)),
+            sort_block: pipeline("pair_sort_block_kernel", Some(&sort_pipeline_layout)),
+            sort_layout,
+            rank: pipeline("pair_rank_kernel", None),
+            gather: pipeline("pair_gather_kernel", None),
+            start: pipeline("pair_start_kernel", None),
+            iterate: pipeline("pair_iterate_kernel", None),
+            scatter: pipeline("pair_scatter_kernel", None),
+            state: device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("octoproxy pair state"),
+                size: STATE_BYTES,
+                usage: wgpu::BufferUsages::STORAGE
+                    | wgpu::BufferUsages::COPY_DST
+                    | wgpu::BufferUsages::COPY_SRC,
+                // Zeroed: no counts yet.
+                mapped_at_creation: false,
+            }),
+        };
+        scope.pop().map_err(WgpuError::Shader)?;
+        self.pairs.kernel = Some(kernel);
+        Ok(())
+    }
+
+    /// The pass's buffers for `n` particles (kept while `n` is the same).
+    fn pair_buffers(&mut self, n: usize) -> Result<(), WgpuError> {
+        if self
+            .pairs
+            .buffers
+            .as_ref()
+            .is_some_and(|b| b.count as usize == n)
+        {
+            return Ok(());
+        }
+        self.pairs.buffers = None;
+        self.pairs.chunk_keys.clear();
+        self.pairs.chunk_groups.clear();
+        let table = pair_table_size(n);
+        let limits = self.device.limits();
+        let limit = limits
+            .max_storage_buffer_binding_size
+            .min(limits.max_buffer_size);
+        let sizes = [
+            ("the particle-particle pass's bodies", n as u64 * BODY_BYTES),
+            (
+                "the particle-particle pass's velocities",
+                n as u64 * VELOCITY_BYTES,
+            ),
+            (
+                "the particle-particle pass's supports",
+                n as u64 * SUPPORT_BYTES,
+            ),
+            ("the particle-particle pass's ranks", n as u64 * RANK_BYTES),
+            (
+                "the particle-particle pass's keys",
+                table as u64 * KEY_BYTES,
+            ),
+            (
+                "the particle-particle pass's table",
+                table as u64 * RANGE_BYTES,
+            ),
+        ];
+        for (what, needed) in sizes {
+            // The table's size (and so every index) must fit a u32 below 2^31.
+            if needed > limit || table > 1 << 31 {
+                return Err(WgpuError::TooLarge {
+                    what,
+                    needed,
+                    limit,
+                });
+            }
+        }
+        let kernel = self.pairs.kernel.as_ref().expect("built first");
+        let scope = ErrorScope::push(&self.device);
+        let device = &self.device;
+        let buffer = |label: &str, bytes: u64, usage: wgpu::BufferUsages| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: bytes.max(16),
+                usage: usage | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            })
+        };
+        let storage_usage = wgpu::BufferUsages::STORAGE;
+        let keys = buffer(
+            "octoproxy pair keys",
+            table as u64 * KEY_BYTES,
+            storage_usage,
+        );
+        // The padding sorts after every particle's key and stays at the end.
+        self.queue
+            .write_buffer(&keys, 0, bytemuck::cast_slice(&vec![[u32::MAX; 2]; table]));
+        let rank = buffer("octoproxy pair ranks", n as u64 * RANK_BYTES, storage_usage);
+        let bodies = buffer(
+            "octoproxy pair bodies",
+            n as u64 * BODY_BYTES,
+            storage_usage,
+        );
+        let vel = [
+            buffer(
+                "octoproxy pair velocities",
+                n as u64 * VELOCITY_BYTES,
+                storage_usage,
+            ),
+            buffer(
+                "octoproxy pair velocities",
+                n as u64 * VELOCITY_BYTES,
+                storage_usage,
+            ),
+        ];
+        let supports = buffer(
+            "octoproxy pair supports",
+            n as u64 * SUPPORT_BYTES,
+            storage_usage,
+        );
+        let ranges = buffer(
+            "octoproxy pair table",
+            table as u64 * RANGE_BYTES,
+            storage_usage,
+        );
+        let pass = buffer(
+            "octoproxy pair sizes",
+            core::mem::size_of::<PairPassParams>() as u64,
+            wgpu::BufferUsages::UNIFORM,
+        );
+        let sizes = PairPassParams {
+            count: n as u32,
+            table: table as u32,
+            ..Default::default()
+        };
+        self.queue
+            .write_buffer(&pass, 0, bytemuck::bytes_of(&sizes));
+        let stride = limits.min_uniform_buffer_offset_alignment.max(32);
+        let passes = sort_dispatches(table as u32);
+        let mut bytes = vec![0u8; passes.len().max(1) * stride as usize];
+        for (i, (_, p)) in passes.iter().enumerate() {
+            let at = i * stride as usize;
+            bytes[at..at + 32].copy_from_slice(bytemuck::bytes_of(p));
+        }
+        let sort = buffer(
+            "octoproxy pair sort passes",
+            bytes.len() as u64,
+            wgpu::BufferUsages::UNIFORM,
+        );
+        self.queue.write_buffer(&sort, 0, &bytes);
+        let state = kernel.state.as_entire_binding();
+        let reset_group = group(
+            device,
+            &kernel.reset,
+            "octoproxy pair reset",
+            &[
+                (3, state.clone()),
+                (9, ranges.as_entire_binding()),
+                (10, pass.as_entire_binding()),
+            ],
+        );
+        let step_group = group(
+            device,
+            &kernel.step,
+            "octoproxy pair step",
+            &[(3, state.clone())],
+        );
+        let sort_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("octoproxy pair sort"),
+            layout: &kernel.sort_layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 4,
+                    resource: keys.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 11,
+                    resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                        buffer: &sort,
+                        offset: 0,
+                        size: wgpu::BufferSize::new(core::mem::size_of::<PairSortParams>() as u64),
+                    }),
+                },
+            ],
+        });
+        let rank_group = group(
+            device,
+            &kernel.rank,
+            "octoproxy pair ranks",
+            &[
+                (3, state.clone()),
+                (4, keys.as_entire_binding()),
+                (5, rank.as_entire_binding()),
+                (9, ranges.as_entire_binding()),
+                (10, pass.as_entire_binding()),
+            ],
+        );
+        let iterate = |from: usize| {
+            group(
+                device,
+                &kernel.iterate,
+                "octoproxy pair iteration",
+                &[
+                    (3, state.clone()),
+                    (6, bodies.as_entire_binding()),
+                    (7, vel[from].as_entire_binding()),
+                    (8, vel[1 - from].as_entire_binding()),
+                    (9, ranges.as_entire_binding()),
+                    (12, supports.as_entire_binding()),
+                ],
+            )
+        };
+        let iterate_groups = [iterate(0), iterate(1)];
+        scope.pop().map_err(WgpuError::Gpu)?;
+        self.pairs.buffers = Some(PairBuffers {
+            count: n as u32,
+            table: table as u32,
+            keys,
+            rank,
+            bodies,
+            vel,
+            supports,
+            sort_blocks: passes.iter().map(|(block, _)| *block).collect(),
+            sort_stride: stride,
+            reset_group,
+            step_group,
+            sort_group,
+            rank_group,
+            iterate_groups,
+        });
+        Ok(())
+    }
+
+    /// Each chunk's bind groups, remade when the chunks or the proxy change.
+    fn pair_chunk_groups(&mut self) {
+        let Some((proxy, _)) = self.proxy() else {
+            return;
+        };
+        let proxy = proxy.clone();
+        let keys: Vec<ChunkKey> = self
+            .chunks
+            .iter()
+            .map(|c| {
+                (
+                    c.buffer.clone(),
+                    c.offset,
+                    c.count,
+                    c.params.clone(),
+                    c.hints.clone(),
+                    proxy.clone(),
+                )
+            })
+            .collect();
+        if keys == self.pairs.chunk_keys {
+            return;
+        }
+        let kernel = self.pairs.kernel.as_ref().expect("built first");
+        let buffers = self.pairs.buffers.as_ref().expect("made first");
+        let device = &self.device;
+        let state = kernel.state.as_entire_binding();
+        let groups = self
+            .chunks
+            .iter()
+            .map(|chunk| {
+                let particles = || {
+                    wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                        buffer: &chunk.buffer,
+                        offset: chunk.offset,
+                        size: wgpu::BufferSize::new(
+                            chunk.count as u64 * crate::backend::PARTICLE_BYTES,
+                        ),
+                    })
+                };
+                let params = chunk.params.as_entire_binding();
+                let scatter = |from: usize| {
+                    group(
+                        device,
+                        &kernel.scatter,
+                        "octoproxy pair scatter",
+                        &[
+                            (1, particles()),
+                            (2, params.clone()),
+                            (3, state.clone()),
+                            (5, buffers.rank.as_entire_binding()),
+                            (7, buffers.vel[from].as_entire_binding()),
+                        ],
+                    )
+                };
+                ChunkGroups {
+                    count: chunk.count,
+                    speed: group(
+                        device,
+                        &kernel.speed,
+                        "octoproxy pair speed",
+                        &[(1, particles()), (2, params.clone()), (3, state.clone())],
+                    ),
+                    key: group(
+                        device,
+                        &kernel.key,
+                        "octoproxy pair keys",
+                        &[
+                            (1, particles()),
+                            (2, params.clone()),
+                            (3, state.clone()),
+                            (4, buffers.keys.as_entire_binding()),
+                        ],
+                    ),
+                    gather: group(
+                        device,
+                        &kernel.gather,
+                        "octoproxy pair gather",
+                        &[
+                            (1, particles()),
+                            (2, params.clone()),
+                            (3, state.clone()),
+                            (5, buffers.rank.as_entire_binding()),
+                            (6, buffers.bodies.as_entire_binding()),
+                        ],
+                    ),
+                    start: group(
+                        device,
+                        &kernel.start,
+                        "octoproxy pair start",
+                        &[
+                            (0, proxy.as_entire_binding()),
+                            (1, particles()),
+                            (2, params.clone()),
+                            (3, state.clone()),
+                            (5, buffers.rank.as_entire_binding()),
+                            (8, buffers.vel[0].as_entire_binding()),
+                            (12, buffers.supports.as_entire_binding()),
+                            (13, chunk.hints.as_entire_binding()),
+                        ],
+                    ),
+                    scatter: [scatter(0), scatter(1)],
+                }
+            })
+            .collect();
+        self.pairs.chunk_groups = groups;
+        self.pairs.chunk_keys = keys;
+    }
+
+    pub(crate) fn step_pairs_gpu(
+        &mut self,
+        params: &StepParams,
+        pairs: &PairParams,
+        steps: u32,
+    ) -> Result<(), WgpuError> {
+        params.validate()?;
+        pairs.validate(params)?;
+        self.check_health()?;
+        let n = self.count;
+        if n >= PAIR_HASH_NONE as usize {
+            return Err(WgpuError::LengthMismatch {
+                expected: PAIR_HASH_NONE as usize - 1,
+                got: n,
+            });
+        }
+        let Some((_, baked)) = self.proxy() else {
+            return Err(WgpuError::NoProxy);
+        };
+        octoproxy_core::check_radius(baked, params.radius)?;
+        let substeps = pair_substeps(params, pairs);
+        let h = params.dt / substeps as f32;
+        // Gravity is integrated by the pass; the march moves each particle with what it left.
+        let march = StepParams {
+            gravity: [0.0; 3],
+            dt: h,
+            ..*params
+        };
+        march.validate()?;
+        if n > 0 && steps > 0 {
+            self.pair_kernel()?;
+            self.pair_buffers(n)?;
+            self.pair_chunk_groups();
+            self.record_pairs(params, pairs, &march, h, steps)?;
+        }
+        self.pairs.pending.steps += steps as u64;
+        self.pairs.pending.substeps += steps as u64 * substeps as u64;
+        self.check_health()
+    }
+
+    fn record_pairs(
+        &self,
+        params: &StepParams,
+        pairs: &PairParams,
+        march: &StepParams,
+        h: f32,
+        steps: u32,
+    ) -> Result<(), WgpuError> {
+        let kernel = self.pairs.kernel.as_ref().expect("built first");
+        let buffers = self.pairs.buffers.as_ref().expect("made first");
+        let n = buffers.count;
+        let substeps = pair_substeps(params, pairs);
+        let scope = ErrorScope::push(&self.device);
+        // Everything of the substep's constants but the cell, which the GPU computes from
+        // the largest speed (`pair_step_kernel`); the counts after it are left alone.
+        let s = PairStep::new(params, pairs, h, n as usize, 0.0);
+        self.queue
+            .write_buffer(&kernel.state, 0, bytemuck::bytes_of(&s));
+        self.write_step_params(march);
+        let chunks = &self.pairs.chunk_groups;
+        for _ in 0..steps {
+            let mut encoder = self.device.create_command_encoder(&Default::default());
+            for _ in 0..substeps {
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("octoproxy pair substep"),
+                    timestamp_writes: None,
+                });
+                let dispatch = |pass: &mut wgpu::ComputePass<'_>, count: u32| {
+                    let (x, y) = self.dispatch_size(count);
+                    pass.dispatch_workgroups(x, y, 1);
+                };
+                pass.set_pipeline(&kernel.reset);
+                pass.set_bind_group(0, &buffers.reset_group, &[]);
+                dispatch(&mut pass, buffers.table);
+                pass.set_pipeline(&kernel.speed);
+                for c in chunks {
+                    pass.set_bind_group(0, &c.speed, &[]);
+                    dispatch(&mut pass, c.count);
+                }
+                pass.set_pipeline(&kernel.step);
+                pass.set_bind_group(0, &buffers.step_group, &[]);
+                pass.dispatch_workgroups(1, 1, 1);
+                pass.set_pipeline(&kernel.key);
+                for c in chunks {
+                    pass.set_bind_group(0, &c.key, &[]);
+                    dispatch(&mut pass, c.count);
+                }
+                for (i, &block) in buffers.sort_blocks.iter().enumerate() {
+                    let offset = i as u32 * buffers.sort_stride;
+                    if block {
+                        pass.set_pipeline(&kernel.sort_block);
+                        pass.set_bind_group(0, &buffers.sort_group, &[offset]);
+                        let groups = buffers.table / buffers.table.min(PAIR_SORT_BLOCK);
+                        let (x, y) = self.fold(groups);
+                        pass.dispatch_workgroups(x, y, 1);
+                    } else {
+                        pass.set_pipeline(&kernel.sort_pass);
+                        pass.set_bind_group(0, &buffers.sort_group, &[offset]);
+                        dispatch(&mut pass, buffers.table / 2);
+                    }
+                }
+                pass.set_pipeline(&kernel.rank);
+                pass.set_bind_group(0, &buffers.rank_group, &[]);
+                dispatch(&mut pass, n);
+                pass.set_pipeline(&kernel.gather);
+                for c in chunks {
+                    pass.set_bind_group(0, &c.gather, &[]);
+                    dispatch(&mut pass, c.count);
+                }
+                pass.set_pipeline(&kernel.start);
+                for c in chunks {
+                    pass.set_bind_group(0, &c.start, &[]);
+                    dispatch(&mut pass, c.count);
+                }
+                pass.set_pipeline(&kernel.iterate);
+                for i in 0..pairs.iterations {
+                    pass.set_bind_group(0, &buffers.iterate_groups[i as usize % 2], &[]);
+                    dispatch(&mut pass, n);
+                }
+                pass.set_pipeline(&kernel.scatter);
+                let last = pairs.iterations as usize % 2;
+                for c in chunks {
+                    pass.set_bind_group(0, &c.scatter[last], &[]);
+                    dispatch(&mut pass, c.count);
+                }
+                self.record_step(&mut pass);
+            }
+            self.queue.submit([encoder.finish()]);
+        }
+        scope.pop().map_err(WgpuError::Gpu)
+    }
+
+    pub(crate) fn take_pair_report_gpu(&mut self) -> Result<PairReport, WgpuError> {
+        self.check_health()?;
+        let mut report = std::mem::take(&mut self.pairs.pending);
+        if let Some(kernel) = &self.pairs.kernel {
+            let bytes = self.read_back(&[(&kernel.state, COUNTS_AT, 16)])?;
+            let w: &[u32] = bytemuck::cast_slice(&bytes[0]);
+            let wide = |lo: u32, hi: u32| (hi as u64) << 32 | lo as u64;
+            report.fast += wide(w[0], w[1]);
+            report.capped += wide(w[2], w[3]);
+            self.queue
+                .write_buffer(&kernel.state, COUNTS_AT, &[0u8; 16]);
+        }
+        Ok(report)
+    }
+}

@@ -1,0 +1,277 @@
+// The particle-particle pass, as core/src/pairs.rs (read its module documentation for the
+// rules): the same functions under the same names, the same order of floating-point
+// operations (glam's `Vec3::dot` is `dot3`, x then y then z; `f32::clamp` is the builtin,
+// whose inputs here are never NaN). A Rust `Option<T>` is a `TOption { value, some }`. The
+// pass's buffers hold every particle, whatever chunk it lies in; `pairs_kernel.wgsl` runs the
+// pass over them, a kernel per stage, and `backend-wgpu/src/pairs.rs` records the dispatches.
+
+// core's `PairStep`: 80 bytes. The host writes every field but `cell` and `inv_cell`, which
+// `pair_step_kernel` computes from the substep's largest speed without a read-back.
+struct PairStep {
+    gravity_h: vec3<f32>,
+    h: f32,
+    up: vec3<f32>,
+    inv_h: f32,
+    radius: f32,
+    diameter: f32,
+    inv_diameter: f32,
+    cell: f32,
+    inv_cell: f32,
+    mask: u32,
+    restitution: f32,
+    friction: f32,
+    relaxation: f32,
+    half_stacking: f32,
+    max_candidates: u32,
+    scene_friction: f32,
+}
+
+// core's `PairBody`: 32 bytes.
+struct PairBody {
+    position: vec3<f32>,
+    index: u32,
+    cell: vec3<i32>,
+    hash: u32,
+}
+
+// The substep's constants and what the pass counts (the Rust twin is
+// `octoproxy_wgpu::PairState`): the largest speed's bits (speeds are >= 0, so the order of
+// the bits is the order of the values), the valid particles (the sorted keys before the first
+// `PAIR_HASH_NONE`), the report's counts as low and high words, and a zero read at run time
+// (see `pair_velocity`).
+struct PairState {
+    step: PairStep,
+    v_max: atomic<u32>,
+    valid: u32,
+    fast_lo: atomic<u32>,
+    fast_hi: atomic<u32>,
+    capped_lo: atomic<u32>,
+    capped_hi: atomic<u32>,
+    zero: f32,
+    _pad: u32,
+}
+
+@group(0) @binding(3) var<storage, read_write> pair_state: PairState;
+// `(hash, index)` per particle, sorted in place; padded to the table's size with
+// `(u32::MAX, u32::MAX)`, which sorts after every particle's key.
+@group(0) @binding(4) var<storage, read_write> pair_keys: array<vec2<u32>>;
+// The particles in sorted order.
+@group(0) @binding(6) var<storage, read_write> pair_bodies: array<PairBody>;
+// The last iteration's velocities (in sorted order), and the next iteration's.
+@group(0) @binding(7) var<storage, read> pair_vel: array<vec4<f32>>;
+@group(0) @binding(8) var<storage, read_write> pair_vel_next: array<vec4<f32>>;
+// Each hash's `[start, end)` in the sorted order; `[0, 0]` when empty.
+@group(0) @binding(9) var<storage, read_write> pair_ranges: array<vec2<u32>>;
+// Each grain's support (`pair_support`), in sorted order.
+@group(0) @binding(12) var<storage, read_write> pair_supports: array<vec4<f32>>;
+
+// Rust's `Option<(Vec3, f32)>` of `pair_prepare`.
+struct PreparedOption {
+    v: vec3<f32>,
+    speed: f32,
+    some: bool,
+}
+
+struct Vec3Option {
+    value: vec3<f32>,
+    some: bool,
+}
+
+// Rust's `(PairVelocity, [f32; 4])` of `pair_start`.
+struct PairStart {
+    v: vec4<f32>,
+    support: vec4<f32>,
+}
+
+// Rust's `(PairVelocity, bool)` of `pair_velocity`.
+struct PairVelocityOut {
+    v: vec4<f32>,
+    capped: bool,
+}
+
+fn pair_cell_edge(diameter: f32, radius: f32, v_max: f32, h: f32) -> f32 {
+    var d = v_max * h;
+    if !(d < radius) {
+        d = radius;
+    }
+    return (diameter + 2.0 * d) * PAIR_CELL_MARGIN;
+}
+
+fn pair_is_fast(speed: f32, s: PairStep) -> bool {
+    return speed * s.h > s.radius;
+}
+
+fn pair_prepare(p: Particle, s: PairStep) -> PreparedOption {
+    let x = p.position;
+    let v = p.velocity + s.gravity_h;
+    if !is_finite3(x) || !is_finite3(v) {
+        return PreparedOption(vec3<f32>(0.0), 0.0, false);
+    }
+    return PreparedOption(v, sqrt(dot3(v, v)), true);
+}
+
+fn pair_cell(x: vec3<f32>, s: PairStep) -> vec3<i32> {
+    let f = floor(x * s.inv_cell);
+    let c = vec3<i32>(clamp(f, vec3<f32>(-PAIR_CELL_LIMIT), vec3<f32>(PAIR_CELL_LIMIT)));
+    // Rust's `as i32` takes a NaN (kept by `f32::clamp`) to 0.
+    let nan = (bitcast<vec3<u32>>(f) & vec3<u32>(0x7fffffffu)) > vec3<u32>(0x7f800000u);
+    return select(c, vec3<i32>(0), nan);
+}
+
+// `load_header` must have run (the support is a leaf of the proxy).
+fn pair_support(p: Particle, hint: vec2<u32>) -> vec4<f32> {
+    if (hint.y & HINT_SURFACE) == 0u || (p.side & ~SIDE_MASK) != 0u {
+        return vec4<f32>(0.0);
+    }
+    let leaf = leaf_hint_leaf(hint, p.position);
+    if !leaf.some {
+        return vec4<f32>(0.0);
+    }
+    var n = leaf.value.normal;
+    if p.side == SIDE_BACK {
+        n = -leaf.value.normal;
+    }
+    return vec4<f32>(n, 1.0);
+}
+
+// `load_header` must have run. The restitution of the support's response is zero, read at
+// run time (see `pair_velocity`).
+fn pair_start(p: Particle, hint: vec2<u32>, s: PairStep) -> PairStart {
+    var v = vec3<f32>(0.0);
+    let prepared = pair_prepare(p, s);
+    if prepared.some {
+        v = prepared.v;
+    }
+    let support = pair_support(p, hint);
+    if support.w != 0.0 {
+        v = respond(v, support.xyz, pair_state.zero, s.scene_friction);
+    }
+    return PairStart(vec4<f32>(v, 0.0), support);
+}
+
+// Wrapping multiplies, as Rust's `wrapping_mul`.
+fn pair_hash(c: vec3<i32>, mask: u32) -> u32 {
+    var h = (bitcast<u32>(c.x) * 0x8da6b343u) ^ (bitcast<u32>(c.y) * 0xd8163841u)
+        ^ (bitcast<u32>(c.z) * 0xcb1ab31fu);
+    h ^= h >> 16u;
+    h = h * 0x7feb352du;
+    h ^= h >> 15u;
+    h = h * 0x846ca68bu;
+    h ^= h >> 16u;
+    return h & mask;
+}
+
+// Whether sorted position `k` is the first and the last entry of its bucket in `pair_keys`,
+// which holds `len` keys (the padding's hash is `PAIR_HASH_NONE`, as every invalid
+// particle's, so it ends a bucket as the array's end does).
+fn pair_range_marks(k: u32, len: u32) -> vec2<bool> {
+    let h = pair_keys[k].x;
+    if h == PAIR_HASH_NONE {
+        return vec2<bool>(false, false);
+    }
+    let first = k == 0u || pair_keys[k - 1u].x != h;
+    let last = k + 1u == len || pair_keys[k + 1u].x != h;
+    return vec2<bool>(first, last);
+}
+
+fn pair_impulse(me: PairBody, v: vec3<f32>, other: PairBody, w: vec3<f32>, s: PairStep) -> Vec3Option {
+    let none = Vec3Option(vec3<f32>(0.0), false);
+    let x = me.position - other.position;
+    let d2 = dot3(x, x);
+    var dist = 0.0;
+    var n = vec3<f32>(0.0, select(-1.0, 1.0, me.index > other.index), 0.0);
+    if d2 > 0.0 {
+        dist = sqrt(d2);
+        n = x * (1.0 / dist);
+    }
+    let gap = dist - s.diameter;
+    let vr = v - w;
+    let vn = dot3(vr, n);
+    if gap + vn * s.h >= 0.0 {
+        return none;
+    }
+    var closing = s.relaxation * gap * s.inv_h;
+    if gap >= 0.0 {
+        closing = gap * s.inv_h;
+    }
+    var target_vn = s.restitution * -vn + (1.0 - s.restitution) * -closing;
+    if gap < 0.0 && target_vn < -closing {
+        target_vn = -closing;
+    }
+    let jn = target_vn - vn;
+    if !(jn > 0.0) {
+        return none;
+    }
+    let vt = vr - n * vn;
+    let t2 = dot3(vt, vt);
+    var dv = n * jn;
+    if t2 > 0.0 {
+        let tl = sqrt(t2);
+        let limit = s.friction * jn;
+        var keep = 1.0;
+        if !(tl <= limit) {
+            keep = limit / tl;
+        }
+        dv = dv - vt * keep;
+    }
+    let height = clamp(dot3(x, s.up) * s.inv_diameter, -1.0, 1.0);
+    let share = 0.5 + height * s.half_stacking;
+    return Vec3Option(dv * share, true);
+}
+
+// One Jacobi iteration for the particle at sorted position `k`: the 27 cells around its own,
+// z then y then x from -1 to 1, each bucket in sorted order, velocities from `pair_vel`, then
+// its support's response. Rust's `respond(.., 0.0, ..)` takes a restitution of zero: here it
+// is read at run time (`pair_state.zero`), for a constant one lets the compiler fold
+// `v_n * 0.0` to +0, where IEEE gives -0 for a negative `v_n`.
+fn pair_velocity(k: u32, s: PairStep) -> PairVelocityOut {
+    let me = pair_bodies[k];
+    let v = pair_vel[k].xyz;
+    var sum = vec3<f32>(0.0);
+    var contacts = 0u;
+    var visited = 0u;
+    var capped = false;
+    for (var dz = -1; dz <= 1; dz++) {
+        for (var dy = -1; dy <= 1; dy++) {
+            for (var dx = -1; dx <= 1; dx++) {
+                let c = me.cell + vec3<i32>(dx, dy, dz);
+                let r = pair_ranges[pair_hash(c, s.mask)];
+                for (var m = r.x; m < r.y; m++) {
+                    if visited == s.max_candidates {
+                        capped = true;
+                        break;
+                    }
+                    visited += 1u;
+                    let o = pair_bodies[m];
+                    if m == k || any(o.cell != c) {
+                        continue;
+                    }
+                    let w = pair_vel[m].xyz;
+                    let dv = pair_impulse(me, v, o, w, s);
+                    if dv.some {
+                        sum += dv.value;
+                        contacts += 1u;
+                    }
+                }
+                if capped {
+                    break;
+                }
+            }
+            if capped {
+                break;
+            }
+        }
+        if capped {
+            break;
+        }
+    }
+    var out = v;
+    if contacts > 0u {
+        out = v + sum * (1.0 / f32(contacts));
+    }
+    let support = pair_supports[k];
+    if support.w != 0.0 {
+        out = respond(out, support.xyz, pair_state.zero, s.scene_friction);
+    }
+    return PairVelocityOut(vec4<f32>(out, 0.0), capped);
+}

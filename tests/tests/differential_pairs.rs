@@ -1,0 +1,453 @@
+//! The particle-particle pass (`Backend::step_pairs`) on the CPU and on the GPU (wgpu;
+//! lavapipe in CI), compared bit for bit: every particle's position, velocity, side and flags,
+//! and the pass's report.
+//!
+//! The pass sorts its particles by a total order and every particle sums its contacts in a
+//! fixed order, reading only the last iteration's velocities (core's `pairs` module), so the
+//! GPU's mirror (`backend-wgpu/src/wgsl/pairs.wgsl`) gives the CPU's bits wherever division
+//! and square roots are correctly rounded and nothing is fused: on lavapipe. A pile amplifies
+//! any difference of an ULP within a few steps, so a mirror that drifts anywhere the scenes
+//! reach cannot pass there. On other adapters (Vulkan allows `x / y` and `sqrt` within 2.5
+//! ULP) only the counts of the report are checked, and the agreement is printed.
+//!
+//! The scenes: (a) two particles head-on, with and without gravity; (b) a pile of 2,200
+//! particles poured into a box, for two seconds, with friction, stacking and the iteration
+//! count doing their work (3 and 4 iterations: the last iteration's velocities in either
+//! buffer); (c) coincident particles, particles with NaN and infinite positions and
+//! velocities (left out of the pass), and fast ones, with a neighbour cap low enough to be
+//! hit; (d) a count that is not a power of two split into several chunks, with the dispatch
+//! folded into two dimensions.
+
+use octoproxy_core::{Backend, PairParams, PairReport, Particle, ProxyView, StepParams};
+use octoproxy_cpu::bake::offset::OffsetSurface;
+use octoproxy_cpu::io::Mesh;
+use octoproxy_cpu::{bake_offset, scenes, BuildParams, CpuBackend, MeshRef, Sides};
+use octoproxy_wgpu::{WgpuBackend, WgpuError};
+
+const DT: f32 = 1.0 / 60.0;
+
+/// The GPU backend, on any adapter (lavapipe included). Without one: a failure under
+/// `CI=true`, a "skipped" message otherwise.
+fn gpu() -> Option<WgpuBackend> {
+    match WgpuBackend::new() {
+        Ok(gpu) => {
+            eprintln!("GPU adapter: {}", gpu.description());
+            Some(gpu)
+        }
+        Err(e) if std::env::var("CI").as_deref() == Ok("true") => {
+            panic!("CI=true needs a GPU adapter (lavapipe: apt install mesa-vulkan-drivers libvulkan1): {e}")
+        }
+        Err(e) => {
+            eprintln!("skipped: {e}");
+            None
+        }
+    }
+}
+
+/// Whether the adapter is lavapipe (llvmpipe), where every bit must agree.
+fn is_lavapipe(gpu: &WgpuBackend) -> bool {
+    gpu.description().to_lowercase().contains("llvmpipe")
+}
+
+/// A proxy baked for a radius, and the offset surface that places and sides particles.
+struct Baked {
+    words: Vec<u32>,
+    surface: OffsetSurface,
+}
+
+fn bake_for(meshes: &[Mesh], dmax: u32, radius: f32) -> Baked {
+    let refs: Vec<MeshRef<'_>> = meshes.iter().map(MeshRef::from).collect();
+    let params = BuildParams {
+        dmax,
+        ..BuildParams::default()
+    };
+    let surface = OffsetSurface::new(&refs, radius, dmax, &()).unwrap();
+    let (words, _) = bake_offset(&surface, &params, &()).unwrap();
+    Baked { words, surface }
+}
+
+impl Baked {
+    /// Starting particles out of the band, with their sides and cages from the offset surface.
+    fn start(&self, ps: &mut [Particle]) {
+        let view = ProxyView::new(&self.words).unwrap();
+        self.surface.place(ps, Some(&view));
+        let offset = [self.surface.mesh_ref()];
+        let sides = Sides::new(&offset);
+        sides.assign(ps, false);
+        sides.cages(&view, ps, false);
+    }
+}
+
+/// A closed box (particles inside it), baked for radius `r`.
+fn box_scene(min: [f32; 3], max: [f32; 3], dmax: u32, r: f32) -> Baked {
+    bake_for(&[scenes::cube(min, max)], dmax, r)
+}
+
+/// How the two runs compare: the particles whose 32 bytes differ, and the first of them.
+fn differing(cpu: &[Particle], gpu: &[Particle]) -> (usize, Option<usize>) {
+    let mut count = 0;
+    let mut first = None;
+    for (i, (c, g)) in cpu.iter().zip(gpu).enumerate() {
+        if bytemuck::bytes_of(c) != bytemuck::bytes_of(g) {
+            count += 1;
+            first.get_or_insert(i);
+        }
+    }
+    (count, first)
+}
+
+/// One scene run on both backends.
+struct Run<'a> {
+    name: &'a str,
+    baked: &'a Baked,
+    particles: Vec<Particle>,
+    params: StepParams,
+    pairs: PairParams,
+    /// Calls of `step_pairs`, each of `steps_per_call` steps; the particles are compared
+    /// after every call.
+    calls: u32,
+    steps_per_call: u32,
+    /// The GPU's chunk size and dispatch fold, when forced.
+    chunk_particles: Option<u32>,
+    fold_width: Option<u32>,
+}
+
+impl Run<'_> {
+    /// Runs both backends and compares them; returns the CPU's report and particles.
+    fn compare(self) -> Option<(PairReport, Vec<Particle>)> {
+        let mut gpu = gpu()?;
+        let exact = is_lavapipe(&gpu);
+        let mut cpu = CpuBackend::new();
+        if let Some(n) = self.chunk_particles {
+            gpu.set_chunk_particles(n);
+        }
+        if let Some(w) = self.fold_width {
+            gpu.set_fold_width(w);
+        }
+        for b in [&mut cpu as &mut dyn Stepper, &mut gpu] {
+            b.load(&self.baked.words, &self.particles);
+        }
+        if let Some(n) = self.chunk_particles {
+            assert!(
+                gpu.chunk_count() > 1,
+                "{}: {} particles in one chunk of {n}",
+                self.name,
+                self.particles.len()
+            );
+        }
+        let n = self.particles.len();
+        let (mut a, mut b) = (vec![Particle::default(); n], vec![Particle::default(); n]);
+        let t = std::time::Instant::now();
+        let (mut cpu_time, mut gpu_time) = (0.0, 0.0);
+        for call in 0..self.calls {
+            let t0 = std::time::Instant::now();
+            cpu.step_pairs(&self.params, &self.pairs, self.steps_per_call)
+                .unwrap();
+            let t1 = std::time::Instant::now();
+            gpu.step_pairs(&self.params, &self.pairs, self.steps_per_call)
+                .unwrap();
+            gpu.finish().unwrap();
+            cpu_time += (t1 - t0).as_secs_f64();
+            gpu_time += t1.elapsed().as_secs_f64();
+            cpu.download_particles(&mut a).unwrap();
+            gpu.download_particles(&mut b).unwrap();
+            let (count, first) = differing(&a, &b);
+            if let Some(i) = first {
+                let step = (call + 1) * self.steps_per_call;
+                eprintln!(
+                    "{}: {count} of {n} particles differ after step {step}; the first, {i}:\n  cpu {:?}\n  gpu {:?}",
+                    self.name, a[i], b[i]
+                );
+                assert!(!exact, "{}: the GPU must give the CPU's bits", self.name);
+            }
+        }
+        let (cr, gr) = (
+            cpu.take_pair_report().unwrap(),
+            gpu.take_pair_report().unwrap(),
+        );
+        eprintln!(
+            "{}: {n} particles, {} steps in {:.1?} (cpu {cpu_time:.2} s, gpu {gpu_time:.2} s); {cr:?}",
+            self.name,
+            self.calls * self.steps_per_call,
+            t.elapsed()
+        );
+        if exact {
+            assert_eq!(gr, cr, "{}: the reports differ", self.name);
+        } else {
+            assert_eq!(
+                (gr.steps, gr.substeps),
+                (cr.steps, cr.substeps),
+                "{}",
+                self.name
+            );
+        }
+        // Taken: both start again from zero.
+        assert_eq!(cpu.take_pair_report().unwrap(), PairReport::default());
+        assert_eq!(gpu.take_pair_report().unwrap(), PairReport::default());
+        Some((cr, a))
+    }
+}
+
+/// What both backends do the same way before the pass: take a proxy and particles.
+trait Stepper {
+    fn load(&mut self, words: &[u32], particles: &[Particle]);
+}
+
+impl<B: Backend> Stepper for B {
+    fn load(&mut self, words: &[u32], particles: &[Particle]) {
+        self.upload_proxy(words).unwrap();
+        self.upload_particles(particles).unwrap();
+    }
+}
+
+/// A block of `n` particles on a grid of `gap` from `corner`, each a little off it, at rest or
+/// with velocities of up to `speed` in each direction.
+fn block(n: [usize; 3], corner: [f32; 3], gap: f32, speed: f32) -> Vec<Particle> {
+    let mut rng = octoproxy_cpu::emit::Rng::new(7);
+    let mut ps = Vec::new();
+    for iy in 0..n[1] {
+        for iz in 0..n[2] {
+            for ix in 0..n[0] {
+                let jitter = ((ix * 7 + iy * 13 + iz * 29) % 11) as f32 * 0.01 * gap;
+                ps.push(Particle::new(
+                    [
+                        corner[0] + ix as f32 * gap + jitter,
+                        corner[1] + iy as f32 * gap,
+                        corner[2] + iz as f32 * gap - jitter,
+                    ],
+                    [
+                        rng.range(-speed, speed),
+                        rng.range(-speed, speed),
+                        rng.range(-speed, speed),
+                    ],
+                ));
+            }
+        }
+    }
+    ps
+}
+
+#[test]
+fn a_head_on_pair_on_both_backends() {
+    let r = 0.15;
+    let baked = box_scene([-0.5, 0.0, -0.5], [0.5, 4.0, 0.5], 6, r);
+    for (gravity, e, mu) in [
+        ([0.0; 3], 1.0, 0.0),
+        ([0.0; 3], 0.5, 0.3),
+        ([0.0, -9.81, 0.0], 0.1, 0.5),
+    ] {
+        let mut ps = vec![
+            Particle::new([-0.3, 2.0, 0.01], [1.5, 0.2, 0.0]),
+            Particle::new([0.3, 2.0, -0.01], [-0.5, -0.1, 0.0]),
+        ];
+        baked.start(&mut ps);
+        let name = format!("head-on, gravity {gravity:?}, e {e}, mu {mu}");
+        let Some((report, out)) = (Run {
+            name: &name,
+            baked: &baked,
+            particles: ps.clone(),
+            params: StepParams {
+                gravity,
+                dt: DT,
+                radius: r,
+                ..StepParams::default()
+            },
+            pairs: PairParams {
+                restitution: e,
+                friction: mu,
+                ..PairParams::default()
+            },
+            calls: 30,
+            steps_per_call: 1,
+            chunk_particles: None,
+            fold_width: None,
+        })
+        .compare() else {
+            return;
+        };
+        assert_eq!(report.steps, 30);
+        // They met.
+        assert!(out[0].velocity[0] < 1.0, "{name}: they never met");
+    }
+}
+
+#[test]
+fn a_pile_in_a_box_on_both_backends() {
+    let r = 0.05;
+    let baked = box_scene([-0.6, 0.0, -0.6], [0.6, 3.0, 0.6], 7, r);
+    let mut ps = block([10, 22, 10], [-0.495, 0.2, -0.495], 2.2 * r, 1.0);
+    baked.start(&mut ps);
+    assert_eq!(ps.len(), 2200);
+    for (iterations, friction, restitution) in [(4, 0.5, 0.1), (3, 0.8, 0.3)] {
+        let name = format!("a pile, {iterations} iterations, mu {friction}, e {restitution}");
+        let Some((report, out)) = (Run {
+            name: &name,
+            baked: &baked,
+            particles: ps.clone(),
+            params: StepParams {
+                dt: DT,
+                radius: r,
+                restitution: 0.1,
+                friction: 0.5,
+                ..StepParams::default()
+            },
+            pairs: PairParams {
+                iterations,
+                friction,
+                restitution,
+                ..PairParams::default()
+            },
+            calls: 8,
+            steps_per_call: 12,
+            chunk_particles: None,
+            fold_width: None,
+        })
+        .compare() else {
+            return;
+        };
+        assert!(report.substeps > report.steps, "{name}: {report:?}");
+        // It piled up: the lowest layer rests on the floor, with others stacked on it.
+        let low = out.iter().filter(|p| p.position[1] < 3.0 * r).count();
+        let high = out.iter().filter(|p| p.position[1] > 8.0 * r).count();
+        assert!(low > 50 && high > 50, "{name}: {low} low, {high} high");
+    }
+}
+
+#[test]
+fn coincident_invalid_and_fast_particles_on_both_backends() {
+    let r = 0.05;
+    let baked = box_scene([-0.6, 0.0, -0.6], [0.6, 3.0, 0.6], 7, r);
+    let mut ps = block([6, 4, 6], [-0.3, 0.5, -0.3], 2.05 * r, 0.0);
+    // Six on one point, and pairs on one point.
+    for _ in 0..6 {
+        ps.push(Particle::new([0.1, 1.5, 0.1], [0.0; 3]));
+    }
+    for k in 0..4 {
+        let x = [-0.4 + 0.2 * k as f32, 2.0, 0.3];
+        ps.push(Particle::new(x, [0.0, -1.0, 0.0]));
+        ps.push(Particle::new(x, [0.5, 0.0, 0.0]));
+    }
+    // Fast: past a radius per substep; one so fast its speed overflows to infinity.
+    ps.push(Particle::new([0.0, 2.5, 0.0], [0.0, -40.0, 0.0]));
+    ps.push(Particle::new([0.2, 2.5, -0.2], [3e20, 0.0, 1e20]));
+    baked.start(&mut ps);
+    // Left out of the pass: positions and velocities that are not finite (the march flags
+    // them), in among the others.
+    let bad = [
+        Particle::new([f32::NAN, 1.0, 0.0], [0.0; 3]),
+        Particle::new([0.0, f32::INFINITY, 0.0], [0.0; 3]),
+        Particle::new([0.1, 1.0, f32::NEG_INFINITY], [0.0; 3]),
+        Particle::new([0.1, 0.6, 0.1], [f32::NAN, 0.0, 0.0]),
+        Particle::new([0.1, 0.7, 0.1], [0.0, f32::INFINITY, 0.0]),
+    ];
+    for (k, p) in bad.into_iter().enumerate() {
+        ps.insert(17 * k + 3, p);
+    }
+    let Some((report, _)) = (Run {
+        name: "coincident, invalid and fast",
+        baked: &baked,
+        particles: ps,
+        params: StepParams {
+            dt: DT,
+            radius: r,
+            ..StepParams::default()
+        },
+        pairs: PairParams {
+            max_candidates: 6,
+            iterations: 5,
+            ..PairParams::default()
+        },
+        calls: 15,
+        steps_per_call: 2,
+        chunk_particles: None,
+        fold_width: None,
+    })
+    .compare() else {
+        return;
+    };
+    assert!(report.capped > 0, "{report:?}");
+    assert!(report.fast > 0, "{report:?}");
+}
+
+#[test]
+fn many_chunks_and_a_folded_dispatch_on_both_backends() {
+    let r = 0.05;
+    let baked = box_scene([-0.6, 0.0, -0.6], [0.6, 3.0, 0.6], 7, r);
+    let mut ps = block([9, 13, 9], [-0.44, 0.2, -0.44], 2.2 * r, 0.5);
+    baked.start(&mut ps);
+    assert_eq!(ps.len(), 1053);
+    let _ = (Run {
+        name: "1053 particles in chunks of 256, rows of 3 workgroups",
+        baked: &baked,
+        particles: ps,
+        params: StepParams {
+            dt: DT,
+            radius: r,
+            ..StepParams::default()
+        },
+        pairs: PairParams::default(),
+        calls: 2,
+        steps_per_call: 30,
+        chunk_particles: Some(256),
+        fold_width: Some(3),
+    })
+    .compare();
+}
+
+#[test]
+fn both_backends_refuse_the_same_parameters() {
+    let Some(mut gpu) = gpu() else {
+        return;
+    };
+    let r = 0.15;
+    let baked = box_scene([-0.5, 0.0, -0.5], [0.5, 4.0, 0.5], 6, r);
+    let ps = [Particle::new([0.0, 1.0, 0.0], [0.0; 3])];
+    let step = StepParams {
+        radius: r,
+        ..StepParams::default()
+    };
+    let pairs = PairParams::default();
+    assert!(matches!(
+        gpu.step_pairs(&step, &pairs, 1),
+        Err(WgpuError::NoProxy)
+    ));
+    let mut cpu = CpuBackend::new();
+    cpu.load(&baked.words, &ps);
+    gpu.load(&baked.words, &ps);
+    let no_radius = StepParams {
+        radius: 0.0,
+        ..step
+    };
+    let e = gpu.step_pairs(&no_radius, &pairs, 1).unwrap_err();
+    assert!(matches!(e, WgpuError::Pairs(_)), "{e}");
+    assert!(cpu.step_pairs(&no_radius, &pairs, 1).is_err());
+    let other = StepParams {
+        radius: 0.2,
+        ..step
+    };
+    let e = gpu.step_pairs(&other, &pairs, 1).unwrap_err();
+    assert!(matches!(e, WgpuError::Radius(_)), "{e}");
+    let bad = PairParams {
+        iterations: 0,
+        ..pairs
+    };
+    let (g, c) = (
+        gpu.step_pairs(&step, &bad, 1).unwrap_err(),
+        cpu.step_pairs(&step, &bad, 1).unwrap_err(),
+    );
+    match (g, c) {
+        (WgpuError::Pairs(g), octoproxy_cpu::CpuError::Pairs(c)) => assert_eq!(g, c),
+        (g, c) => panic!("{g} / {c}"),
+    }
+    // Nothing was stepped, and no step was counted.
+    assert_eq!(gpu.take_pair_report().unwrap(), PairReport::default());
+    // No particles: the steps count, nothing runs.
+    gpu.upload_particles(&[]).unwrap();
+    cpu.upload_particles(&[]).unwrap();
+    gpu.step_pairs(&step, &pairs, 3).unwrap();
+    cpu.step_pairs(&step, &pairs, 3).unwrap();
+    assert_eq!(
+        gpu.take_pair_report().unwrap(),
+        cpu.take_pair_report().unwrap()
+    );
+}

@@ -10,7 +10,8 @@
 //! reach cannot pass there. On other adapters (Vulkan allows `x / y` and `sqrt` within 2.5
 //! ULP) only the counts of the report are checked, and the agreement is printed.
 //!
-//! The scenes: (a) two particles head-on, with and without gravity; (b) a pile of 2,200
+//! The scenes: (a) two particles head-on, with and without gravity, and one alone that lands
+//! and rests on the floor; (b) a pile of 2,200
 //! particles poured into a box, for two seconds, with friction, stacking and the iteration
 //! count doing their work (3 and 4 iterations: the last iteration's velocities in either
 //! buffer); (c) coincident particles, particles with NaN and infinite positions and
@@ -269,6 +270,34 @@ fn a_head_on_pair_on_both_backends() {
         // They met.
         assert!(out[0].velocity[0] < 1.0, "{name}: they never met");
     }
+}
+
+#[test]
+fn a_lone_grain_lands_and_rests_on_both_backends() {
+    // One particle: a table of one, nothing to sort; once it lands it rests on its support.
+    let r = 0.15;
+    let baked = box_scene([-0.5, 0.0, -0.5], [0.5, 4.0, 0.5], 6, r);
+    let mut ps = vec![Particle::new([0.1, 1.0, -0.05], [0.4, 0.0, 0.3])];
+    baked.start(&mut ps);
+    let Some((_, out)) = (Run {
+        name: "a lone grain",
+        baked: &baked,
+        particles: ps,
+        params: StepParams {
+            dt: DT,
+            radius: r,
+            ..StepParams::default()
+        },
+        pairs: PairParams::default(),
+        calls: 4,
+        steps_per_call: 15,
+        chunk_particles: None,
+        fold_width: None,
+    })
+    .compare() else {
+        return;
+    };
+    assert!(out[0].position[1] < 1.5 * r, "{:?}", out[0]);
 }
 
 #[test]

@@ -196,6 +196,11 @@ fn pair_sort_block_kernel(
     let size = pair_sort.block;
     let half = size / 2u;
     let base = (wg.y * groups.x + wg.x) * size;
+    // A folded dispatch's last row may hold workgroups past the keys (the same for the whole
+    // workgroup, so every barrier is still reached by all or none).
+    if base >= 2u * pair_sort.threads {
+        return;
+    }
     if t < half {
         sort_block[t] = pair_keys[base + t];
         sort_block[t + half] = pair_keys[base + t + half];

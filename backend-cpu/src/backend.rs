@@ -9,9 +9,8 @@ use octoproxy_core::{
     SceneHint, SceneSides, SceneSlots, SceneStepReport, SceneView, StepParams,
 };
 
-use glam::Vec3;
 use octoproxy_core::pairs::{
-    pair_cell, pair_hash, pair_is_fast, pair_prepare, pair_table_size, pair_velocity,
+    pair_cell, pair_hash, pair_is_fast, pair_prepare, pair_start, pair_table_size, pair_velocity,
     PAIR_HASH_NONE,
 };
 use octoproxy_core::{pair_substeps, PairBody, PairParams, PairReport, PairStep, PairVelocity};
@@ -97,6 +96,7 @@ struct PairBuffers {
     bodies: Vec<PairBody>,
     vel: Vec<PairVelocity>,
     vel_next: Vec<PairVelocity>,
+    support: Vec<[f32; 4]>,
     ranges: Vec<[u32; 2]>,
     rank: Vec<AtomicU32>,
 }
@@ -107,13 +107,21 @@ const RANGE_CHUNK: usize = 4096;
 impl PairBuffers {
     /// One substep of the pass over `particles` with the constants `s`: their velocities
     /// change, nothing else. Returns the particle-iterations that hit the neighbour cap.
-    fn substep(&mut self, particles: &mut [Particle], s: &PairStep, iterations: u32) -> u64 {
+    fn substep(
+        &mut self,
+        particles: &mut [Particle],
+        view: &ProxyView<'_>,
+        hints: &[LeafHint],
+        s: &PairStep,
+        iterations: u32,
+    ) -> u64 {
         let n = particles.len();
         let t = pair_table_size(n);
         self.keys.resize(n, 0);
         self.bodies.resize(n, PairBody::default());
         self.vel.resize(n, [0.0; 4]);
         self.vel_next.resize(n, [0.0; 4]);
+        self.support.resize(n, [0.0; 4]);
         self.ranges.resize(t, [0, 0]);
         self.rank.resize_with(n, || AtomicU32::new(u32::MAX));
         let keys = &mut self.keys;
@@ -133,23 +141,24 @@ impl PairBuffers {
         let valid = keys.partition_point(|&k| k < none);
         let keys = &keys[..valid];
         let (bodies, vel) = (&mut self.bodies[..valid], &mut self.vel[..valid]);
+        let support = &mut self.support[..valid];
         let rank = &self.rank;
         bodies
             .par_iter_mut()
             .zip(vel.par_iter_mut())
+            .zip(support.par_iter_mut())
             .enumerate()
             .with_min_len(4096)
-            .for_each(|(k, (body, v))| {
+            .for_each(|(k, ((body, v), sup))| {
                 let i = keys[k] as u32;
                 let p = &particles[i as usize];
-                let w = pair_prepare(p, s).map_or(Vec3::ZERO, |(w, _)| w);
                 *body = PairBody {
                     position: p.position,
                     index: i,
                     cell: pair_cell(p.position, s),
                     hash: (keys[k] >> 32) as u32,
                 };
-                *v = [w.x, w.y, w.z, 0.0];
+                (*v, *sup) = pair_start(view, p, hints[i as usize], s);
                 rank[i as usize].store(k as u32, Ordering::Relaxed);
             });
         // Each chunk of the table is a run of the sorted keys: find where it starts, walk it.
@@ -170,6 +179,7 @@ impl PairBuffers {
                 }
             });
         let ranges = &self.ranges[..];
+        let support = &self.support[..valid];
         let mut capped = 0u64;
         let (mut a, mut b) = (&mut self.vel, &mut self.vel_next);
         for _ in 0..iterations {
@@ -180,7 +190,7 @@ impl PairBuffers {
                 .enumerate()
                 .with_min_len(1024)
                 .map(|(k, out)| {
-                    let (v, cap) = pair_velocity(k, bodies, read, ranges, s);
+                    let (v, cap) = pair_velocity(k, bodies, read, support, ranges, s);
                     *out = v;
                     cap as u64
                 })
@@ -566,7 +576,8 @@ impl Backend for CpuBackend {
                     .reduce(|| (0.0, 0), |a, b| (a.0.max(b.0), a.1 + b.1));
                 let s = PairStep::new(params, pairs, h, n, v_max);
                 pair_report.fast += fast;
-                pair_report.capped += buffers.substep(particles, &s, pairs.iterations);
+                pair_report.capped +=
+                    buffers.substep(particles, &view, hints, &s, pairs.iterations);
                 particles
                     .par_iter_mut()
                     .zip(hints.par_iter_mut())

@@ -52,8 +52,9 @@ use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 
 use crate::math;
-use crate::particle::Particle;
-use crate::step::StepParams;
+use crate::particle::{Particle, SIDE_BACK, SIDE_MASK};
+use crate::step::{respond, LeafHint, StepParams};
+use crate::view::ProxyView;
 
 /// Cell coordinates are clamped to `±PAIR_CELL_LIMIT` (as floats, before the conversion to
 /// integers, on both backends): particles beyond share the last cell.
@@ -109,7 +110,7 @@ impl Default for PairParams {
             friction: 0.5,
             relaxation: 0.5,
             stacking: 1.0,
-            iterations: 4,
+            iterations: 8,
             substeps: 0,
             max_candidates: 512,
         }
@@ -256,8 +257,8 @@ pub struct PairStep {
     pub half_stacking: f32,
     /// Neighbour cap per particle per iteration.
     pub max_candidates: u32,
-    /// Padding; zero.
-    pub _pad: u32,
+    /// The scene's friction (`StepParams::friction`), for grains resting on it.
+    pub scene_friction: f32,
 }
 
 const _: () = assert!(core::mem::size_of::<PairStep>() == 80);
@@ -297,7 +298,7 @@ impl PairStep {
             relaxation: pairs.relaxation,
             half_stacking: 0.5 * pairs.stacking,
             max_candidates: pairs.max_candidates,
-            _pad: 0,
+            scene_friction: step.friction,
         }
     }
 }
@@ -364,6 +365,51 @@ pub fn pair_prepare(p: &Particle, s: &PairStep) -> Option<(Vec3, f32)> {
         return None;
     }
     Some((v, math::sqrt(v.dot(v))))
+}
+
+/// The support of a grain resting on the scene: the unit normal of the one-sided surface
+/// leaf its hint holds (the leaf it rests in, on its plane, as the march left it), facing the
+/// grain's side, with `w = 1`; zeros when it rests on nothing. In the pass a supported grain
+/// cannot move into its support: what its contacts push into it is the scene's normal
+/// impulse, and the scene's friction acts with it ([`pair_velocity`]), so a grain under a
+/// pile holds on a slope by the pile's weight, not only its own.
+#[inline]
+pub fn pair_support(view: &ProxyView<'_>, p: &Particle, hint: LeafHint) -> [f32; 4] {
+    if hint.z_depth_label & LeafHint::SURFACE == 0 || p.side & !SIDE_MASK != 0 {
+        return [0.0; 4];
+    }
+    match hint.leaf(view, Vec3::from_array(p.position)) {
+        Some(leaf) => {
+            let n = if p.side == SIDE_BACK {
+                -leaf.normal
+            } else {
+                leaf.normal
+            };
+            [n.x, n.y, n.z, 1.0]
+        }
+        None => [0.0; 4],
+    }
+}
+
+/// What a valid grain enters the iterations with: its velocity after gravity
+/// ([`pair_prepare`]; zero for one left out), already kept out of its support with the
+/// scene's friction as [`pair_velocity`] does after each iteration, and the support
+/// ([`pair_support`]).
+#[inline]
+pub fn pair_start(
+    view: &ProxyView<'_>,
+    p: &Particle,
+    hint: LeafHint,
+    s: &PairStep,
+) -> (PairVelocity, [f32; 4]) {
+    let (v, _) = pair_prepare(p, s).unwrap_or((Vec3::ZERO, 0.0));
+    let sup = pair_support(view, p, hint);
+    let v = if sup[3] != 0.0 {
+        respond(v, Vec3::new(sup[0], sup[1], sup[2]), 0.0, s.scene_friction)
+    } else {
+        v
+    };
+    ([v.x, v.y, v.z, 0.0], sup)
 }
 
 /// The cell of a position: `floor(x / cell)` per axis, clamped to `±PAIR_CELL_LIMIT`.
@@ -460,13 +506,16 @@ pub fn pair_impulse(
 
 /// One Jacobi iteration for the particle at sorted position `k`: its velocity after its
 /// contacts with the particles in the 27 cells around it (velocities from `vel`, the last
-/// iteration's), and whether its neighbour loop stopped at the cap. `ranges[h]` is the
+/// iteration's), and its support's response ([`pair_support`], `support[k]`: what moves into
+/// the scene is taken as the scene's normal impulse, with its friction, `respond` with no
+/// restitution), and whether its neighbour loop stopped at the cap. `ranges[h]` is the
 /// bucket of hash `h` (`[start, end)` in the sorted order; `[0, 0]` when empty).
 #[inline]
 pub fn pair_velocity(
     k: usize,
     bodies: &[PairBody],
     vel: &[PairVelocity],
+    support: &[[f32; 4]],
     ranges: &[[u32; 2]],
     s: &PairStep,
 ) -> (PairVelocity, bool) {
@@ -501,11 +550,20 @@ pub fn pair_velocity(
             }
         }
     }
-    let out = if contacts > 0 {
+    let mut out = if contacts > 0 {
         v + sum * (1.0 / contacts as f32)
     } else {
         v
     };
+    let sup = support[k];
+    if sup[3] != 0.0 {
+        out = respond(
+            out,
+            Vec3::new(sup[0], sup[1], sup[2]),
+            0.0,
+            s.scene_friction,
+        );
+    }
     ([out.x, out.y, out.z, 0.0], capped)
 }
 
@@ -520,19 +578,24 @@ pub struct PairScratch<'a> {
     pub vel: &'a mut [PairVelocity],
     /// The next iteration's velocities.
     pub vel_next: &'a mut [PairVelocity],
+    /// Each grain's support ([`pair_support`]), in sorted order.
+    pub support: &'a mut [[f32; 4]],
     /// The table: each hash's `[start, end)` in the sorted order.
     pub ranges: &'a mut [[u32; 2]],
 }
 
 /// The pass over one substep, on one thread, for callers without a thread pool (the CPU
 /// backend runs the same functions in parallel): integrates gravity into every valid
-/// particle's velocity and applies the contacts. Positions do not change; the caller then
+/// particle's velocity and applies the contacts. `view` is the proxy the particles step
+/// against and `hints` their leaf hints from it (the march's), for their supports. Positions do not change; the caller then
 /// steps every particle with `dt = s.h` and zero gravity. Returns the particles whose
 /// neighbour loop hit the cap, summed over iterations. `s` must come from [`PairStep::new`]
 /// with `n = particles.len()` and `v_max` at least [`pair_max_speed`]'s; scratch slices
 /// shorter than asked give `None` and change nothing.
 pub fn collide_pairs(
     particles: &mut [Particle],
+    view: &ProxyView<'_>,
+    hints: &[LeafHint],
     s: &PairStep,
     iterations: u32,
     scratch: PairScratch<'_>,
@@ -543,6 +606,8 @@ pub fn collide_pairs(
         || scratch.bodies.len() < n
         || scratch.vel.len() < n
         || scratch.vel_next.len() < n
+        || scratch.support.len() < n
+        || hints.len() < n
         || scratch.ranges.len() < t
         || s.mask as usize != t - 1
         || n >= PAIR_HASH_NONE as usize
@@ -558,22 +623,22 @@ pub fn collide_pairs(
     }
     keys.sort_unstable();
     let valid = keys.partition_point(|k| k[0] != PAIR_HASH_NONE);
-    let (bodies, vel, vel_next) = (
+    let (bodies, vel, vel_next, support) = (
         &mut scratch.bodies[..valid],
         &mut scratch.vel[..valid],
         &mut scratch.vel_next[..valid],
+        &mut scratch.support[..valid],
     );
     for k in 0..valid {
         let i = keys[k][1] as usize;
         let p = &particles[i];
-        let (v, _) = pair_prepare(p, s).unwrap_or((Vec3::ZERO, 0.0));
         bodies[k] = PairBody {
             position: p.position,
             index: i as u32,
             cell: pair_cell(p.position, s),
             hash: keys[k][0],
         };
-        vel[k] = [v.x, v.y, v.z, 0.0];
+        (vel[k], support[k]) = pair_start(view, p, hints[i], s);
     }
     let ranges = &mut scratch.ranges[..t];
     ranges.fill([0, 0]);
@@ -591,7 +656,7 @@ pub fn collide_pairs(
     let (mut a, mut b) = (vel, vel_next);
     for _ in 0..iterations {
         for (k, out) in b.iter_mut().enumerate() {
-            let (v, cap) = pair_velocity(k, bodies, a, ranges, s);
+            let (v, cap) = pair_velocity(k, bodies, a, support, ranges, s);
             *out = v;
             capped += cap as u64;
         }
@@ -643,14 +708,20 @@ mod tests {
         let (mut keys, mut bodies) = (vec![[0u32; 2]; n], vec![PairBody::default(); n]);
         let (mut vel, mut vel_next) = (vec![[0f32; 4]; n], vec![[0f32; 4]; n]);
         let mut ranges = vec![[0u32; 2]; pair_table_size(n)];
+        let mut support = vec![[0f32; 4]; n];
         let scratch = PairScratch {
             keys: &mut keys,
             bodies: &mut bodies,
             vel: &mut vel,
             vel_next: &mut vel_next,
+            support: &mut support,
             ranges: &mut ranges,
         };
-        collide_pairs(ps, &s, pairs.iterations, scratch).unwrap()
+        // No particle rests on anything: no hints.
+        let words = crate::tests::tiny();
+        let view = ProxyView::new(&words).unwrap();
+        let hints = vec![LeafHint::NONE; n];
+        collide_pairs(ps, &view, &hints, &s, pairs.iterations, scratch).unwrap()
     }
 
     fn elastic() -> PairParams {

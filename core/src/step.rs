@@ -520,7 +520,7 @@ impl LeafHint {
 
     /// The hinted leaf, if the hint is well formed and `x` lies strictly inside its box.
     #[inline]
-    fn leaf(self, view: &ProxyView<'_>, x: Vec3) -> Option<LeafInfo> {
+    pub(crate) fn leaf(self, view: &ProxyView<'_>, x: Vec3) -> Option<LeafInfo> {
         let w = self.z_depth_label;
         if w & Self::VALID == 0 {
             return None;

@@ -88,7 +88,7 @@ fn record_accessors() {
 }
 
 /// The smallest valid proxy: a root with one surface-leaf child at octant 0.
-fn tiny() -> [u32; HEADER_WORDS + 4] {
+pub(crate) fn tiny() -> [u32; HEADER_WORDS + 4] {
     let mut w = [0u32; HEADER_WORDS + 4];
     w[header::MAGIC] = MAGIC;
     w[header::VERSION] = FORMAT_VERSION;

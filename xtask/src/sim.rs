@@ -60,7 +60,7 @@ particles that collide with each other (needs a radius: --radius, or a proxy bak
   --collide-particles          Green's uniform grid and position-based contacts
   --particle-restitution E     in [0, 1] (default: --restitution)
   --particle-friction F        Coulomb coefficient >= 0 (default: --friction)
-  --particle-iterations N      Jacobi iterations per substep, 1..=64 (default 4)
+  --particle-iterations N      Jacobi iterations per substep, 1..=64 (default 8)
   --particle-substeps N        substeps per step, 1..=256 (default: the fewest that keep
                                gravity's closing per substep under 1 % of the radius)
   --particle-relaxation B      share of an overlap removed per substep, (0, 1] (default 0.5)

@@ -683,9 +683,14 @@ impl WgpuBackend {
             .write_buffer(&self.kernel.run, 0, bytemuck::bytes_of(&run));
     }
 
-    /// Records one plain step of every chunk (one dispatch each) in `pass`.
-    pub(crate) fn record_step(&self, pass: &mut wgpu::ComputePass<'_>) {
-        pass.set_pipeline(&self.kernel.step);
+    /// Records one plain step of every chunk (one dispatch each) in `pass`; with `floor`,
+    /// the integration alone ([`WgpuBackend::integrate_only`]).
+    pub(crate) fn record_step(&self, pass: &mut wgpu::ComputePass<'_>, floor: bool) {
+        pass.set_pipeline(if floor {
+            &self.kernel.integrate
+        } else {
+            &self.kernel.step
+        });
         for chunk in &self.chunks {
             let Some(group) = &chunk.bind_group else {
                 continue;
@@ -715,19 +720,7 @@ impl WgpuBackend {
             return Ok(());
         }
         let scope = ErrorScope::push(&self.device);
-        self.queue
-            .write_buffer(&self.kernel.params, 0, bytemuck::bytes_of(params));
-        let run = RunParams {
-            use_lut: self.use_lut as u32,
-            ..Default::default()
-        };
-        self.queue
-            .write_buffer(&self.kernel.run, 0, bytemuck::bytes_of(&run));
-        let pipeline = if floor {
-            &self.kernel.integrate
-        } else {
-            &self.kernel.step
-        };
+        self.write_step_params(params);
         let mut left = steps;
         while left > 0 {
             let batch = left.min(STEPS_PER_SUBMIT);
@@ -739,15 +732,7 @@ impl WgpuBackend {
                     label: Some("octoproxy step"),
                     timestamp_writes: None,
                 });
-                pass.set_pipeline(pipeline);
-                for chunk in &self.chunks {
-                    let Some(group) = &chunk.bind_group else {
-                        continue;
-                    };
-                    let (x, y) = self.dispatch_size(chunk.count);
-                    pass.set_bind_group(0, group, &[]);
-                    pass.dispatch_workgroups(x, y, 1);
-                }
+                self.record_step(&mut pass, floor);
             }
             self.queue.submit([encoder.finish()]);
         }

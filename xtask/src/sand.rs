@@ -56,11 +56,6 @@ pub fn run(n: usize, steps: u32, out: &Path, backend: BackendChoice) -> Result<(
     // One layer of the spout: grains on a square lattice of 2.2 radii in its disc, jittered.
     let spacing = 2.2 * RADIUS;
     let cells = (SPOUT_RADIUS / spacing) as i32;
-    // The particle pass runs on the CPU until the GPU has it: `auto` picks the CPU for it.
-    let backend = match backend {
-        BackendChoice::Auto => BackendChoice::Cpu,
-        choice => choice,
-    };
     let mut stepper = select_backend(backend)?;
     stepper.upload_proxy(&baked.words)?;
     let mut rng = Rng::new(7);

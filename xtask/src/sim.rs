@@ -365,12 +365,7 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
         starting_sides(&scene, &view, &mut cloud)?;
     }
 
-    // The particle pass runs on the CPU until the GPU has it: `auto` picks the CPU for it.
-    let choice = match (o.backend.unwrap_or(BackendChoice::Auto), &pairs) {
-        (BackendChoice::Auto, Some(_)) => BackendChoice::Cpu,
-        (choice, _) => choice,
-    };
-    let mut backend = select_backend(choice)?;
+    let mut backend = select_backend(o.backend.unwrap_or(BackendChoice::Auto))?;
     backend.upload_proxy(&scene.words)?;
     backend.upload_particles(&cloud.particles)?;
     let encoding = if o.ascii {

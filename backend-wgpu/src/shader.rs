@@ -2,14 +2,15 @@
 //! sides cannot drift, followed by the hand-written mirror of core's routine.
 //!
 //! The `.wgsl` files beside this module mirror core's modules: `format.wgsl` (node records,
-//! header, `decode_normal`, `grid_plane`), `particle.wgsl` (`Particle`, `StepParams`), `query.wgsl` (`locate_inside` and its helpers),
-//! `step.wgsl` (`step_particle_hinted`, its settles and the march's steps), `pose.wgsl`,
-//! `observe.wgsl` and `scene.wgsl` (scenes: poses, the march's observer, the scene step), and
-//! the entry points. They make three modules: the plain kernel ([`FILES`], whose march observes
-//! nothing: `observe_none.wgsl`), the scene kernel ([`SCENE_FILES`]) and the
-//! particle-particle pass ([`PAIR_FILES`]: `pairs.wgsl` mirrors core's `pairs` module,
-//! `pairs_kernel.wgsl` runs it stage by stage). Every function has a Rust twin or a stated
-//! reason for none; the table is in `tests/wgsl.rs`.
+//! header, `decode_normal`, `grid_plane`), `particle.wgsl` (`Particle`, `StepParams`),
+//! `query.wgsl` (`locate_inside` and its helpers), `step.wgsl` (`step_particle_hinted`, its
+//! settles and the march's steps), `pose.wgsl`, `observe.wgsl` and `scene.wgsl` (scenes:
+//! poses, the march's observer, the scene step), `pairs.wgsl` (the particle-particle pass),
+//! and the entry points. They make three modules: the plain kernel ([`FILES`], whose march
+//! observes nothing: `observe_none.wgsl`), the scene kernel ([`SCENE_FILES`]) and the
+//! particle-particle pass ([`PAIR_FILES`]: the plain kernel's step, for the grains' supports,
+//! then `pairs.wgsl` and `pairs_kernel.wgsl`, which runs it stage by stage). Every function
+//! has a Rust twin or a stated reason for none; the table is in `tests/wgsl.rs`.
 
 use octoproxy_core::format::{self, header};
 use octoproxy_core::pairs;

@@ -1,9 +1,10 @@
 // The particle-particle pass, as core/src/pairs.rs (read its module documentation for the
 // rules): the same functions under the same names, the same order of floating-point
 // operations (glam's `Vec3::dot` is `dot3`, x then y then z; `f32::clamp` is the builtin,
-// whose inputs here are never NaN). A Rust `Option<T>` is a `TOption { value, some }`. The
-// pass's buffers hold every particle, whatever chunk it lies in; `pairs_kernel.wgsl` runs the
-// pass over them, a kernel per stage, and `backend-wgpu/src/pairs.rs` records the dispatches.
+// which differs from it only on NaN: `pair_cell` spells out Rust's NaN). A Rust `Option<T>`
+// is a `TOption { value, some }`. The pass's buffers hold every particle, whatever chunk it
+// lies in; `pairs_kernel.wgsl` runs the pass over them, a kernel per stage, and
+// `backend-wgpu/src/pairs.rs` records the dispatches.
 
 // core's `PairStep`: 80 bytes. The host writes every field but `cell` and `inv_cell`, which
 // `pair_step_kernel` computes from the substep's largest speed without a read-back.
@@ -222,8 +223,9 @@ fn pair_impulse(me: PairBody, v: vec3<f32>, other: PairBody, w: vec3<f32>, s: Pa
 // One Jacobi iteration for the particle at sorted position `k`: the 27 cells around its own,
 // z then y then x from -1 to 1, each bucket in sorted order, velocities from `pair_vel`, then
 // its support's response. Rust's `respond(.., 0.0, ..)` takes a restitution of zero: here it
-// is read at run time (`pair_state.zero`), for a constant one lets the compiler fold
-// `v_n * 0.0` to +0, where IEEE gives -0 for a negative `v_n`.
+// is read at run time (`pair_state.zero`), for a constant one may let the compiler fold
+// `v_n * 0.0` to +0 (NIR's inexact `a * 0.0 -> 0.0`), where IEEE gives -0 for a negative
+// `v_n`, and then `v_t * keep - v_n * 0.0` its sign of zero.
 fn pair_velocity(k: u32, s: PairStep) -> PairVelocityOut {
     let me = pair_bodies[k];
     let v = pair_vel[k].xyz;

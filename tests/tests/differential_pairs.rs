@@ -19,6 +19,8 @@
 //! hit; (d) a count that is not a power of two split into several chunks, with the dispatch
 //! folded into two dimensions.
 
+use std::sync::OnceLock;
+
 use octoproxy_core::{Backend, PairParams, PairReport, Particle, ProxyView, StepParams};
 use octoproxy_cpu::bake::offset::OffsetSurface;
 use octoproxy_cpu::io::Mesh;
@@ -82,6 +84,18 @@ impl Baked {
 /// A closed box (particles inside it), baked for radius `r`.
 fn box_scene(min: [f32; 3], max: [f32; 3], dmax: u32, r: f32) -> Baked {
     bake_for(&[scenes::cube(min, max)], dmax, r)
+}
+
+/// The tall box of the pairs and lone grains, for radius 0.15, baked once.
+fn tall_box() -> &'static Baked {
+    static BAKED: OnceLock<Baked> = OnceLock::new();
+    BAKED.get_or_init(|| box_scene([-0.5, 0.0, -0.5], [0.5, 4.0, 0.5], 6, 0.15))
+}
+
+/// The box of the piles, for radius 0.05, baked once.
+fn pile_box() -> &'static Baked {
+    static BAKED: OnceLock<Baked> = OnceLock::new();
+    BAKED.get_or_init(|| box_scene([-0.6, 0.0, -0.6], [0.6, 3.0, 0.6], 7, 0.05))
 }
 
 /// How the two runs compare: the particles whose 32 bytes differ, and the first of them.
@@ -231,7 +245,7 @@ fn block(n: [usize; 3], corner: [f32; 3], gap: f32, speed: f32) -> Vec<Particle>
 #[test]
 fn a_head_on_pair_on_both_backends() {
     let r = 0.15;
-    let baked = box_scene([-0.5, 0.0, -0.5], [0.5, 4.0, 0.5], 6, r);
+    let baked = tall_box();
     for (gravity, e, mu) in [
         ([0.0; 3], 1.0, 0.0),
         ([0.0; 3], 0.5, 0.3),
@@ -245,7 +259,7 @@ fn a_head_on_pair_on_both_backends() {
         let name = format!("head-on, gravity {gravity:?}, e {e}, mu {mu}");
         let Some((report, out)) = (Run {
             name: &name,
-            baked: &baked,
+            baked,
             particles: ps.clone(),
             params: StepParams {
                 gravity,
@@ -276,12 +290,12 @@ fn a_head_on_pair_on_both_backends() {
 fn a_lone_grain_lands_and_rests_on_both_backends() {
     // One particle: a table of one, nothing to sort; once it lands it rests on its support.
     let r = 0.15;
-    let baked = box_scene([-0.5, 0.0, -0.5], [0.5, 4.0, 0.5], 6, r);
+    let baked = tall_box();
     let mut ps = vec![Particle::new([0.1, 1.0, -0.05], [0.4, 0.0, 0.3])];
     baked.start(&mut ps);
     let Some((_, out)) = (Run {
         name: "a lone grain",
-        baked: &baked,
+        baked,
         particles: ps,
         params: StepParams {
             dt: DT,
@@ -303,7 +317,7 @@ fn a_lone_grain_lands_and_rests_on_both_backends() {
 #[test]
 fn a_pile_in_a_box_on_both_backends() {
     let r = 0.05;
-    let baked = box_scene([-0.6, 0.0, -0.6], [0.6, 3.0, 0.6], 7, r);
+    let baked = pile_box();
     let mut ps = block([10, 22, 10], [-0.495, 0.2, -0.495], 2.2 * r, 1.0);
     baked.start(&mut ps);
     assert_eq!(ps.len(), 2200);
@@ -311,7 +325,7 @@ fn a_pile_in_a_box_on_both_backends() {
         let name = format!("a pile, {iterations} iterations, mu {friction}, e {restitution}");
         let Some((report, out)) = (Run {
             name: &name,
-            baked: &baked,
+            baked,
             particles: ps.clone(),
             params: StepParams {
                 dt: DT,
@@ -345,7 +359,7 @@ fn a_pile_in_a_box_on_both_backends() {
 #[test]
 fn coincident_invalid_and_fast_particles_on_both_backends() {
     let r = 0.05;
-    let baked = box_scene([-0.6, 0.0, -0.6], [0.6, 3.0, 0.6], 7, r);
+    let baked = pile_box();
     let mut ps = block([6, 4, 6], [-0.3, 0.5, -0.3], 2.05 * r, 0.0);
     // Six on one point, and pairs on one point.
     for _ in 0..6 {
@@ -374,7 +388,7 @@ fn coincident_invalid_and_fast_particles_on_both_backends() {
     }
     let Some((report, _)) = (Run {
         name: "coincident, invalid and fast",
-        baked: &baked,
+        baked,
         particles: ps,
         params: StepParams {
             dt: DT,
@@ -401,13 +415,13 @@ fn coincident_invalid_and_fast_particles_on_both_backends() {
 #[test]
 fn many_chunks_and_a_folded_dispatch_on_both_backends() {
     let r = 0.05;
-    let baked = box_scene([-0.6, 0.0, -0.6], [0.6, 3.0, 0.6], 7, r);
+    let baked = pile_box();
     let mut ps = block([9, 13, 9], [-0.44, 0.2, -0.44], 2.2 * r, 0.5);
     baked.start(&mut ps);
     assert_eq!(ps.len(), 1053);
     let _ = (Run {
         name: "1053 particles in chunks of 256, rows of 3 workgroups",
-        baked: &baked,
+        baked,
         particles: ps,
         params: StepParams {
             dt: DT,
@@ -429,7 +443,7 @@ fn both_backends_refuse_the_same_parameters() {
         return;
     };
     let r = 0.15;
-    let baked = box_scene([-0.5, 0.0, -0.5], [0.5, 4.0, 0.5], 6, r);
+    let baked = tall_box();
     let ps = [Particle::new([0.0, 1.0, 0.0], [0.0; 3])];
     let step = StepParams {
         radius: r,

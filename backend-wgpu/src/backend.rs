@@ -250,10 +250,15 @@ impl WgpuBackend {
                 max_storage_buffer_binding_size: limits.max_storage_buffer_binding_size,
                 max_buffer_size: limits.max_buffer_size,
                 max_compute_workgroups_per_dimension: limits.max_compute_workgroups_per_dimension,
-                // The scene kernel binds 7 storage buffers (the plain one 3).
+                // The scene kernel and the particle-particle pass bind 7 storage buffers
+                // (the plain kernel 3).
                 max_storage_buffers_per_shader_stage: limits
                     .max_storage_buffers_per_shader_stage
-                    .min(crate::scene::SCENE_STORAGE_BUFFERS.max(4)),
+                    .min(
+                        crate::scene::SCENE_STORAGE_BUFFERS
+                            .max(crate::pairs::PAIR_STORAGE_BUFFERS)
+                            .max(4),
+                    ),
                 ..wgpu::Limits::downlevel_defaults()
             },
             ..Default::default()

@@ -7,4 +7,5 @@ pub mod baselines;
 pub mod fuzz;
 pub mod meshes;
 pub mod moving;
+pub mod radius;
 pub mod starts;

@@ -21,10 +21,9 @@
 
 use std::sync::OnceLock;
 
-use octoproxy_core::{Backend, PairParams, PairReport, Particle, ProxyView, StepParams};
-use octoproxy_cpu::bake::offset::OffsetSurface;
-use octoproxy_cpu::io::Mesh;
-use octoproxy_cpu::{bake_offset, scenes, BuildParams, CpuBackend, MeshRef, Sides};
+use octoproxy_core::{Backend, PairParams, PairReport, Particle, StepParams};
+use octoproxy_cpu::{scenes, CpuBackend};
+use octoproxy_tests::radius::{bake_for, RadiusScene};
 use octoproxy_wgpu::{WgpuBackend, WgpuError};
 
 const DT: f32 = 1.0 / 60.0;
@@ -52,49 +51,20 @@ fn is_lavapipe(gpu: &WgpuBackend) -> bool {
     gpu.description().to_lowercase().contains("llvmpipe")
 }
 
-/// A proxy baked for a radius, and the offset surface that places and sides particles.
-struct Baked {
-    words: Vec<u32>,
-    surface: OffsetSurface,
-}
-
-fn bake_for(meshes: &[Mesh], dmax: u32, radius: f32) -> Baked {
-    let refs: Vec<MeshRef<'_>> = meshes.iter().map(MeshRef::from).collect();
-    let params = BuildParams {
-        dmax,
-        ..BuildParams::default()
-    };
-    let surface = OffsetSurface::new(&refs, radius, dmax, &()).unwrap();
-    let (words, _) = bake_offset(&surface, &params, &()).unwrap();
-    Baked { words, surface }
-}
-
-impl Baked {
-    /// Starting particles out of the band, with their sides and cages from the offset surface.
-    fn start(&self, ps: &mut [Particle]) {
-        let view = ProxyView::new(&self.words).unwrap();
-        self.surface.place(ps, Some(&view));
-        let offset = [self.surface.mesh_ref()];
-        let sides = Sides::new(&offset);
-        sides.assign(ps, false);
-        sides.cages(&view, ps, false);
-    }
-}
-
 /// A closed box (particles inside it), baked for radius `r`.
-fn box_scene(min: [f32; 3], max: [f32; 3], dmax: u32, r: f32) -> Baked {
+fn box_scene(min: [f32; 3], max: [f32; 3], dmax: u32, r: f32) -> RadiusScene {
     bake_for(&[scenes::cube(min, max)], dmax, r)
 }
 
 /// The tall box of the pairs and lone grains, for radius 0.15, baked once.
-fn tall_box() -> &'static Baked {
-    static BAKED: OnceLock<Baked> = OnceLock::new();
+fn tall_box() -> &'static RadiusScene {
+    static BAKED: OnceLock<RadiusScene> = OnceLock::new();
     BAKED.get_or_init(|| box_scene([-0.5, 0.0, -0.5], [0.5, 4.0, 0.5], 6, 0.15))
 }
 
 /// The box of the piles, for radius 0.05, baked once.
-fn pile_box() -> &'static Baked {
-    static BAKED: OnceLock<Baked> = OnceLock::new();
+fn pile_box() -> &'static RadiusScene {
+    static BAKED: OnceLock<RadiusScene> = OnceLock::new();
     BAKED.get_or_init(|| box_scene([-0.6, 0.0, -0.6], [0.6, 3.0, 0.6], 7, 0.05))
 }
 
@@ -114,7 +84,7 @@ fn differing(cpu: &[Particle], gpu: &[Particle]) -> (usize, Option<usize>) {
 /// One scene run on both backends.
 struct Run<'a> {
     name: &'a str,
-    baked: &'a Baked,
+    baked: &'a RadiusScene,
     particles: Vec<Particle>,
     params: StepParams,
     pairs: PairParams,

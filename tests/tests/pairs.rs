@@ -4,52 +4,8 @@
 
 use glam::Vec3;
 use octoproxy_core::{Backend, PairParams, Particle, ProxyView, StepParams};
-use octoproxy_cpu::bake::offset::OffsetSurface;
-use octoproxy_cpu::ground_truth::GroundTruth;
-use octoproxy_cpu::io::Mesh;
-use octoproxy_cpu::{bake_offset, scenes, BuildParams, CpuBackend, MeshRef, Sides};
-
-/// A scene baked for a radius, with what the checks need.
-struct Baked {
-    words: Vec<u32>,
-    surface: OffsetSurface,
-    truth: GroundTruth,
-    leaf: f32,
-    radius: f32,
-}
-
-fn bake_for(meshes: &[Mesh], dmax: u32, radius: f32) -> Baked {
-    let refs: Vec<MeshRef<'_>> = meshes.iter().map(MeshRef::from).collect();
-    let params = BuildParams {
-        dmax,
-        ..BuildParams::default()
-    };
-    let surface = OffsetSurface::new(&refs, radius, dmax, &()).unwrap();
-    let (words, _) = bake_offset(&surface, &params, &()).unwrap();
-    let leaf = ProxyView::new(&words).unwrap().finest_leaf_size();
-    let all = scenes::merge(meshes);
-    let truth = GroundTruth::new(&all.positions, &all.triangles);
-    Baked {
-        words,
-        surface,
-        truth,
-        leaf,
-        radius,
-    }
-}
-
-impl Baked {
-    /// Sides and cages for starting particles, from the offset surface.
-    fn start(&self, ps: &mut [Particle]) {
-        let view = ProxyView::new(&self.words).unwrap();
-        let placed = self.surface.place(ps, Some(&view));
-        assert_eq!(placed.stuck, 0);
-        let offset = [self.surface.mesh_ref()];
-        let sides = Sides::new(&offset);
-        sides.assign(ps, false);
-        sides.cages(&view, ps, false);
-    }
-}
+use octoproxy_cpu::{scenes, CpuBackend};
+use octoproxy_tests::radius::{bake_for, RadiusScene};
 
 /// Largest overlap between neighbours, as a fraction of the diameter (brute force).
 fn max_overlap(ps: &[Particle], radius: f32) -> f32 {
@@ -64,7 +20,7 @@ fn max_overlap(ps: &[Particle], radius: f32) -> f32 {
 }
 
 /// The scene of the column and head-on tests: a closed box, particles inside it.
-fn tall_box(r: f32) -> Baked {
+fn tall_box(r: f32) -> RadiusScene {
     bake_for(&[scenes::cube([-0.5, 0.0, -0.5], [0.5, 4.0, 0.5])], 6, r)
 }
 
@@ -75,7 +31,7 @@ fn a_column_settles_in_a_box() {
     let mut ps: Vec<Particle> = (0..10)
         .map(|i| Particle::new([0.0, 0.2 + 0.32 * i as f32, 0.0], [0.0; 3]))
         .collect();
-    baked.start(&mut ps);
+    assert_eq!(baked.start(&mut ps).stuck, 0);
     let mut cpu = CpuBackend::new();
     cpu.upload_proxy(&baked.words).unwrap();
     cpu.upload_particles(&ps).unwrap();
@@ -121,7 +77,7 @@ fn a_head_on_pair_keeps_momentum_and_energy() {
             Particle::new([-0.3, 2.0, 0.01], [1.5, 0.2, 0.0]),
             Particle::new([0.3, 2.0, -0.01], [-0.5, -0.1, 0.0]),
         ];
-        baked.start(&mut ps);
+        assert_eq!(baked.start(&mut ps).stuck, 0);
         let mut cpu = CpuBackend::new();
         cpu.upload_proxy(&baked.words).unwrap();
         cpu.upload_particles(&ps).unwrap();
@@ -232,7 +188,7 @@ impl Rest {
 /// Pours a block of `nx·ny·nz` particles from `drop` above `top` (the highest point of the
 /// scene under them) and steps `seconds` of simulated time at `dt`.
 fn pour(
-    baked: &Baked,
+    baked: &RadiusScene,
     n: [usize; 3],
     centre: [f32; 2],
     top: f32,
@@ -258,7 +214,7 @@ fn pour(
             }
         }
     }
-    baked.start(&mut ps);
+    assert_eq!(baked.start(&mut ps).stuck, 0);
     let mut cpu = CpuBackend::new();
     cpu.upload_proxy(&baked.words).unwrap();
     cpu.upload_particles(&ps).unwrap();
@@ -421,7 +377,7 @@ fn the_parallel_pass_is_cores_serial_pass() {
         })
         .collect();
     ps.push(Particle::new([0.0, f32::NAN, 0.0], [0.0; 3]));
-    baked.start(&mut ps);
+    assert_eq!(baked.start(&mut ps).stuck, 0);
     let step = StepParams {
         radius: r,
         ..StepParams::default()

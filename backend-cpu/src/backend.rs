@@ -99,6 +99,20 @@ struct PairBuffers {
     support: Vec<[f32; 4]>,
     ranges: Vec<[u32; 2]>,
     rank: Vec<AtomicU32>,
+    timings: PairTimings,
+}
+
+/// Where the CPU's particle–particle pass spends its time, summed over the substeps since
+/// last taken ([`CpuBackend::take_pair_timings`]): what the bench reports apart.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PairTimings {
+    /// Gravity, the largest speed, the cell keys and their sort.
+    pub sort: std::time::Duration,
+    /// The sorted bodies, the supports, the table's ranges, the Jacobi iterations over the
+    /// 27 cells and the gather back to the caller's order.
+    pub neighbours: std::time::Duration,
+    /// The march of every particle against the scene over the substep.
+    pub march: std::time::Duration,
 }
 
 /// Buckets of the pass's table each thread fills at a time.
@@ -114,6 +128,7 @@ impl PairBuffers {
         hints: &[LeafHint],
         s: &PairStep,
         iterations: u32,
+        started: std::time::Instant,
     ) -> u64 {
         let n = particles.len();
         let t = pair_table_size(n);
@@ -137,6 +152,8 @@ impl PairBuffers {
                 *key = (hash as u64) << 32 | i as u64;
             });
         keys.par_sort_unstable();
+        let sorted = std::time::Instant::now();
+        self.timings.sort += sorted - started;
         let none = (PAIR_HASH_NONE as u64) << 32;
         let valid = keys.partition_point(|&k| k < none);
         let keys = &keys[..valid];
@@ -209,6 +226,7 @@ impl PairBuffers {
                     p.velocity = [v[0], v[1], v[2]];
                 }
             });
+        self.timings.neighbours += sorted.elapsed();
         capped
     }
 }
@@ -381,6 +399,11 @@ impl CpuBackend {
                 .map(|((p, sh), ss)| step_one(view, plain, p, sh, ss, params, None, &mut ()))
                 .reduce(|| (0, 0), add)
         }
+    }
+
+    /// Where the particle–particle pass spent its time since this was last taken.
+    pub fn take_pair_timings(&mut self) -> PairTimings {
+        std::mem::take(&mut self.pairs.timings)
     }
 
     /// The floor: steps the particles `steps` times with integration only (the step's
@@ -567,6 +590,7 @@ impl Backend for CpuBackend {
         march.validate()?;
         for _ in 0..steps {
             for _ in 0..substeps {
+                let started = std::time::Instant::now();
                 let s0 = PairStep::new(params, pairs, h, n, 0.0);
                 let (v_max, fast) = particles
                     .par_iter()
@@ -577,7 +601,8 @@ impl Backend for CpuBackend {
                 let s = PairStep::new(params, pairs, h, n, v_max);
                 pair_report.fast += fast;
                 pair_report.capped +=
-                    buffers.substep(particles, &view, hints, &s, pairs.iterations);
+                    buffers.substep(particles, &view, hints, &s, pairs.iterations, started);
+                let marched = std::time::Instant::now();
                 particles
                     .par_iter_mut()
                     .zip(hints.par_iter_mut())
@@ -585,6 +610,7 @@ impl Backend for CpuBackend {
                     .for_each(|(p, hint)| {
                         step_particle_hinted(&view, p, &march, hint);
                     });
+                buffers.timings.march += marched.elapsed();
                 pair_report.substeps += 1;
             }
             pair_report.steps += 1;

@@ -74,7 +74,7 @@ pub mod scene;
 pub mod scenes;
 pub mod sides;
 
-pub use backend::{CpuBackend, CpuError};
+pub use backend::{CpuBackend, CpuError, PairTimings};
 pub use bake::{
     bake, bake_offset, bake_with_radius, BuildError, BuildParams, BuildProgress, BuildReport,
     MeshRef,

@@ -17,9 +17,14 @@
 //! 2R` and `v_n = (v_i − v_j)·n`, the pair is in contact when `gap + v_n·h < 0` (it would
 //! close within the substep). The relative normal velocity is then raised to
 //! `e·(−v_n) + (1 − e)·(−gap/h)` (restitution `e`: reflected, or arriving just touching),
-//! and, when the pair overlaps, to at least `−β·gap/h` (the overlap removed at the rate
-//! `β`, [`PairParams::relaxation`]). The tangential relative velocity loses up to `μ` times
-//! that normal change (Coulomb's cone on impulses): all of it below the cone (static
+//! and, when the pair overlaps, to `−β·gap/h` (the overlap removed at the rate `β`,
+//! [`PairParams::relaxation`]): at least that when it closes (more only by a bounce), and
+//! exactly that when it parts, so a pair parting faster than its overlap's removal is held
+//! back to it. Without that hold, what removes the overlaps of a deep pile in one substep
+//! would stay as velocity: in a stack each grain parts from the one below at its overlap's
+//! rate, the top takes the sum, and piles 30 grains deep threw their top grains up at metres
+//! per second. The tangential relative velocity loses up to `μ` times the normal change
+//! (Coulomb's cone on impulses) when the contact pushes: all of it below the cone (static
 //! friction: touching particles stop sliding, so piles stand), `μ·Δv_n` above it. Particle
 //! `i` takes `share_i` of the pair's change and `j` the rest, `share_i = ½ + ½·s·σ` with `s`
 //! the height of `i` above `j` along `−gravity` in diameters (clamped to ±1) and `σ`
@@ -482,17 +487,21 @@ pub fn pair_impulse(
         s.relaxation * gap * s.inv_h
     };
     let mut target = s.restitution * -vn + (1.0 - s.restitution) * -closing;
-    if gap < 0.0 && target < -closing {
+    // Overlapping (and still so at the substep's end): parting at exactly the overlap's
+    // removal, faster only by a bounce; a pair that parts faster is held back to it.
+    if gap < 0.0 && (target < -closing || vn > 0.0) {
         target = -closing;
     }
     let jn = target - vn;
-    if !(jn > 0.0) {
+    let (pushes, pulls) = (jn > 0.0, gap < 0.0 && jn < 0.0);
+    if !(pushes || pulls) {
         return None;
     }
     let vt = vr - n * vn;
     let t2 = vt.dot(vt);
     let mut dv = n * jn;
-    if t2 > 0.0 {
+    if t2 > 0.0 && pushes {
+        // Friction acts with a push; a pull (held back) moves along the normal only.
         let tl = math::sqrt(t2);
         let limit = s.friction * jn;
         let keep = if tl <= limit { 1.0 } else { limit / tl };

@@ -196,17 +196,19 @@ fn pair_impulse(me: PairBody, v: vec3<f32>, other: PairBody, w: vec3<f32>, s: Pa
         closing = gap * s.inv_h;
     }
     var target_vn = s.restitution * -vn + (1.0 - s.restitution) * -closing;
-    if gap < 0.0 && target_vn < -closing {
+    if gap < 0.0 && (target_vn < -closing || vn > 0.0) {
         target_vn = -closing;
     }
     let jn = target_vn - vn;
-    if !(jn > 0.0) {
+    let pushes = jn > 0.0;
+    let pulls = gap < 0.0 && jn < 0.0;
+    if !(pushes || pulls) {
         return none;
     }
     let vt = vr - n * vn;
     let t2 = dot3(vt, vt);
     var dv = n * jn;
-    if t2 > 0.0 {
+    if t2 > 0.0 && pushes {
         let tl = sqrt(t2);
         let limit = s.friction * jn;
         var keep = 1.0;

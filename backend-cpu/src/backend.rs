@@ -10,8 +10,8 @@ use octoproxy_core::{
 };
 
 use octoproxy_core::pairs::{
-    pair_cell, pair_hash, pair_is_fast, pair_prepare, pair_start, pair_table_size, pair_velocity,
-    PAIR_HASH_NONE,
+    pair_candidates, pair_cell, pair_hash, pair_is_fast, pair_prepare, pair_start, pair_table_size,
+    pair_velocity_listed, PAIR_HASH_NONE,
 };
 use octoproxy_core::{pair_substeps, PairBody, PairParams, PairReport, PairStep, PairVelocity};
 use rayon::prelude::*;
@@ -99,8 +99,22 @@ struct PairBuffers {
     support: Vec<[f32; 4]>,
     ranges: Vec<[u32; 2]>,
     rank: Vec<AtomicU32>,
+    /// Each chunk of the sorted order's candidates ([`pair_candidates`]), listed once a
+    /// substep: the iterations read them instead of searching the 27 cells again.
+    lists: Vec<CandidateList>,
     timings: PairTimings,
 }
+
+/// The candidates of [`LIST_CHUNK`] particles in sorted order: particle `j` of the chunk has
+/// `list[offsets[j]..offsets[j + 1]]`.
+#[derive(Debug, Default)]
+struct CandidateList {
+    offsets: Vec<u32>,
+    list: Vec<u32>,
+}
+
+/// Particles (in sorted order) whose candidates one list holds.
+const LIST_CHUNK: usize = 1024;
 
 /// Where the CPU's particle–particle pass spends its time, summed over the substeps since
 /// last taken ([`CpuBackend::take_pair_timings`]): what the bench reports apart.
@@ -197,21 +211,46 @@ impl PairBuffers {
             });
         let ranges = &self.ranges[..];
         let support = &self.support[..valid];
-        let mut capped = 0u64;
+        let bodies = &self.bodies[..valid];
+        let chunks = valid.div_ceil(LIST_CHUNK);
+        if self.lists.len() < chunks {
+            self.lists.resize_with(chunks, CandidateList::default);
+        }
+        let lists = &mut self.lists[..chunks];
+        // Candidates depend on positions only: a particle that hits the cap hits it in every
+        // iteration, as the search in each would.
+        let capped_once: u64 = lists
+            .par_iter_mut()
+            .enumerate()
+            .map(|(c, l)| {
+                l.offsets.clear();
+                l.list.clear();
+                let mut capped = 0u64;
+                for k in c * LIST_CHUNK..((c + 1) * LIST_CHUNK).min(valid) {
+                    l.offsets.push(l.list.len() as u32);
+                    let list = &mut l.list;
+                    capped += pair_candidates(k, bodies, ranges, s, |m| list.push(m as u32)) as u64;
+                }
+                l.offsets.push(l.list.len() as u32);
+                capped
+            })
+            .sum();
+        let capped = capped_once * iterations as u64;
+        let lists = &self.lists[..chunks];
         let (mut a, mut b) = (&mut self.vel, &mut self.vel_next);
         for _ in 0..iterations {
-            let bodies = &self.bodies[..valid];
             let read = &a[..valid];
-            capped += b[..valid]
-                .par_iter_mut()
+            b[..valid]
+                .par_chunks_mut(LIST_CHUNK)
+                .zip(lists.par_iter())
                 .enumerate()
-                .with_min_len(1024)
-                .map(|(k, out)| {
-                    let (v, cap) = pair_velocity(k, bodies, read, support, ranges, s);
-                    *out = v;
-                    cap as u64
-                })
-                .sum::<u64>();
+                .for_each(|(c, (out, l))| {
+                    for (j, o) in out.iter_mut().enumerate() {
+                        let (from, to) = (l.offsets[j] as usize, l.offsets[j + 1] as usize);
+                        let k = c * LIST_CHUNK + j;
+                        *o = pair_velocity_listed(k, &l.list[from..to], bodies, read, support, s);
+                    }
+                });
             std::mem::swap(&mut a, &mut b);
         }
         let vel = &a[..valid];

@@ -783,10 +783,14 @@ const HOST_ONLY: &[(&str, &str, &str)] = &[
     ("pairs.rs", "validate", "PairParams::validate: the host checks parameters before stepping"),
     ("pairs.rs", "pair_substeps", "the host splits each step into substeps and records them"),
     ("pairs.rs", "pair_table_size", "the host sizes the table and writes PairStep::mask"),
-    ("pairs.rs", "new", "PairStep::new: the host writes every field but the cell; pair_step_kernel computes cell and inv_cell from the GPU's largest speed with pair_cell_edge, as new does"),
+    ("pairs.rs", "new", "PairStep::new: the host writes every field but the cell; pair_step_kernel computes cell and inv_cell from the GPU's largest speed with pair_cell_edge, as new does. PairSum::new: pair_velocity's start, inlined in pairs.wgsl's"),
     ("pairs.rs", "collide_pairs", "the pass on one thread; the GPU runs its stages as kernels (pairs_kernel.wgsl), the CPU backend as rayon loops"),
     ("pairs.rs", "pair_max_speed", "a reduction: pair_speed_kernel's atomicMax over pair_prepare's speeds"),
     ("pairs.rs", "pair_fast_count", "a reduction: pair_speed_kernel's count over pair_is_fast"),
+    ("pairs.rs", "pair_candidates", "pair_velocity's neighbour loop, which pairs.wgsl's pair_velocity inlines; the CPU backend lists a substep's candidates once with it"),
+    ("pairs.rs", "pair_velocity_listed", "pair_velocity from candidates listed once a substep (the CPU backend's); the GPU searches in each iteration"),
+    ("pairs.rs", "add", "PairSum::add: pair_velocity's sum of one contact, inlined in pairs.wgsl's loop"),
+    ("pairs.rs", "finish", "PairSum::finish: pair_velocity's mean and support response, inlined at the end of pairs.wgsl's"),
 ];
 
 /// core's source files, by name.

@@ -40,7 +40,8 @@
 //! `(x_i − x_j)·n ≥ 2R`, and so does every point between: the relative path never enters the
 //! other particle. The cell edge is `2R + 2·v_max·h` (times a margin), with `v_max` the
 //! largest speed of the substep, so every pair that could close within the substep lies in
-//! neighbouring cells. The neighbours a particle visits per iteration are capped
+//! neighbouring cells, closer than the cell edge: the pairs a particle considers
+//! ([`pair_candidates`]), whatever the grid's alignment. The neighbours a particle visits per iteration are capped
 //! ([`PairParams::max_candidates`]); a particle that hits the cap is counted
 //! ([`PairReport::capped`]), never looped over without end.
 //!
@@ -513,12 +514,108 @@ pub fn pair_impulse(
     Some(dv * share)
 }
 
+/// The candidates of the particle at sorted position `k`, in the pass's fixed order: the
+/// 27 cells around its own (z, then y, then x, from −1 to 1), each bucket in sorted order
+/// (`ranges[h]` is the bucket of hash `h`, `[start, end)` in the sorted order; `[0, 0]` when
+/// empty), keeping the entries of that very cell (a bucket holds every cell of its hash)
+/// closer than the cell edge, itself left out. `each` gets each candidate's sorted position.
+/// Returns whether the loop stopped at the cap ([`PairParams::max_candidates`] bucket entries
+/// visited, kept or not). The candidates depend on positions only, so they are the same in
+/// every iteration of a substep: the CPU backend lists them once.
+///
+/// A pair farther apart than the cell edge is never a candidate: whether it lies in
+/// neighbouring cells depends on where the grid falls, and it cannot close within the
+/// substep at the speeds the cells were made for ([`pair_cell_edge`]).
+#[inline]
+pub fn pair_candidates(
+    k: usize,
+    bodies: &[PairBody],
+    ranges: &[[u32; 2]],
+    s: &PairStep,
+    mut each: impl FnMut(usize),
+) -> bool {
+    let me = &bodies[k];
+    let x = Vec3::from_array(me.position);
+    let reach = s.cell * s.cell;
+    let mut visited = 0u32;
+    for dz in -1i32..=1 {
+        for dy in -1i32..=1 {
+            for dx in -1i32..=1 {
+                let c = [me.cell[0] + dx, me.cell[1] + dy, me.cell[2] + dz];
+                let r = ranges[pair_hash(c, s.mask) as usize];
+                for m in r[0]..r[1] {
+                    if visited == s.max_candidates {
+                        return true;
+                    }
+                    visited += 1;
+                    let m = m as usize;
+                    let o = &bodies[m];
+                    if m == k || o.cell != c {
+                        continue;
+                    }
+                    let d = x - Vec3::from_array(o.position);
+                    if d.dot(d) >= reach {
+                        continue;
+                    }
+                    each(m);
+                }
+            }
+        }
+    }
+    false
+}
+
+/// A particle's contacts summed over an iteration, in its candidates' order.
+struct PairSum {
+    v: Vec3,
+    sum: Vec3,
+    contacts: u32,
+}
+
+impl PairSum {
+    #[inline(always)]
+    fn new(vel: &[PairVelocity], k: usize) -> Self {
+        Self {
+            v: Vec3::new(vel[k][0], vel[k][1], vel[k][2]),
+            sum: Vec3::ZERO,
+            contacts: 0,
+        }
+    }
+
+    #[inline(always)]
+    fn add(&mut self, me: &PairBody, other: &PairBody, w: &PairVelocity, s: &PairStep) {
+        let w = Vec3::new(w[0], w[1], w[2]);
+        if let Some(dv) = pair_impulse(me, self.v, other, w, s) {
+            self.sum += dv;
+            self.contacts += 1;
+        }
+    }
+
+    /// The velocity: the contacts' mean change, then the support's response.
+    #[inline(always)]
+    fn finish(self, sup: [f32; 4], s: &PairStep) -> PairVelocity {
+        let mut out = if self.contacts > 0 {
+            self.v + self.sum * (1.0 / self.contacts as f32)
+        } else {
+            self.v
+        };
+        if sup[3] != 0.0 {
+            out = respond(
+                out,
+                Vec3::new(sup[0], sup[1], sup[2]),
+                0.0,
+                s.scene_friction,
+            );
+        }
+        [out.x, out.y, out.z, 0.0]
+    }
+}
+
 /// One Jacobi iteration for the particle at sorted position `k`: its velocity after its
-/// contacts with the particles in the 27 cells around it (velocities from `vel`, the last
+/// contacts with its candidates ([`pair_candidates`]; velocities from `vel`, the last
 /// iteration's), and its support's response ([`pair_support`], `support[k]`: what moves into
 /// the scene is taken as the scene's normal impulse, with its friction, `respond` with no
-/// restitution), and whether its neighbour loop stopped at the cap. `ranges[h]` is the
-/// bucket of hash `h` (`[start, end)` in the sorted order; `[0, 0]` when empty).
+/// restitution), and whether its neighbour loop stopped at the cap.
 #[inline]
 pub fn pair_velocity(
     k: usize,
@@ -528,52 +625,32 @@ pub fn pair_velocity(
     ranges: &[[u32; 2]],
     s: &PairStep,
 ) -> (PairVelocity, bool) {
-    let me = bodies[k];
-    let v = Vec3::new(vel[k][0], vel[k][1], vel[k][2]);
-    let mut sum = Vec3::ZERO;
-    let mut contacts = 0u32;
-    let mut visited = 0u32;
-    let mut capped = false;
-    'cells: for dz in -1i32..=1 {
-        for dy in -1i32..=1 {
-            for dx in -1i32..=1 {
-                let c = [me.cell[0] + dx, me.cell[1] + dy, me.cell[2] + dz];
-                let r = ranges[pair_hash(c, s.mask) as usize];
-                for m in r[0]..r[1] {
-                    if visited == s.max_candidates {
-                        capped = true;
-                        break 'cells;
-                    }
-                    visited += 1;
-                    let m = m as usize;
-                    let o = &bodies[m];
-                    if m == k || o.cell != c {
-                        continue;
-                    }
-                    let w = Vec3::new(vel[m][0], vel[m][1], vel[m][2]);
-                    if let Some(dv) = pair_impulse(&me, v, o, w, s) {
-                        sum += dv;
-                        contacts += 1;
-                    }
-                }
-            }
-        }
+    let me = &bodies[k];
+    let mut sum = PairSum::new(vel, k);
+    let capped = pair_candidates(k, bodies, ranges, s, |m| {
+        sum.add(me, &bodies[m], &vel[m], s);
+    });
+    (sum.finish(support[k], s), capped)
+}
+
+/// [`pair_velocity`] from the particle's candidates listed once for the substep (sorted
+/// positions, in [`pair_candidates`]' order): the same bits, without the search.
+#[inline]
+pub fn pair_velocity_listed(
+    k: usize,
+    candidates: &[u32],
+    bodies: &[PairBody],
+    vel: &[PairVelocity],
+    support: &[[f32; 4]],
+    s: &PairStep,
+) -> PairVelocity {
+    let me = &bodies[k];
+    let mut sum = PairSum::new(vel, k);
+    for &m in candidates {
+        let m = m as usize;
+        sum.add(me, &bodies[m], &vel[m], s);
     }
-    let mut out = if contacts > 0 {
-        v + sum * (1.0 / contacts as f32)
-    } else {
-        v
-    };
-    let sup = support[k];
-    if sup[3] != 0.0 {
-        out = respond(
-            out,
-            Vec3::new(sup[0], sup[1], sup[2]),
-            0.0,
-            s.scene_friction,
-        );
-    }
-    ([out.x, out.y, out.z, 0.0], capped)
+    sum.finish(support[k], s)
 }
 
 /// The caller's scratch for [`collide_pairs`]: `n` keys, bodies and two velocity buffers,

@@ -223,8 +223,9 @@ fn pair_impulse(me: PairBody, v: vec3<f32>, other: PairBody, w: vec3<f32>, s: Pa
 }
 
 // One Jacobi iteration for the particle at sorted position `k`: the 27 cells around its own,
-// z then y then x from -1 to 1, each bucket in sorted order, velocities from `pair_vel`, then
-// its support's response. Rust's `respond(.., 0.0, ..)` takes a restitution of zero: here it
+// z then y then x from -1 to 1, each bucket in sorted order, the entries of that very cell
+// closer than the cell edge (Rust's `pair_candidates`, inlined), velocities from `pair_vel`,
+// then its support's response (Rust's `PairSum`). Rust's `respond(.., 0.0, ..)` takes a restitution of zero: here it
 // is read at run time (`pair_state.zero`), for a constant one may let the compiler fold
 // `v_n * 0.0` to +0 (NIR's inexact `a * 0.0 -> 0.0`), where IEEE gives -0 for a negative
 // `v_n`, and then `v_t * keep - v_n * 0.0` its sign of zero.
@@ -235,6 +236,7 @@ fn pair_velocity(k: u32, s: PairStep) -> PairVelocityOut {
     var contacts = 0u;
     var visited = 0u;
     var capped = false;
+    let reach = s.cell * s.cell;
     for (var dz = -1; dz <= 1; dz++) {
         for (var dy = -1; dy <= 1; dy++) {
             for (var dx = -1; dx <= 1; dx++) {
@@ -248,6 +250,10 @@ fn pair_velocity(k: u32, s: PairStep) -> PairVelocityOut {
                     visited += 1u;
                     let o = pair_bodies[m];
                     if m == k || any(o.cell != c) {
+                        continue;
+                    }
+                    let d = me.position - o.position;
+                    if dot3(d, d) >= reach {
                         continue;
                     }
                     let w = pair_vel[m].xyz;

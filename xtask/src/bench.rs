@@ -36,18 +36,20 @@ use crate::flags;
 use crate::plot;
 
 mod instances;
+mod particles;
 
 const USAGE: &str = "\
 usage: octoproxy bench [--quick] [--backends cpu,wgpu] [--scenes S,S...] [--particles N,N...]
 
   --quick          one scene (the bunny), 100k particles, every method: a few minutes
   --backends L     which of cpu, wgpu to run (default: both; wgpu only when an adapter exists)
-  --scenes L       of bunny, nefertiti, ogre, beast, nefertiti-1.6m, nefertiti-6.4m, and the
-                   instance cases instances-1, instances-10, instances-100, instances-1000
-                   (default: all)
+  --scenes L       of bunny, nefertiti, ogre, beast, nefertiti-1.6m, nefertiti-6.4m, the
+                   instance cases instances-1, instances-10, instances-100, instances-1000,
+                   and the cases of particles that collide with each other, particles-pile
+                   and particles-cloud (default: all)
   --particles L    particle counts (default 10000,100000,1000000,4000000, and 3M and 10M on a
-                   hardware GPU; the instance cases 1000000, or 100000 with --quick; suffixes
-                   k and m work)
+                   hardware GPU; the instance cases 1000000, the particle cases 100000 and
+                   1000000, or 100000 with --quick; suffixes k and m work)
   --steps N        timed steps per case (default: about 4M particle-steps per case, 2..50)
   --samples N      particles in each penetration check (default 2000; 60 steps each)
   --out DIR        where results go (default target/bench); with docs/bench, the committed
@@ -60,7 +62,9 @@ triangle-octree, parry3d, sdf-grid and floor on the CPU; octoproxy-wgpu and floo
 on one scene (nefertiti, else the first), the same proxy as a one-instance static scene through
 the scene API (octoproxy-cpu-scene-api, octoproxy-wgpu-scene-api). An instance case places
 N instances of Spot and the rocker arm on a grid and times octoproxy through Scene::step with
-every instance still, then with half of them moving.";
+every instance still, then with half of them moving. The particle cases time
+Backend::step_pairs (the particle-particle pass and the march at a radius) on a dense pile and
+a sparse cloud, the CPU's sort, neighbour loop and march apart.";
 
 /// The mesh scenes: one proxy each, every method.
 const MESH_SCENES: [&str; 6] = [
@@ -90,13 +94,18 @@ struct Opts {
     gpu_only: Vec<usize>,
     /// Particle counts of the instance cases.
     instance_particles: Vec<usize>,
+    /// Particle counts of the cases of particles that collide with each other.
+    pair_particles: Vec<usize>,
     /// Whether `--backends` named wgpu (the scene cases run on a software adapter only then).
     wgpu_asked: bool,
 }
 
 /// Every scene, mesh scenes first.
 fn all_scenes() -> impl Iterator<Item = &'static str> {
-    MESH_SCENES.into_iter().chain(instances::SCENES)
+    MESH_SCENES
+        .into_iter()
+        .chain(instances::SCENES)
+        .chain(particles::SCENES)
 }
 
 fn parse_count(s: &str) -> Result<usize> {
@@ -131,6 +140,7 @@ fn parse(args: Vec<std::ffi::OsString>) -> Result<Option<Opts>> {
         docs_only: false,
         gpu_only: Vec::new(),
         instance_particles: Vec::new(),
+        pair_particles: Vec::new(),
         wgpu_asked: false,
     };
     let mut p = lexopt::Parser::from_args(args);
@@ -198,6 +208,14 @@ fn parse(args: Vec<std::ffi::OsString>) -> Result<Option<Opts>> {
         vec![100_000]
     } else {
         vec![1_000_000]
+    };
+    // The particle cases: the counts asked for, else 100k and 1M (the issue's), or 100k.
+    o.pair_particles = if !o.particles.is_empty() {
+        o.particles.clone()
+    } else if o.quick {
+        vec![100_000]
+    } else {
+        vec![100_000, 1_000_000]
     };
     if o.particles.is_empty() {
         o.particles = if o.quick {
@@ -278,13 +296,16 @@ pub struct Row {
     /// The scene API's time over the plain step's on the same proxy and particles (NaN
     /// elsewhere).
     pub ratio_to_plain: f64,
+    /// A particle case's substeps per step (0 elsewhere): its rows time the step with the
+    /// particle–particle pass.
+    pub substeps: u32,
 }
 
 impl Row {
     /// A row of the mesh scenes' table: one proxy, stepped by `Backend::step` (not an
     /// instance case, nor the scene API's comparison).
     pub fn is_mesh_case(&self) -> bool {
-        self.instances == 0 && !self.method.ends_with(instances::SCENE_API)
+        self.instances == 0 && self.substeps == 0 && !self.method.ends_with(instances::SCENE_API)
     }
 }
 
@@ -474,8 +495,9 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
     let mesh_scenes: Vec<&String> = o
         .scenes
         .iter()
-        .filter(|s| instances::instance_count(s).is_none())
+        .filter(|s| instances::instance_count(s).is_none() && !particles::is_case(s))
         .collect();
+    let pair_scenes: Vec<&String> = o.scenes.iter().filter(|s| particles::is_case(s)).collect();
     let instance_scenes: Vec<(&String, usize)> = o
         .scenes
         .iter()
@@ -492,7 +514,9 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
     }
     let total_cases = mesh_scenes.len() * (o.particles.len() + gpu_extra + 2)
         + instance_scenes.len() * (o.instance_particles.len() + 1)
-        + usize::from(!instance_scenes.is_empty());
+        + usize::from(!instance_scenes.is_empty())
+        + pair_scenes.len() * o.pair_particles.len()
+        + usize::from(!pair_scenes.is_empty());
     // The scene API's comparison runs on one scene: nefertiti, else the run's first.
     let api_scene = mesh_scenes
         .iter()
@@ -611,6 +635,7 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
                     moving: 0,
                     ratio_to_static: f64::NAN,
                     ratio_to_plain: f64::NAN,
+                    substeps: 0,
                 };
                 let scene_api = band == "mixed" && api_scene.as_deref() == Some(name.as_str());
                 let mut case_rows = Vec::new();
@@ -792,6 +817,7 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
                         moving,
                         ratio_to_static: f64::NAN,
                         ratio_to_plain: f64::NAN,
+                        substeps: 0,
                     };
                 let per_step =
                     |t: Instant| t.elapsed().as_secs_f64() * 1e9 / (count as f64 * steps as f64);
@@ -835,6 +861,25 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
                     r.ratio_to_static = moving / still;
                     case_rows.push(r);
                 }
+                set_floor_ratios(&mut case_rows);
+                rows.extend(case_rows);
+                bar.inc(1);
+            }
+        }
+    }
+    if !pair_scenes.is_empty() {
+        bar.set_message("particles: baking the floor for the radius");
+        let floor = particles::Floor::new()?;
+        bar.inc(1);
+        for name in pair_scenes {
+            for &count in &o.pair_particles {
+                bar.set_message(format!("{name}: {count} particles"));
+                // A step with the pass costs tens of times a plain one: few steps.
+                let steps = o
+                    .steps
+                    .unwrap_or(((2_000_000 / count.max(1)) as u32).clamp(1, 10));
+                let g = gpu.as_mut().filter(|_| gpu_scenes);
+                let mut case_rows = particles::time_case(name, &floor, count, steps, o.cpu, g)?;
                 set_floor_ratios(&mut case_rows);
                 rows.extend(case_rows);
                 bar.inc(1);
@@ -967,6 +1012,9 @@ impl Report {
             if r.ratio_to_plain.is_finite() {
                 let _ = write!(s, ", \"ratio_to_plain\": {}", json_num(r.ratio_to_plain));
             }
+            if r.substeps > 0 {
+                let _ = write!(s, ", \"substeps\": {}", r.substeps);
+            }
             s.push('}');
             s.push_str(if i + 1 < self.rows.len() { ",\n" } else { "\n" });
         }
@@ -1042,6 +1090,78 @@ impl Report {
             }
         }
         s.push_str(&self.markdown_scene_cases());
+        let pairs = self.particle_cases();
+        if !pairs.is_empty() {
+            s.push('\n');
+            s.push_str(&pairs);
+        }
+        s
+    }
+
+    /// The cases of particles that collide with each other, one line per case and backend:
+    /// the whole step, per particle-step and per particle-substep, and on the CPU its parts
+    /// (empty when the run has none).
+    pub fn particle_cases(&self) -> String {
+        let cases: Vec<&Row> = self
+            .rows
+            .iter()
+            .filter(|r| r.substeps > 0 && r.method.ends_with(particles::METHOD))
+            .collect();
+        if cases.is_empty() {
+            return String::new();
+        }
+        let part = |r: &Row, name: &str| {
+            self.rows
+                .iter()
+                .find(|q| {
+                    q.scene == r.scene
+                        && q.particles == r.particles
+                        && q.backend == r.backend
+                        && q.method == format!("{}{name}", r.method)
+                })
+                .map(|q| q.ns_per_particle_step)
+        };
+        let mut s = String::new();
+        let _ = write!(
+            s,
+            "Particles that collide with each other (`step_pairs`: the uniform-grid pass, then the \
+             march at the radius), radius {} m, `dt` 1/60 s, {} substeps a step (automatic), 8 \
+             iterations. `particles-pile`: a block {} grains wide resting on a floor, one grain \
+             per cell; `particles-cloud`: one grain per (8R)³ falling onto it. Nanoseconds per \
+             particle-step; the pass is the sort and the neighbour loop, per particle-substep:\n\n",
+            particles::RADIUS,
+            cases[0].substeps,
+            particles::PILE_WIDTH,
+        );
+        s.push_str("| case | particles | backend | step | per substep | pass per substep | sort | neighbour loop | march | × floor |\n");
+        s.push_str("|---|---:|---|---:|---:|---:|---:|---:|---:|---:|\n");
+        let ns = |x: Option<f64>| x.map(|v| format!("{v:.0}")).unwrap_or_else(|| "–".into());
+        for r in cases {
+            let sub = r.substeps as f64;
+            let (sort, nb, march) = (
+                part(r, particles::PARTS[0]),
+                part(r, particles::PARTS[1]),
+                part(r, particles::PARTS[2]),
+            );
+            let pass = match (sort, nb) {
+                (Some(a), Some(b)) => Some((a + b) / sub),
+                _ => None,
+            };
+            let _ = writeln!(
+                s,
+                "| {} | {} | {} | {:.0} | {:.0} | {} | {} | {} | {} | {} |",
+                r.scene,
+                r.particles,
+                r.backend,
+                r.ns_per_particle_step,
+                r.ns_per_particle_step / sub,
+                ns(pass),
+                ns(sort),
+                ns(nb),
+                ns(march),
+                fmt_opt(r.ratio_to_floor, 0)
+            );
+        }
         s
     }
 
@@ -1342,13 +1462,14 @@ mod docs {
 
     /// Every generated region, and the file (from the repository root) that must hold it. The
     /// same region may appear in other Markdown files too.
-    pub const REGIONS: [(&str, &str); 6] = [
+    pub const REGIONS: [(&str, &str); 7] = [
         ("README.md", "table:headline"),
         ("docs/bench/README.md", "table:summary"),
         ("docs/bench/README.md", "text:findings"),
         ("docs/bench/README.md", "table:bands"),
         ("docs/bench/README.md", "text:targets"),
         ("docs/bench/README.md", "table:instances"),
+        ("docs/bench/README.md", "table:particles"),
     ];
 
     /// The CPU methods in the order the tables list them; others follow as they appear.
@@ -1535,6 +1656,20 @@ mod docs {
         if name == "table:instances" {
             // The scene cases stand apart from the mesh scenes' run.
             return Ok(format!("\n{}\n", scene_cases(report)));
+        }
+        if name == "table:particles" {
+            let table = report.particle_cases();
+            let body = if table.is_empty() {
+                format!(
+                    "The committed run ({}) predates the particle cases: `cargo xtask bench \
+                     --scenes particles-pile,particles-cloud` runs them, and the next full run to \
+                     commit puts their figures here.",
+                    report.date
+                )
+            } else {
+                table
+            };
+            return Ok(format!("\n{body}\n"));
         }
         let run = Run::new(report)?;
         let body = match name {
@@ -2290,6 +2425,7 @@ mod docs {
                 moving: 0,
                 ratio_to_static: f64::NAN,
                 ratio_to_plain: f64::NAN,
+                substeps: 0,
             };
             // The committed run without its scene cases, whether it has them or not.
             let mut committed = load_committed().unwrap();
@@ -2634,6 +2770,7 @@ mod json {
             moving: r.count_or("moving", 0)?,
             ratio_to_static: r.num_or("ratio_to_static", f64::NAN)?,
             ratio_to_plain: r.num_or("ratio_to_plain", f64::NAN)?,
+            substeps: r.count_or("substeps", 0)? as u32,
         })
     }
 
@@ -2690,6 +2827,7 @@ mod json {
                     moving: 0,
                     ratio_to_static: f64::NAN,
                     ratio_to_plain: f64::NAN,
+                    substeps: 0,
                 }],
             };
             let back = parse_report(&report.json()).unwrap();
@@ -2719,6 +2857,16 @@ mod json {
             assert_eq!((a.instances, a.moving, a.ratio_to_static), (100, 50, 1.5));
             assert_eq!(b.ratio_to_plain, 1.02);
             assert!(!a.is_mesh_case() && !b.is_mesh_case());
+            assert_eq!(back.json(), report.json());
+            // A particle case's substeps read back, and keep it out of the mesh tables.
+            let mut pile = report.rows[0].clone();
+            (pile.instances, pile.moving, pile.ratio_to_static) = (0, 0, f64::NAN);
+            (pile.method, pile.substeps) = ("octoproxy-cpu-particles".into(), 6);
+            report.rows.push(pile);
+            let back = parse_report(&report.json()).unwrap();
+            assert_eq!(back.rows[2].substeps, 6);
+            assert!(!back.rows[2].is_mesh_case());
+            assert!(back.particle_cases().contains("6 substeps a step"));
             assert_eq!(back.json(), report.json());
         }
 

@@ -429,18 +429,24 @@ pub fn pair_cell(x: [f32; 3], s: &PairStep) -> [i32; 3] {
     c
 }
 
-/// The table index of a cell: a mix of its coordinates' bits, masked.
+/// The table index of a cell: its block of 4×4×4 cells (the coordinates shifted right by
+/// two) mixed into the high bits, its place in the block (two bits per axis, x lowest) in the
+/// low six, masked. The sort by hash keeps each block's cells together, so neighbours are
+/// mostly near each other in the sorted order (and in memory); the blocks are spread as a
+/// hash spreads cells.
 #[inline]
 pub fn pair_hash(c: [i32; 3], mask: u32) -> u32 {
-    let mut h = (c[0] as u32).wrapping_mul(0x8da6_b343)
-        ^ (c[1] as u32).wrapping_mul(0xd816_3841)
-        ^ (c[2] as u32).wrapping_mul(0xcb1a_b31f);
+    let b = [c[0] >> 2, c[1] >> 2, c[2] >> 2];
+    let mut h = (b[0] as u32).wrapping_mul(0x8da6_b343)
+        ^ (b[1] as u32).wrapping_mul(0xd816_3841)
+        ^ (b[2] as u32).wrapping_mul(0xcb1a_b31f);
     h ^= h >> 16;
     h = h.wrapping_mul(0x7feb_352d);
     h ^= h >> 15;
     h = h.wrapping_mul(0x846c_a68b);
     h ^= h >> 16;
-    h & mask
+    let local = (c[0] & 3) as u32 | ((c[1] & 3) as u32) << 2 | ((c[2] & 3) as u32) << 4;
+    (h << 6 | local) & mask
 }
 
 /// Whether sorted position `k` is the first and the last entry of its bucket in `keys` (the
@@ -887,6 +893,28 @@ mod tests {
             pair_cell([1e38, -1e38, 3.0e9], &s),
             [1 << 30, -(1 << 30), 1 << 30]
         );
+    }
+
+    #[test]
+    fn a_block_of_cells_hashes_to_one_run_of_the_table() {
+        let mask = (1 << 20) - 1;
+        for base in [[0, 0, 0], [-4, 8, -12], [1 << 29, -(1 << 30), 4]] {
+            let high = pair_hash(base, mask) >> 6;
+            let mut seen = [false; 64];
+            for (dz, dy, dx) in (0..64).map(|i| (i / 16, i / 4 % 4, i % 4)) {
+                let h = pair_hash([base[0] + dx, base[1] + dy, base[2] + dz], mask);
+                assert_eq!(h >> 6, high, "{base:?} + {:?}", (dx, dy, dz));
+                assert_eq!(h & 63, (dx | dy << 2 | dz << 4) as u32);
+                seen[(h & 63) as usize] = true;
+            }
+            assert!(seen.iter().all(|&s| s));
+            // The next block along each axis is elsewhere.
+            for a in 0..3 {
+                let mut next = base;
+                next[a] += 4;
+                assert_ne!(pair_hash(next, mask) >> 6, high);
+            }
+        }
     }
 
     #[test]

@@ -150,16 +150,20 @@ fn pair_start(p: Particle, hint: vec2<u32>, s: PairStep) -> PairStart {
     return PairStart(vec4<f32>(v, 0.0), support);
 }
 
-// Wrapping multiplies, as Rust's `wrapping_mul`.
+// Wrapping multiplies, as Rust's `wrapping_mul`; `>>` on `i32` is arithmetic, as Rust's: the
+// block of 4x4x4 cells in the high bits, the place in it in the low six.
 fn pair_hash(c: vec3<i32>, mask: u32) -> u32 {
-    var h = (bitcast<u32>(c.x) * 0x8da6b343u) ^ (bitcast<u32>(c.y) * 0xd8163841u)
-        ^ (bitcast<u32>(c.z) * 0xcb1ab31fu);
+    let b = c >> vec3<u32>(2u);
+    var h = (bitcast<u32>(b.x) * 0x8da6b343u) ^ (bitcast<u32>(b.y) * 0xd8163841u)
+        ^ (bitcast<u32>(b.z) * 0xcb1ab31fu);
     h ^= h >> 16u;
     h = h * 0x7feb352du;
     h ^= h >> 15u;
     h = h * 0x846ca68bu;
     h ^= h >> 16u;
-    return h & mask;
+    let l = bitcast<vec3<u32>>(c & vec3<i32>(3));
+    let local = l.x | (l.y << 2u) | (l.z << 4u);
+    return ((h << 6u) | local) & mask;
 }
 
 // Whether sorted position `k` is the first and the last entry of its bucket in `pair_keys`,

@@ -9,9 +9,10 @@ use octoproxy_core::{
     SceneHint, SceneSides, SceneSlots, SceneStepReport, SceneView, StepParams,
 };
 
+use octoproxy_core::pairs::PairGeometry;
 use octoproxy_core::pairs::{
-    pair_candidates, pair_cell, pair_hash, pair_is_fast, pair_prepare, pair_start, pair_table_size,
-    pair_velocity_listed, PAIR_HASH_NONE,
+    pair_candidates, pair_cell, pair_geometry, pair_hash, pair_is_fast, pair_prepare, pair_start,
+    pair_table_size, pair_velocity_listed, PAIR_HASH_NONE,
 };
 use octoproxy_core::{pair_substeps, PairBody, PairParams, PairReport, PairStep, PairVelocity};
 use rayon::prelude::*;
@@ -111,6 +112,9 @@ struct PairBuffers {
 struct CandidateList {
     offsets: Vec<u32>,
     list: Vec<u32>,
+    /// Each candidate's contact geometry ([`pair_geometry`]): positions do not change within
+    /// the substep.
+    geometry: Vec<PairGeometry>,
 }
 
 /// Particles (in sorted order) whose candidates one list holds.
@@ -225,11 +229,15 @@ impl PairBuffers {
             .map(|(c, l)| {
                 l.offsets.clear();
                 l.list.clear();
+                l.geometry.clear();
                 let mut capped = 0u64;
                 for k in c * LIST_CHUNK..((c + 1) * LIST_CHUNK).min(valid) {
                     l.offsets.push(l.list.len() as u32);
-                    let list = &mut l.list;
-                    capped += pair_candidates(k, bodies, ranges, s, |m| list.push(m as u32)) as u64;
+                    let (list, geometry) = (&mut l.list, &mut l.geometry);
+                    capped += pair_candidates(k, bodies, ranges, s, |m| {
+                        list.push(m as u32);
+                        geometry.push(pair_geometry(&bodies[k], &bodies[m], s));
+                    }) as u64;
                 }
                 l.offsets.push(l.list.len() as u32);
                 capped
@@ -248,7 +256,8 @@ impl PairBuffers {
                     for (j, o) in out.iter_mut().enumerate() {
                         let (from, to) = (l.offsets[j] as usize, l.offsets[j + 1] as usize);
                         let k = c * LIST_CHUNK + j;
-                        *o = pair_velocity_listed(k, &l.list[from..to], bodies, read, support, s);
+                        let (list, geometry) = (&l.list[from..to], &l.geometry[from..to]);
+                        *o = pair_velocity_listed(k, list, geometry, read, support, s);
                     }
                 });
             std::mem::swap(&mut a, &mut b);

@@ -789,6 +789,8 @@ const HOST_ONLY: &[(&str, &str, &str)] = &[
     ("pairs.rs", "pair_fast_count", "a reduction: pair_speed_kernel's count over pair_is_fast"),
     ("pairs.rs", "pair_candidates", "pair_velocity's neighbour loop, which pairs.wgsl's pair_velocity inlines; the CPU backend lists a substep's candidates once with it"),
     ("pairs.rs", "pair_velocity_listed", "pair_velocity from candidates listed once a substep (the CPU backend's); the GPU searches in each iteration"),
+    ("pairs.rs", "pair_geometry", "pair_impulse's first half (normal, gap, share: positions only), inlined in pairs.wgsl's pair_impulse; the CPU backend keeps it per listed candidate"),
+    ("pairs.rs", "pair_response", "pair_impulse's second half (from the velocities), inlined in pairs.wgsl's pair_impulse"),
     ("pairs.rs", "add", "PairSum::add: pair_velocity's sum of one contact, inlined in pairs.wgsl's loop"),
     ("pairs.rs", "finish", "PairSum::finish: pair_velocity's mean and support response, inlined at the end of pairs.wgsl's"),
 ];

@@ -463,6 +463,40 @@ pub fn pair_range_marks(keys: &[[u32; 2]], k: usize) -> (bool, bool) {
     (first, last)
 }
 
+/// What a pair's contact needs of its positions, fixed within a substep: the unit normal
+/// from `other` to `me` (`±y` by index for coincident centres), the gap, and `me`'s share of
+/// the pair's change ([the contact](self)).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PairGeometry {
+    /// The unit normal.
+    pub n: [f32; 3],
+    /// `|x_me − x_other| − 2R`.
+    pub gap: f32,
+    /// `me`'s share, `½ + ½·s·σ`.
+    pub share: f32,
+}
+
+/// The geometry of `me`'s contact with `other` ([`PairGeometry`]).
+#[inline(always)]
+pub fn pair_geometry(me: &PairBody, other: &PairBody, s: &PairStep) -> PairGeometry {
+    let x = Vec3::from_array(me.position) - Vec3::from_array(other.position);
+    let d2 = x.dot(x);
+    let (dist, n) = if d2 > 0.0 {
+        let dist = math::sqrt(d2);
+        (dist, x * (1.0 / dist))
+    } else {
+        let up = if me.index > other.index { 1.0 } else { -1.0 };
+        (0.0, Vec3::new(0.0, up, 0.0))
+    };
+    let height = x.dot(Vec3::from_array(s.up)) * s.inv_diameter;
+    let height = height.clamp(-1.0, 1.0);
+    PairGeometry {
+        n: n.to_array(),
+        gap: dist - s.diameter,
+        share: 0.5 + height * s.half_stacking,
+    }
+}
+
 /// The change of `me`'s velocity `v` from its contact with `other` (velocity `w`), if the
 /// pair is in contact ([the contact](self)).
 #[inline(always)]
@@ -473,16 +507,14 @@ pub fn pair_impulse(
     w: Vec3,
     s: &PairStep,
 ) -> Option<Vec3> {
-    let x = Vec3::from_array(me.position) - Vec3::from_array(other.position);
-    let d2 = x.dot(x);
-    let (dist, n) = if d2 > 0.0 {
-        let dist = math::sqrt(d2);
-        (dist, x * (1.0 / dist))
-    } else {
-        let up = if me.index > other.index { 1.0 } else { -1.0 };
-        (0.0, Vec3::new(0.0, up, 0.0))
-    };
-    let gap = dist - s.diameter;
+    pair_response(&pair_geometry(me, other, s), v, w, s)
+}
+
+/// [`pair_impulse`] from the pair's geometry ([`pair_geometry`]).
+#[inline(always)]
+pub fn pair_response(g: &PairGeometry, v: Vec3, w: Vec3, s: &PairStep) -> Option<Vec3> {
+    let n = Vec3::from_array(g.n);
+    let gap = g.gap;
     let vr = v - w;
     let vn = vr.dot(n);
     if gap + vn * s.h >= 0.0 {
@@ -514,10 +546,7 @@ pub fn pair_impulse(
         let keep = if tl <= limit { 1.0 } else { limit / tl };
         dv -= vt * keep;
     }
-    let height = x.dot(Vec3::from_array(s.up)) * s.inv_diameter;
-    let height = height.clamp(-1.0, 1.0);
-    let share = 0.5 + height * s.half_stacking;
-    Some(dv * share)
+    Some(dv * g.share)
 }
 
 /// The candidates of the particle at sorted position `k`, in the pass's fixed order: the
@@ -589,9 +618,9 @@ impl PairSum {
     }
 
     #[inline(always)]
-    fn add(&mut self, me: &PairBody, other: &PairBody, w: &PairVelocity, s: &PairStep) {
+    fn add(&mut self, g: &PairGeometry, w: &PairVelocity, s: &PairStep) {
         let w = Vec3::new(w[0], w[1], w[2]);
-        if let Some(dv) = pair_impulse(me, self.v, other, w, s) {
+        if let Some(dv) = pair_response(g, self.v, w, s) {
             self.sum += dv;
             self.contacts += 1;
         }
@@ -634,27 +663,26 @@ pub fn pair_velocity(
     let me = &bodies[k];
     let mut sum = PairSum::new(vel, k);
     let capped = pair_candidates(k, bodies, ranges, s, |m| {
-        sum.add(me, &bodies[m], &vel[m], s);
+        sum.add(&pair_geometry(me, &bodies[m], s), &vel[m], s);
     });
     (sum.finish(support[k], s), capped)
 }
 
 /// [`pair_velocity`] from the particle's candidates listed once for the substep (sorted
-/// positions, in [`pair_candidates`]' order): the same bits, without the search.
+/// positions, in [`pair_candidates`]' order) with their geometry ([`pair_geometry`]): the
+/// same bits, without the search or the geometry.
 #[inline]
 pub fn pair_velocity_listed(
     k: usize,
     candidates: &[u32],
-    bodies: &[PairBody],
+    geometry: &[PairGeometry],
     vel: &[PairVelocity],
     support: &[[f32; 4]],
     s: &PairStep,
 ) -> PairVelocity {
-    let me = &bodies[k];
     let mut sum = PairSum::new(vel, k);
-    for &m in candidates {
-        let m = m as usize;
-        sum.add(me, &bodies[m], &vel[m], s);
+    for (&m, g) in candidates.iter().zip(geometry) {
+        sum.add(g, &vel[m as usize], s);
     }
     sum.finish(support[k], s)
 }

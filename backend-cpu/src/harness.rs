@@ -19,8 +19,10 @@ pub mod scene;
 
 use crate::emit::{emit_surface_for, Rng, SurfaceSampler};
 use glam::Vec3;
+use octoproxy_core::pairs::{pair_max_speed, pair_table_size};
 use octoproxy_core::{
-    initial_side, step_particle_traced, Particle, ProxyView, StepParams, FLAG_BLOCKED,
+    collide_pairs, initial_side, pair_substeps, step_particle_traced, LeafHint, PairBody,
+    PairParams, PairScratch, PairStep, PairVelocity, Particle, ProxyView, StepParams, FLAG_BLOCKED,
     FLAG_BOUND_HIT, FLAG_INVALID, MAX_DEPTH,
 };
 use rayon::prelude::*;
@@ -381,7 +383,7 @@ pub fn run_check_kicked(
     closed: bool,
     kick: impl Fn(u32, usize, &mut Particle) + Sync,
 ) -> CheckReport {
-    check_paths(view, gt, particles, steps, params, closed, kick, None)
+    check_paths(view, gt, particles, steps, params, closed, kick, None, None)
 }
 
 /// [`run_check`] for particles of a radius, stepped against a proxy baked for it: `gt` is
@@ -409,10 +411,167 @@ pub fn run_check_radius(
         true,
         |_, _, _| {},
         Some((mesh, clearance)),
+        None,
     )
 }
 
-/// The check itself, with an optional clearance from a mesh ([`run_check_radius`]).
+/// [`run_check_radius`] with the particle–particle pass on: every step is
+/// [`octoproxy_core::pair_substeps`] substeps of the pass over all the particles (core's
+/// one-thread [`collide_pairs`], with gravity) and then each particle's march, traced and
+/// checked piece by piece as [`run_check_radius`] checks it. The pass runs without supports
+/// (no leaf hints): it may push grains towards the scene freely, and the march alone keeps
+/// them out, a harder case than the backends' (whose supports take such pushes off first).
+/// Particles found bad stay in the pass as obstacles, and stop moving.
+#[allow(clippy::too_many_arguments)]
+pub fn run_check_pairs(
+    view: &ProxyView<'_>,
+    gt: &GroundTruth,
+    particles: &mut [Particle],
+    steps: u32,
+    params: &StepParams,
+    pairs: &PairParams,
+    mesh: &GroundTruth,
+    clearance: f64,
+) -> CheckReport {
+    let p = *params;
+    check_paths(
+        view,
+        gt,
+        particles,
+        steps,
+        |_| p,
+        true,
+        |_, _, _| {},
+        Some((mesh, clearance)),
+        Some(pairs),
+    )
+}
+
+/// One particle's record in a check.
+struct State {
+    start: [f32; 3],
+    inside: bool,
+    crossings: u64,
+    bad: bool,
+    escaped: bool,
+    non_finite: bool,
+    blocked: u64,
+    bound: u64,
+    tunnelled: bool,
+    near: bool,
+}
+
+/// What every step of a check compares against.
+struct Checker<'a> {
+    view: &'a ProxyView<'a>,
+    gt: &'a GroundTruth,
+    closed: bool,
+    tol: f64,
+    half_leaf: f32,
+    clear: Option<(&'a GroundTruth, f64)>,
+}
+
+impl Checker<'_> {
+    /// One traced step of `p` with `params`, checked piece by piece.
+    fn step(&self, p: &mut Particle, s: &mut State, params: &StepParams) {
+        let (gt, closed, tol) = (self.gt, self.closed, self.tol);
+        let mut pieces = Vec::new();
+        step_particle_traced(self.view, p, params, &mut |a: Vec3, b: Vec3| {
+            pieces.push((a, b))
+        });
+        let jump = jumps_back(&pieces, p.flags);
+        // Crossings of each piece; the jump back is put, not travelled: it takes the particle
+        // back to a point of this step's path, with the crossings it had there.
+        let mut counts = Vec::with_capacity(pieces.len());
+        for (i, &(a, b)) in pieces.iter().enumerate() {
+            let is_jump = jump && i + 1 == pieces.len();
+            let k = if a == b {
+                0
+            } else if is_jump && !closed {
+                let back = pieces.iter().position(|&(from, _)| from == b).unwrap_or(i);
+                counts[back..i].iter().sum()
+            } else {
+                gt.segment_crossings(a.to_array(), b.to_array())
+            };
+            counts.push(k);
+            if let Some((mesh, min)) = self.clear {
+                if !is_jump && !s.near {
+                    let n = (((b - a).length() / self.half_leaf).ceil() as usize).clamp(1, 4096);
+                    s.near = (0..=n).any(|i| {
+                        let q = a.lerp(b, i as f32 / n as f32).to_array();
+                        mesh.distance_capped(q, min) < min
+                    });
+                }
+            }
+            if !closed {
+                s.crossings += k as u64;
+            } else if k > 0 && !s.tunnelled && !is_jump {
+                s.tunnelled = deep_on_the_other_side(gt, a, b, s.inside, tol).is_some();
+            }
+        }
+        s.bad |= s.tunnelled || s.near;
+        if p.flags & FLAG_INVALID != 0 || !Vec3::from_array(p.position).is_finite() {
+            s.non_finite = true;
+            return;
+        }
+        s.blocked += (p.flags & FLAG_BLOCKED != 0) as u64;
+        s.bound += (p.flags & FLAG_BOUND_HIT != 0) as u64;
+        let far = gt.distance_capped(p.position, 2.0 * tol) > tol;
+        if !closed && far && s.crossings % 2 == 1 {
+            s.bad = true;
+        }
+        if closed && far && gt.is_inside(p.position) != s.inside {
+            s.bad = true;
+            s.escaped = s.inside;
+        }
+    }
+}
+
+/// The scratch of core's one-thread pass.
+#[derive(Default)]
+struct PassScratch {
+    keys: Vec<[u32; 2]>,
+    bodies: Vec<PairBody>,
+    vel: Vec<PairVelocity>,
+    vel_next: Vec<PairVelocity>,
+    support: Vec<[f32; 4]>,
+    ranges: Vec<[u32; 2]>,
+}
+
+impl PassScratch {
+    /// The pass over `particles` for one substep `h` (no supports).
+    fn pass(
+        &mut self,
+        view: &ProxyView<'_>,
+        particles: &mut [Particle],
+        params: &StepParams,
+        pairs: &PairParams,
+        h: f32,
+    ) {
+        let n = particles.len();
+        self.keys.resize(n, [0; 2]);
+        self.bodies.resize(n, PairBody::default());
+        self.vel.resize(n, [0.0; 4]);
+        self.vel_next.resize(n, [0.0; 4]);
+        self.support.resize(n, [0.0; 4]);
+        self.ranges.resize(pair_table_size(n), [0; 2]);
+        let hints = vec![LeafHint::NONE; n];
+        let s0 = PairStep::new(params, pairs, h, n, 0.0);
+        let s = PairStep::new(params, pairs, h, n, pair_max_speed(particles, &s0));
+        let scratch = PairScratch {
+            keys: &mut self.keys,
+            bodies: &mut self.bodies,
+            vel: &mut self.vel,
+            vel_next: &mut self.vel_next,
+            support: &mut self.support,
+            ranges: &mut self.ranges,
+        };
+        collide_pairs(particles, view, &hints, &s, pairs.iterations, scratch);
+    }
+}
+
+/// The check itself, with an optional clearance from a mesh ([`run_check_radius`]) and the
+/// particle–particle pass ([`run_check_pairs`]).
 #[allow(clippy::too_many_arguments)]
 fn check_paths(
     view: &ProxyView<'_>,
@@ -423,21 +582,16 @@ fn check_paths(
     closed: bool,
     kick: impl Fn(u32, usize, &mut Particle) + Sync,
     clear: Option<(&GroundTruth, f64)>,
+    pairs: Option<&PairParams>,
 ) -> CheckReport {
-    let tol = tolerance(view) as f64;
-    let half_leaf = 0.5 * view.finest_leaf_size();
-    struct State {
-        start: [f32; 3],
-        inside: bool,
-        crossings: u64,
-        bad: bool,
-        escaped: bool,
-        non_finite: bool,
-        blocked: u64,
-        bound: u64,
-        tunnelled: bool,
-        near: bool,
-    }
+    let checker = Checker {
+        view,
+        gt,
+        closed,
+        tol: tolerance(view) as f64,
+        half_leaf: 0.5 * view.finest_leaf_size(),
+        clear,
+    };
     let mut states: Vec<State> = particles
         .par_iter()
         .map(|p| State {
@@ -453,68 +607,49 @@ fn check_paths(
             near: false,
         })
         .collect();
-    particles
-        .par_iter_mut()
-        .zip(states.par_iter_mut())
-        .enumerate()
-        .for_each(|(index, (p, s))| {
-            let mut pieces = Vec::new();
-            for step in 0..steps {
-                if s.bad || s.non_finite {
-                    break;
-                }
-                kick(step, index, p);
-                pieces.clear();
-                step_particle_traced(view, p, &params(step), &mut |a: Vec3, b: Vec3| {
-                    pieces.push((a, b))
-                });
-                let jump = jumps_back(&pieces, p.flags);
-                // Crossings of each piece; the jump back is put, not travelled: it takes the
-                // particle back to a point of this step's path, with the crossings it had there.
-                let mut counts = Vec::with_capacity(pieces.len());
-                for (i, &(a, b)) in pieces.iter().enumerate() {
-                    let is_jump = jump && i + 1 == pieces.len();
-                    let k = if a == b {
-                        0
-                    } else if is_jump && !closed {
-                        let back = pieces.iter().position(|&(from, _)| from == b).unwrap_or(i);
-                        counts[back..i].iter().sum()
-                    } else {
-                        gt.segment_crossings(a.to_array(), b.to_array())
-                    };
-                    counts.push(k);
-                    if let Some((mesh, min)) = clear {
-                        if !is_jump && !s.near {
-                            let n = (((b - a).length() / half_leaf).ceil() as usize).clamp(1, 4096);
-                            s.near = (0..=n).any(|i| {
-                                let q = a.lerp(b, i as f32 / n as f32).to_array();
-                                mesh.distance_capped(q, min) < min
-                            });
-                        }
-                    }
-                    if !closed {
-                        s.crossings += k as u64;
-                    } else if k > 0 && !s.tunnelled && !is_jump {
-                        s.tunnelled = deep_on_the_other_side(gt, a, b, s.inside, tol).is_some();
-                    }
-                }
-                s.bad |= s.tunnelled || s.near;
-                if p.flags & FLAG_INVALID != 0 || !Vec3::from_array(p.position).is_finite() {
-                    s.non_finite = true;
-                    break;
-                }
-                s.blocked += (p.flags & FLAG_BLOCKED != 0) as u64;
-                s.bound += (p.flags & FLAG_BOUND_HIT != 0) as u64;
-                let far = gt.distance_capped(p.position, 2.0 * tol) > tol;
-                if !closed && far && s.crossings % 2 == 1 {
-                    s.bad = true;
-                }
-                if closed && far && gt.is_inside(p.position) != s.inside {
-                    s.bad = true;
-                    s.escaped = s.inside;
+    let mut pass = PassScratch::default();
+    for step in 0..steps {
+        let params = params(step);
+        particles
+            .par_iter_mut()
+            .zip(states.par_iter())
+            .enumerate()
+            .filter(|(_, (_, s))| !(s.bad || s.non_finite))
+            .for_each(|(index, (p, _))| kick(step, index, p));
+        let (substeps, march) = match pairs {
+            None => (1, params),
+            Some(pairs) => {
+                let substeps = pair_substeps(&params, pairs);
+                let h = params.dt / substeps as f32;
+                let march = StepParams {
+                    gravity: [0.0; 3],
+                    dt: h,
+                    ..params
+                };
+                (substeps, march)
+            }
+        };
+        for _ in 0..substeps {
+            if let Some(pairs) = pairs {
+                // Stopped particles keep still in the pass: as they are, without gravity.
+                let held: Vec<(usize, Particle)> = states
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, s)| s.bad || s.non_finite)
+                    .map(|(i, _)| (i, particles[i]))
+                    .collect();
+                pass.pass(view, particles, &params, pairs, march.dt);
+                for (i, p) in held {
+                    particles[i] = p;
                 }
             }
-        });
+            particles
+                .par_iter_mut()
+                .zip(states.par_iter_mut())
+                .filter(|(_, s)| !(s.bad || s.non_finite))
+                .for_each(|(p, s)| checker.step(p, s, &march));
+        }
+    }
     let mut report = CheckReport {
         particles: particles.len(),
         particle_steps: particles.len() as u64 * steps as u64,

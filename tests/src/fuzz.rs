@@ -13,17 +13,20 @@ use arbitrary::{Arbitrary, Result, Unstructured};
 use glam::Vec3;
 use octoproxy_core::format::{HEADER_WORDS, MAX_DEPTH, MAX_LUT_DEPTH};
 use octoproxy_core::{
-    initial_side, step_particle, step_particle_hinted, step_particle_traced, LeafHint, Particle,
-    ProxyView, StepOutcome, StepParams, FLAG_INVALID, SIDE_BACK, SIDE_CAGE_MASK, SIDE_FRONT,
-    SIDE_MASK,
+    initial_side, step_particle, step_particle_hinted, step_particle_traced, LeafHint, PairParams,
+    Particle, ProxyView, StepOutcome, StepParams, FLAG_INVALID, SIDE_BACK, SIDE_CAGE_MASK,
+    SIDE_FRONT, SIDE_MASK,
 };
 use octoproxy_cpu::bake::{self as baker, BuildError, BuildParams, MeshRef};
 use octoproxy_cpu::emit::emit_surface_for;
 use octoproxy_cpu::io::{encode_particles, parse_particles, PlyEncoding};
 use octoproxy_cpu::io::{parse_mesh, Mesh};
 
+use octoproxy_cpu::bake::offset::OffsetSurface;
 use octoproxy_cpu::ground_truth::GroundTruth;
-use octoproxy_cpu::harness::{aligned_velocity, deep_on_the_other_side, jumps_back, tolerance};
+use octoproxy_cpu::harness::{
+    aligned_velocity, deep_on_the_other_side, jumps_back, run_check_pairs, tolerance,
+};
 use octoproxy_cpu::scenes;
 use octoproxy_cpu::Sides;
 
@@ -1303,6 +1306,89 @@ fn penetration_inner(u: &mut Unstructured<'_>) -> Result<()> {
     if u.len() >= 64 && u.ratio(1u8, 3)? {
         moving_scene(u, &[&mesh], std::slice::from_ref(&words), scene)?;
     }
+    // A third of the inputs with bytes left also drop a crowd of grains of a radius on the
+    // mesh with the particle–particle pass on (the harness's `run_check_pairs`).
+    if u.len() >= 32 && u.ratio(1u8, 3)? {
+        crowd_with_pairs(u, &mesh, scene)?;
+    }
+    Ok(())
+}
+
+/// The mesh baked at dmax 5 for a drawn radius, and 2 to 160 grains of that radius started
+/// outside its band anywhere in the box, at up to a scene per step, stepped with the pass on
+/// with drawn pass parameters: no grain crosses the offset surface (exact winding number) or
+/// comes nearer the mesh than the radius less a leaf diagonal.
+fn crowd_with_pairs(u: &mut Unstructured<'_>, mesh: &Mesh, scene: f32) -> Result<()> {
+    let radius = scene * range(u, 0.06, 0.25)?;
+    let refs = [MeshRef::from(mesh)];
+    let Ok(surface) = OffsetSurface::new(&refs, radius, 5, &()) else {
+        return Ok(());
+    };
+    let params = BuildParams {
+        dmax: 5,
+        ..BuildParams::default()
+    };
+    let Ok((words, _)) = baker::bake_offset(&surface, &params, &()) else {
+        return Ok(());
+    };
+    let view = ProxyView::new(&words).expect("a radius bake gives a valid proxy");
+    let root = view.root_aabb();
+    let steps = u.int_in_range(1u32..=8)?;
+    let pairs = PairParams {
+        restitution: range(u, 0.0, 1.0)?,
+        friction: range(u, 0.0, 1.0)?,
+        relaxation: range(u, 0.05, 1.0)?,
+        stacking: range(u, 0.0, 1.0)?,
+        iterations: u.int_in_range(1u32..=8)?,
+        substeps: u.int_in_range(0u32..=3)?,
+        max_candidates: u.int_in_range(1u32..=64)?,
+    };
+    let n = u.int_in_range(2usize..=160)?;
+    let speed = scene * range(u, 0.0, 60.0)?;
+    let mut ps = Vec::with_capacity(n);
+    for _ in 0..n {
+        let x = [
+            range(u, root.min.x, root.max.x)?,
+            range(u, root.min.y, root.max.y)?,
+            range(u, root.min.z, root.max.z)?,
+        ];
+        let dir = Vec3::new(
+            range(u, -1.0, 1.0)?,
+            range(u, -1.0, 1.0)?,
+            range(u, -1.0, 1.0)?,
+        )
+        .normalize_or(Vec3::Y);
+        ps.push(Particle::new(
+            x,
+            (dir * speed * range(u, 0.0, 1.0)?).to_array(),
+        ));
+    }
+    surface.place(&mut ps, Some(&view));
+    let offset = [surface.mesh_ref()];
+    let sides = Sides::new(&offset);
+    sides.assign(&mut ps, false);
+    sides.cages(&view, &mut ps, false);
+    let step = StepParams {
+        gravity: [0.0, -9.81 * scene, 0.0],
+        radius,
+        ..StepParams::default()
+    };
+    let off_gt = GroundTruth::new(&surface.mesh().positions, &surface.mesh().triangles);
+    let mesh_gt = GroundTruth::new(&mesh.positions, &mesh.triangles);
+    let clearance = radius as f64 - 3f64.sqrt() * view.finest_leaf_size() as f64;
+    let report = run_check_pairs(
+        &view, &off_gt, &mut ps, steps, &step, &pairs, &mesh_gt, clearance,
+    );
+    assert_eq!(
+        report.penetrations, 0,
+        "PENETRATION with the particle pass: {} of {n} grains (radius {radius}, {} too near the mesh), \
+         examples (index, start, end) {:?}, pass {pairs:?}",
+        report.penetrations, report.too_near, report.examples
+    );
+    assert_eq!(
+        report.non_finite, 0,
+        "a grain became non-finite, pass {pairs:?}"
+    );
     Ok(())
 }
 
@@ -1318,7 +1404,8 @@ fn penetration_inner(u: &mut Unstructured<'_>) -> Result<()> {
 /// number) farther than one dmax-leaf diagonal from the surface, nor passes through the other
 /// side that deep on the way. A third of the inputs then set the same mesh moving as 1 to 5
 /// instances (translating, turning, scaling, as in the `moving` target) and check every step
-/// in each instance's frame.
+/// in each instance's frame, and a third drop a crowd of grains of a radius on it with the
+/// particle–particle pass on, checked by the harness at that radius (`run_check_pairs`).
 pub fn penetration(data: &[u8]) {
     let _ = penetration_inner(&mut Unstructured::new(data));
 }

@@ -4,6 +4,7 @@ use std::ffi::OsString;
 use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
+use octoproxy_core::PairParams;
 use octoproxy_cpu::BuildParams;
 
 /// The next option as `--long` or `-s`, and the error to give if it is not one we take.
@@ -64,6 +65,87 @@ pub fn floats<const N: usize>(parser: &mut lexopt::Parser, name: &str) -> Result
         }
     }
     Ok(out)
+}
+
+/// The options of the particle–particle pass, shared by `sim` and `check`.
+#[derive(Default)]
+pub struct PairFlags {
+    /// `--collide-particles`.
+    pub collide: bool,
+    pub restitution: Option<f32>,
+    pub friction: Option<f32>,
+    pub iterations: Option<u32>,
+    pub substeps: Option<u32>,
+    pub relaxation: Option<f32>,
+    pub stacking: Option<f32>,
+}
+
+/// The help lines of [`PairFlags`].
+pub const PAIR_HELP: &str =
+    "  --collide-particles          Green's uniform grid and position-based contacts
+  --particle-restitution E     in [0, 1] (default: --restitution)
+  --particle-friction F        Coulomb coefficient >= 0 (default: --friction)
+  --particle-iterations N      Jacobi iterations per substep, 1..=64 (default 8)
+  --particle-substeps N        substeps per step, 1..=256 (default: the fewest that keep
+                               gravity's closing per substep under 1 % of the radius)
+  --particle-relaxation B      share of an overlap removed per substep, (0, 1] (default 0.5)
+  --particle-stacking S        how much more of a correction the upper particle of a pair
+                               takes, [0, 1] (default 1: a stack does not sink)";
+
+impl PairFlags {
+    /// Consumes the option if it is one of the pass's; returns whether it was.
+    pub fn parse(&mut self, name: &str, parser: &mut lexopt::Parser) -> Result<bool> {
+        match name {
+            "--collide-particles" => self.collide = true,
+            "--particle-restitution" => self.restitution = Some(number(parser, name)?),
+            "--particle-friction" => self.friction = Some(number(parser, name)?),
+            "--particle-iterations" => self.iterations = Some(number(parser, name)?),
+            "--particle-substeps" => self.substeps = Some(number(parser, name)?),
+            "--particle-relaxation" => self.relaxation = Some(number(parser, name)?),
+            "--particle-stacking" => self.stacking = Some(number(parser, name)?),
+            _ => return Ok(false),
+        }
+        Ok(true)
+    }
+
+    /// Whether any `--particle-*` option is given.
+    pub fn any_option(&self) -> bool {
+        self.restitution.is_some()
+            || self.friction.is_some()
+            || self.iterations.is_some()
+            || self.substeps.is_some()
+            || self.relaxation.is_some()
+            || self.stacking.is_some()
+    }
+
+    /// The pass's parameters when `--collide-particles` is given (`--particle-*`, else
+    /// `--restitution`/`--friction` as stepped), checked; an error for `--particle-*`
+    /// without it.
+    pub fn params(&self, step: &octoproxy_core::StepParams) -> Result<Option<PairParams>> {
+        if !self.collide {
+            if self.any_option() {
+                anyhow::bail!("--particle-* options go with --collide-particles");
+            }
+            return Ok(None);
+        }
+        let d = PairParams::default();
+        if self.substeps == Some(0) {
+            anyhow::bail!(
+                "--particle-substeps must be at least 1 (leave it out for the automatic choice)"
+            );
+        }
+        let pairs = PairParams {
+            restitution: self.restitution.unwrap_or(step.restitution),
+            friction: self.friction.unwrap_or(step.friction),
+            relaxation: self.relaxation.unwrap_or(d.relaxation),
+            stacking: self.stacking.unwrap_or(d.stacking),
+            iterations: self.iterations.unwrap_or(d.iterations),
+            substeps: self.substeps.unwrap_or(d.substeps),
+            max_candidates: d.max_candidates,
+        };
+        pairs.validate(step)?;
+        Ok(Some(pairs))
+    }
 }
 
 /// The options that shape a bake, shared by `bake` and `sim`.

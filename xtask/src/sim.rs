@@ -6,7 +6,6 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
 use glam::Vec3;
-use octoproxy_core::PairParams;
 use octoproxy_core::{
     initial_side, StepParams, FLAG_BLOCKED, FLAG_BOUND_HIT, FLAG_INVALID, SIDE_BACK,
 };
@@ -57,15 +56,7 @@ stepping:
   --backend B       auto, cpu or wgpu (default auto: a hardware GPU if present, else cpu)
 
 particles that collide with each other (needs a radius: --radius, or a proxy baked for one):
-  --collide-particles          Green's uniform grid and position-based contacts
-  --particle-restitution E     in [0, 1] (default: --restitution)
-  --particle-friction F        Coulomb coefficient >= 0 (default: --friction)
-  --particle-iterations N      Jacobi iterations per substep, 1..=64 (default 8)
-  --particle-substeps N        substeps per step, 1..=256 (default: the fewest that keep
-                               gravity's closing per substep under 1 % of the radius)
-  --particle-relaxation B      share of an overlap removed per substep, (0, 1] (default 0.5)
-  --particle-stacking S        how much more of a correction the upper particle of a pair
-                               takes, [0, 1] (default 1: a stack does not sink)
+{pairs}
 
 output:
   -o, --out FILE    the stepped particles (binary little-endian PLY)
@@ -82,7 +73,8 @@ output:
 A scene, or --hits or --events, steps through the scene API: the output then carries each
 particle's sides for the instances it is near (scene_slot0..7), which a later run of the
 same scene reads back to continue where this one stopped.",
-        flags::BUILD_HELP
+        flags::BUILD_HELP,
+        pairs = flags::PAIR_HELP
     )
 }
 
@@ -114,51 +106,14 @@ struct Opts {
     restitution: Option<f32>,
     friction: Option<f32>,
     backend: Option<BackendChoice>,
-    collide: bool,
-    particle_restitution: Option<f32>,
-    particle_friction: Option<f32>,
-    particle_iterations: Option<u32>,
-    particle_substeps: Option<u32>,
-    particle_relaxation: Option<f32>,
-    particle_stacking: Option<f32>,
-}
-
-impl Opts {
-    /// Whether any option of the particle pass is given.
-    fn any_particle_option(&self) -> bool {
-        self.particle_restitution.is_some()
-            || self.particle_friction.is_some()
-            || self.particle_iterations.is_some()
-            || self.particle_substeps.is_some()
-            || self.particle_relaxation.is_some()
-            || self.particle_stacking.is_some()
-    }
-
-    /// The pass's parameters: `--particle-*`, else `--restitution`/`--friction` as stepped.
-    fn pair_params(&self, params: &StepParams) -> Result<PairParams> {
-        let d = PairParams::default();
-        if self.particle_substeps == Some(0) {
-            bail!("--particle-substeps must be at least 1 (leave it out for the automatic choice)");
-        }
-        let pairs = PairParams {
-            restitution: self.particle_restitution.unwrap_or(params.restitution),
-            friction: self.particle_friction.unwrap_or(params.friction),
-            relaxation: self.particle_relaxation.unwrap_or(d.relaxation),
-            stacking: self.particle_stacking.unwrap_or(d.stacking),
-            iterations: self.particle_iterations.unwrap_or(d.iterations),
-            substeps: self.particle_substeps.unwrap_or(d.substeps),
-            max_candidates: d.max_candidates,
-        };
-        pairs.validate(params)?;
-        Ok(pairs)
-    }
+    pairs: flags::PairFlags,
 }
 
 fn parse(args: Vec<OsString>) -> Result<Option<Opts>> {
     let mut o = Opts::default();
     let mut parser = lexopt::Parser::from_args(args);
     while let Some((name, unexpected)) = flags::next_option(&mut parser)? {
-        if o.build.parse(&name, &mut parser)? {
+        if o.build.parse(&name, &mut parser)? || o.pairs.parse(&name, &mut parser)? {
             continue;
         }
         let p = &mut parser;
@@ -188,25 +143,6 @@ fn parse(args: Vec<OsString>) -> Result<Option<Opts>> {
             "--restitution" => o.restitution = Some(flags::number(p, "--restitution")?),
             "--friction" => o.friction = Some(flags::number(p, "--friction")?),
             "--backend" => o.backend = Some(BackendChoice::parse(&flags::string(p, "--backend")?)?),
-            "--collide-particles" => o.collide = true,
-            "--particle-restitution" => {
-                o.particle_restitution = Some(flags::number(p, "--particle-restitution")?)
-            }
-            "--particle-friction" => {
-                o.particle_friction = Some(flags::number(p, "--particle-friction")?)
-            }
-            "--particle-iterations" => {
-                o.particle_iterations = Some(flags::number(p, "--particle-iterations")?)
-            }
-            "--particle-substeps" => {
-                o.particle_substeps = Some(flags::number(p, "--particle-substeps")?)
-            }
-            "--particle-relaxation" => {
-                o.particle_relaxation = Some(flags::number(p, "--particle-relaxation")?)
-            }
-            "--particle-stacking" => {
-                o.particle_stacking = Some(flags::number(p, "--particle-stacking")?)
-            }
             "-h" | "--help" => {
                 println!("{}", help());
                 return Ok(None);
@@ -295,11 +231,11 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     if every == 0 {
         bail!("--every must be at least 1");
     }
-    if o.any_particle_option() && !o.collide {
+    if o.pairs.any_option() && !o.pairs.collide {
         bail!("--particle-* options go with --collide-particles");
     }
     if o.scene.is_some() || o.hits || o.events.is_some() {
-        if o.collide {
+        if o.pairs.collide {
             bail!("--collide-particles with --scene, --hits or --events is not supported yet (the pass runs with the plain step): collide particles with --mesh or --proxy");
         }
         return run_scene(o);
@@ -331,11 +267,7 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     scene::print_bake_summary(&scene)?;
     let view = scene.view()?;
     params.radius = stepped_radius(&o, view.header().radius)?;
-    let pairs = if o.collide {
-        Some(o.pair_params(&params)?)
-    } else {
-        None
-    };
+    let pairs = o.pairs.params(&params)?;
 
     // The particles.
     let refs: Vec<MeshRef<'_>> = scene.meshes.iter().map(MeshRef::from).collect();

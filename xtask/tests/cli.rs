@@ -891,4 +891,41 @@ fn particles_collide_with_each_other_and_bad_pass_options_are_errors() {
         &dir,
     );
     assert_one_line_error(&out, "need a radius greater than 0");
+    // `check` runs the penetration harness with the pass on, and refuses it without a radius.
+    let out = octoproxy(
+        &[
+            "check",
+            "--mesh",
+            "cube.obj",
+            "--dmax",
+            "5",
+            "--radius",
+            "0.2",
+            "--emit",
+            "200",
+            "--steps",
+            "20",
+            "--collide-particles",
+        ],
+        &dir,
+    );
+    let (stdout, stderr) = (
+        String::from_utf8_lossy(&out.stdout).to_string(),
+        String::from_utf8_lossy(&out.stderr).to_string(),
+    );
+    assert!(out.status.success(), "{stdout}{stderr}");
+    assert!(stderr.contains("the particle pass: on"), "{stderr}");
+    assert!(stdout.contains("penetrations: 0 "), "{stdout}");
+    let out = octoproxy(
+        &[
+            "check",
+            "--mesh",
+            "cube.obj",
+            "--dmax",
+            "5",
+            "--collide-particles",
+        ],
+        &dir,
+    );
+    assert_one_line_error(&out, "need a radius greater than 0");
 }

@@ -118,7 +118,7 @@ impl Default for PairParams {
             stacking: 1.0,
             iterations: 8,
             substeps: 0,
-            max_candidates: 512,
+            max_candidates: 1024,
         }
     }
 }

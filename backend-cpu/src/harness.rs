@@ -401,18 +401,7 @@ pub fn run_check_radius(
     mesh: &GroundTruth,
     clearance: f64,
 ) -> CheckReport {
-    let p = *params;
-    check_paths(
-        view,
-        gt,
-        particles,
-        steps,
-        |_| p,
-        true,
-        |_, _, _| {},
-        Some((mesh, clearance)),
-        None,
-    )
+    check_at_radius(view, gt, particles, steps, params, mesh, clearance, None)
 }
 
 /// [`run_check_radius`] with the particle–particle pass on: every step is
@@ -433,6 +422,30 @@ pub fn run_check_pairs(
     mesh: &GroundTruth,
     clearance: f64,
 ) -> CheckReport {
+    check_at_radius(
+        view,
+        gt,
+        particles,
+        steps,
+        params,
+        mesh,
+        clearance,
+        Some(pairs),
+    )
+}
+
+/// [`run_check_radius`], with the pass or without.
+#[allow(clippy::too_many_arguments)]
+fn check_at_radius(
+    view: &ProxyView<'_>,
+    gt: &GroundTruth,
+    particles: &mut [Particle],
+    steps: u32,
+    params: &StepParams,
+    mesh: &GroundTruth,
+    clearance: f64,
+    pairs: Option<&PairParams>,
+) -> CheckReport {
     let p = *params;
     check_paths(
         view,
@@ -443,7 +456,7 @@ pub fn run_check_pairs(
         true,
         |_, _, _| {},
         Some((mesh, clearance)),
-        Some(pairs),
+        pairs,
     )
 }
 
@@ -536,6 +549,8 @@ struct PassScratch {
     vel_next: Vec<PairVelocity>,
     support: Vec<[f32; 4]>,
     ranges: Vec<[u32; 2]>,
+    /// No grain rests on a support here: every hint is none.
+    hints: Vec<LeafHint>,
 }
 
 impl PassScratch {
@@ -555,7 +570,7 @@ impl PassScratch {
         self.vel_next.resize(n, [0.0; 4]);
         self.support.resize(n, [0.0; 4]);
         self.ranges.resize(pair_table_size(n), [0; 2]);
-        let hints = vec![LeafHint::NONE; n];
+        self.hints.resize(n, LeafHint::NONE);
         let s0 = PairStep::new(params, pairs, h, n, 0.0);
         let s = PairStep::new(params, pairs, h, n, pair_max_speed(particles, &s0));
         let scratch = PairScratch {
@@ -566,7 +581,7 @@ impl PassScratch {
             support: &mut self.support,
             ranges: &mut self.ranges,
         };
-        collide_pairs(particles, view, &hints, &s, pairs.iterations, scratch);
+        collide_pairs(particles, view, &self.hints, &s, pairs.iterations, scratch);
     }
 }
 

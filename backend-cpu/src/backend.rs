@@ -97,12 +97,18 @@ struct PairBuffers {
     bodies: Vec<PairBody>,
     vel: Vec<PairVelocity>,
     vel_next: Vec<PairVelocity>,
+    /// The velocities entering the iterations.
+    start: Vec<PairVelocity>,
     support: Vec<[f32; 4]>,
     ranges: Vec<[u32; 2]>,
     rank: Vec<AtomicU32>,
     /// Each chunk of the sorted order's candidates ([`pair_candidates`]), listed once a
     /// substep: the iterations read them instead of searching the 27 cells again.
     lists: Vec<CandidateList>,
+    /// The valid particles of the substep, and those whose candidate search stopped at the
+    /// cap: what the debiasing iterations after the march ([`PairBuffers::debias`]) reuse.
+    valid: usize,
+    capped_once: u64,
     timings: PairTimings,
 }
 
@@ -214,8 +220,9 @@ impl PairBuffers {
                 }
             });
         let ranges = &self.ranges[..];
-        let support = &self.support[..valid];
         let bodies = &self.bodies[..valid];
+        // The velocities entering the iterations, for each pair's target (`pair_geometry`).
+        let start = &self.vel[..valid];
         let chunks = valid.div_ceil(LIST_CHUNK);
         if self.lists.len() < chunks {
             self.lists.resize_with(chunks, CandidateList::default);
@@ -236,15 +243,31 @@ impl PairBuffers {
                     let (list, geometry) = (&mut l.list, &mut l.geometry);
                     capped += pair_candidates(k, bodies, ranges, s, |m| {
                         list.push(m as u32);
-                        geometry.push(pair_geometry(&bodies[k], &bodies[m], s));
+                        let (me, other) = (&bodies[k], &bodies[m]);
+                        geometry.push(pair_geometry(me, other, &start[k], &start[m], s));
                     }) as u64;
                 }
                 l.offsets.push(l.list.len() as u32);
                 capped
             })
             .sum();
-        let capped = capped_once * iterations as u64;
+        // The velocities entering the iterations stay in `start` for the debiasing ones.
+        self.start.resize(n, [0.0; 4]);
+        self.start[..valid].copy_from_slice(&self.vel[..valid]);
+        self.valid = valid;
+        self.capped_once = capped_once;
+        self.iterate(particles, s, iterations, false);
+        self.timings.neighbours += sorted.elapsed();
+        capped_once * iterations as u64
+    }
+
+    /// `iterations` Jacobi iterations from `vel` over the substep's lists, the last one's
+    /// velocities written to the caller's particles; `debias` takes the unbiased targets.
+    fn iterate(&mut self, particles: &mut [Particle], s: &PairStep, iterations: u32, debias: bool) {
+        let valid = self.valid;
+        let chunks = valid.div_ceil(LIST_CHUNK);
         let lists = &self.lists[..chunks];
+        let support = &self.support[..valid];
         let (mut a, mut b) = (&mut self.vel, &mut self.vel_next);
         for _ in 0..iterations {
             let read = &a[..valid];
@@ -257,25 +280,48 @@ impl PairBuffers {
                         let (from, to) = (l.offsets[j] as usize, l.offsets[j + 1] as usize);
                         let k = c * LIST_CHUNK + j;
                         let (list, geometry) = (&l.list[from..to], &l.geometry[from..to]);
-                        *o = pair_velocity_listed(k, list, geometry, read, support, s);
+                        *o = pair_velocity_listed(k, list, geometry, read, support, s, debias);
                     }
                 });
             std::mem::swap(&mut a, &mut b);
         }
         let vel = &a[..valid];
+        // The debiasing iterations end the substep: the ranks are reset for the next.
         particles
             .par_iter_mut()
             .zip(self.rank.par_iter())
             .with_min_len(4096)
             .for_each(|(p, rank)| {
-                let k = rank.swap(u32::MAX, Ordering::Relaxed);
+                let k = if debias {
+                    rank.swap(u32::MAX, Ordering::Relaxed)
+                } else {
+                    rank.load(Ordering::Relaxed)
+                };
                 if k != u32::MAX {
                     let v = vel[k as usize];
                     p.velocity = [v[0], v[1], v[2]];
                 }
             });
-        self.timings.neighbours += sorted.elapsed();
-        capped
+    }
+
+    /// The debiasing iterations after the march ([`debias_pairs`]'s, in parallel): the
+    /// substep's lists solved again from the marched velocities with the unbiased targets.
+    /// Returns the particle-iterations that hit the neighbour cap.
+    fn debias(&mut self, particles: &mut [Particle], s: &PairStep, iterations: u32) -> u64 {
+        let started = std::time::Instant::now();
+        let valid = self.valid;
+        let bodies = &self.bodies[..valid];
+        self.vel[..valid]
+            .par_iter_mut()
+            .zip(bodies.par_iter())
+            .with_min_len(4096)
+            .for_each(|(v, body)| {
+                let p = &particles[body.index as usize];
+                *v = [p.velocity[0], p.velocity[1], p.velocity[2], 0.0];
+            });
+        self.iterate(particles, s, iterations, true);
+        self.timings.neighbours += started.elapsed();
+        self.capped_once * iterations as u64
     }
 }
 
@@ -659,6 +705,7 @@ impl Backend for CpuBackend {
                         step_particle_hinted(&view, p, &march, hint);
                     });
                 buffers.timings.march += marched.elapsed();
+                pair_report.capped += buffers.debias(particles, &s, pairs.iterations);
                 pair_report.substeps += 1;
             }
             pair_report.steps += 1;

@@ -21,9 +21,9 @@ use crate::emit::{emit_surface_for, Rng, SurfaceSampler};
 use glam::Vec3;
 use octoproxy_core::pairs::{pair_max_speed, pair_table_size};
 use octoproxy_core::{
-    collide_pairs, initial_side, pair_substeps, step_particle_traced, LeafHint, PairBody,
-    PairParams, PairScratch, PairStep, PairVelocity, Particle, ProxyView, StepParams, FLAG_BLOCKED,
-    FLAG_BOUND_HIT, FLAG_INVALID, MAX_DEPTH,
+    collide_pairs, debias_pairs, initial_side, pair_substeps, step_particle_traced, LeafHint,
+    PairBody, PairParams, PairScratch, PairStep, PairVelocity, Particle, ProxyView, StepParams,
+    FLAG_BLOCKED, FLAG_BOUND_HIT, FLAG_INVALID, MAX_DEPTH,
 };
 use rayon::prelude::*;
 
@@ -545,12 +545,16 @@ impl Checker<'_> {
 struct PassScratch {
     keys: Vec<[u32; 2]>,
     bodies: Vec<PairBody>,
+    start: Vec<PairVelocity>,
     vel: Vec<PairVelocity>,
     vel_next: Vec<PairVelocity>,
     support: Vec<[f32; 4]>,
     ranges: Vec<[u32; 2]>,
     /// No grain rests on a support here: every hint is none.
     hints: Vec<LeafHint>,
+    /// The last pass's constants and iterations, for its debiasing iterations.
+    step: PairStep,
+    iterations: u32,
 }
 
 impl PassScratch {
@@ -566,6 +570,7 @@ impl PassScratch {
         let n = particles.len();
         self.keys.resize(n, [0; 2]);
         self.bodies.resize(n, PairBody::default());
+        self.start.resize(n, [0.0; 4]);
         self.vel.resize(n, [0.0; 4]);
         self.vel_next.resize(n, [0.0; 4]);
         self.support.resize(n, [0.0; 4]);
@@ -573,15 +578,35 @@ impl PassScratch {
         self.hints.resize(n, LeafHint::NONE);
         let s0 = PairStep::new(params, pairs, h, n, 0.0);
         let s = PairStep::new(params, pairs, h, n, pair_max_speed(particles, &s0));
-        let scratch = PairScratch {
+        (self.step, self.iterations) = (s, pairs.iterations);
+        let hints = std::mem::take(&mut self.hints);
+        collide_pairs(
+            particles,
+            view,
+            &hints,
+            &s,
+            pairs.iterations,
+            self.scratch(),
+        );
+        self.hints = hints;
+    }
+
+    /// The last pass's debiasing iterations, after the march.
+    fn debias(&mut self, particles: &mut [Particle]) {
+        let (s, iterations) = (self.step, self.iterations);
+        debias_pairs(particles, &s, iterations, self.scratch());
+    }
+
+    fn scratch(&mut self) -> PairScratch<'_> {
+        PairScratch {
             keys: &mut self.keys,
             bodies: &mut self.bodies,
+            start: &mut self.start,
             vel: &mut self.vel,
             vel_next: &mut self.vel_next,
             support: &mut self.support,
             ranges: &mut self.ranges,
-        };
-        collide_pairs(particles, view, &self.hints, &s, pairs.iterations, scratch);
+        }
     }
 }
 
@@ -645,14 +670,17 @@ fn check_paths(
             }
         };
         for _ in 0..substeps {
-            if let Some(pairs) = pairs {
-                // Stopped particles keep still in the pass: as they are, without gravity.
-                let held: Vec<(usize, Particle)> = states
+            // Stopped particles keep still in the pass: as they are, without gravity.
+            let held = |particles: &[Particle], states: &[State]| -> Vec<(usize, Particle)> {
+                states
                     .iter()
                     .enumerate()
                     .filter(|(_, s)| s.bad || s.non_finite)
                     .map(|(i, _)| (i, particles[i]))
-                    .collect();
+                    .collect()
+            };
+            if let Some(pairs) = pairs {
+                let held = held(particles, &states);
                 pass.pass(view, particles, &params, pairs, march.dt);
                 for (i, p) in held {
                     particles[i] = p;
@@ -663,6 +691,13 @@ fn check_paths(
                 .zip(states.par_iter_mut())
                 .filter(|(_, s)| !(s.bad || s.non_finite))
                 .for_each(|(p, s)| checker.step(p, s, &march));
+            if pairs.is_some() {
+                let held = held(particles, &states);
+                pass.debias(particles);
+                for (i, p) in held {
+                    particles[i] = p;
+                }
+            }
         }
     }
     let mut report = CheckReport {

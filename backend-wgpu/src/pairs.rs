@@ -63,8 +63,9 @@ pub struct PairState {
     /// Zero, read by the kernel at run time (the restitution of a grain's support: a
     /// constant one would let the compiler fold `v_n * 0.0` to +0, where IEEE gives -0).
     pub zero: f32,
-    /// Padding.
-    pub _pad: u32,
+    /// The pass's relaxation `β` (`PairParams::relaxation`): `pair_step_kernel` puts it in
+    /// `step` each substep, after the debiasing iterations ran with zero.
+    pub relaxation: f32,
 }
 
 /// The pass's sizes: WGSL's `PairPassParams`.
@@ -137,6 +138,8 @@ struct PairKernel {
     start: wgpu::ComputePipeline,
     iterate: wgpu::ComputePipeline,
     scatter: wgpu::ComputePipeline,
+    unbias: wgpu::ComputePipeline,
+    regather: wgpu::ComputePipeline,
     state: wgpu::Buffer,
 }
 
@@ -149,7 +152,8 @@ struct PairBuffers {
     keys: wgpu::Buffer,
     rank: wgpu::Buffer,
     bodies: wgpu::Buffer,
-    vel: [wgpu::Buffer; 2],
+    /// Two for the iterations, and the velocities entering them (`vel[2]`).
+    vel: [wgpu::Buffer; 3],
     supports: wgpu::Buffer,
     /// The sort's dispatches, whether each is a block's (or a pass over all the keys), and
     /// their [`PairSortParams`], one every `sort_stride` bytes.
@@ -157,10 +161,12 @@ struct PairBuffers {
     sort_stride: u32,
     reset_group: wgpu::BindGroup,
     step_group: wgpu::BindGroup,
+    unbias_group: wgpu::BindGroup,
     sort_group: wgpu::BindGroup,
     rank_group: wgpu::BindGroup,
-    /// Iteration `i` reads `vel[i % 2]` and writes the other.
-    iterate_groups: [wgpu::BindGroup; 2],
+    /// The first iteration reads `vel[2]` and writes `vel[0]`, the others read `vel[0]` or
+    /// `vel[1]` and write the other: iteration `i` uses [`iterate_group`]`(i)`.
+    iterate_groups: [wgpu::BindGroup; 3],
 }
 
 /// One chunk's bind groups.
@@ -171,8 +177,10 @@ struct ChunkGroups {
     key: wgpu::BindGroup,
     gather: wgpu::BindGroup,
     start: wgpu::BindGroup,
-    /// The scatter from `vel[i]`: the last iteration's output is `vel[iterations % 2]`.
+    /// The scatter from `vel[i]`: the last iteration's output is [`last_velocities`]'s.
     scatter: [wgpu::BindGroup; 2],
+    /// The marched velocities into `vel[0]`, for the debiasing iterations.
+    regather: wgpu::BindGroup,
 }
 
 /// What a chunk's bind groups were made for: its particles' buffer, offset and count, its
@@ -308,6 +316,8 @@ impl WgpuBackend {
             start: pipeline("pair_start_kernel", None),
             iterate: pipeline("pair_iterate_kernel", None),
             scatter: pipeline("pair_scatter_kernel", None),
+            unbias: pipeline("pair_unbias_kernel", None),
+            regather: pipeline("pair_regather_kernel", None),
             state: device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("octoproxy pair state"),
                 size: STATE_BYTES,
@@ -397,18 +407,13 @@ impl WgpuBackend {
             n as u64 * BODY_BYTES,
             storage_usage,
         );
-        let vel = [
+        let vel = [(); 3].map(|_| {
             buffer(
                 "octoproxy pair velocities",
                 n as u64 * VELOCITY_BYTES,
                 storage_usage,
-            ),
-            buffer(
-                "octoproxy pair velocities",
-                n as u64 * VELOCITY_BYTES,
-                storage_usage,
-            ),
-        ];
+            )
+        });
         let supports = buffer(
             "octoproxy pair supports",
             n as u64 * SUPPORT_BYTES,
@@ -461,6 +466,12 @@ impl WgpuBackend {
             "octoproxy pair step",
             &[(3, state.clone())],
         );
+        let unbias_group = group(
+            device,
+            &kernel.unbias,
+            "octoproxy pair unbias",
+            &[(3, state.clone())],
+        );
         let sort_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("octoproxy pair sort"),
             layout: &kernel.sort_layout,
@@ -491,7 +502,7 @@ impl WgpuBackend {
                 (10, pass.as_entire_binding()),
             ],
         );
-        let iterate = |from: usize| {
+        let iterate = |from: usize, to: usize| {
             group(
                 device,
                 &kernel.iterate,
@@ -500,13 +511,14 @@ impl WgpuBackend {
                     (3, state.clone()),
                     (6, bodies.as_entire_binding()),
                     (7, vel[from].as_entire_binding()),
-                    (8, vel[1 - from].as_entire_binding()),
+                    (8, vel[to].as_entire_binding()),
                     (9, ranges.as_entire_binding()),
                     (12, supports.as_entire_binding()),
+                    (14, vel[2].as_entire_binding()),
                 ],
             )
         };
-        let iterate_groups = [iterate(0), iterate(1)];
+        let iterate_groups = [iterate(2, 0), iterate(0, 1), iterate(1, 0)];
         scope.pop().map_err(WgpuError::Gpu)?;
         self.pairs.buffers = Some(PairBuffers {
             count: n as u32,
@@ -520,6 +532,7 @@ impl WgpuBackend {
             sort_stride: stride,
             reset_group,
             step_group,
+            unbias_group,
             sort_group,
             rank_group,
             iterate_groups,
@@ -623,12 +636,24 @@ impl WgpuBackend {
                             (2, params.clone()),
                             (3, state.clone()),
                             (5, buffers.rank.as_entire_binding()),
-                            (8, buffers.vel[0].as_entire_binding()),
+                            (8, buffers.vel[2].as_entire_binding()),
                             (12, buffers.supports.as_entire_binding()),
                             (13, chunk.hints.as_entire_binding()),
                         ],
                     ),
                     scatter: [scatter(0), scatter(1)],
+                    regather: group(
+                        device,
+                        &kernel.regather,
+                        "octoproxy pair regather",
+                        &[
+                            (1, particles()),
+                            (2, params.clone()),
+                            (3, state.clone()),
+                            (5, buffers.rank.as_entire_binding()),
+                            (8, buffers.vel[0].as_entire_binding()),
+                        ],
+                    ),
                 }
             })
             .collect();
@@ -694,6 +719,11 @@ impl WgpuBackend {
         let s = PairStep::new(params, pairs, h, n as usize, 0.0);
         self.queue
             .write_buffer(&kernel.state, 0, bytemuck::bytes_of(&s));
+        self.queue.write_buffer(
+            &kernel.state,
+            core::mem::offset_of!(PairState, relaxation) as u64,
+            bytemuck::bytes_of(&pairs.relaxation),
+        );
         self.write_step_params(march);
         let chunks = &self.pairs.chunk_groups;
         for _ in 0..steps {
@@ -752,16 +782,36 @@ impl WgpuBackend {
                 }
                 pass.set_pipeline(&kernel.iterate);
                 for i in 0..pairs.iterations {
-                    pass.set_bind_group(0, &buffers.iterate_groups[i as usize % 2], &[]);
+                    pass.set_bind_group(0, &buffers.iterate_groups[iterate_group(i)], &[]);
                     dispatch(&mut pass, n);
                 }
                 pass.set_pipeline(&kernel.scatter);
-                let last = pairs.iterations as usize % 2;
+                let last = last_velocities(pairs.iterations);
                 for c in chunks {
                     pass.set_bind_group(0, &c.scatter[last], &[]);
                     dispatch(&mut pass, c.count);
                 }
                 self.record_step(&mut pass, false);
+                // The debiasing iterations: from the marched velocities, in `vel[0]`.
+                pass.set_pipeline(&kernel.unbias);
+                pass.set_bind_group(0, &buffers.unbias_group, &[]);
+                pass.dispatch_workgroups(1, 1, 1);
+                pass.set_pipeline(&kernel.regather);
+                for c in chunks {
+                    pass.set_bind_group(0, &c.regather, &[]);
+                    dispatch(&mut pass, c.count);
+                }
+                pass.set_pipeline(&kernel.iterate);
+                for i in 0..pairs.iterations {
+                    pass.set_bind_group(0, &buffers.iterate_groups[1 + i as usize % 2], &[]);
+                    dispatch(&mut pass, n);
+                }
+                pass.set_pipeline(&kernel.scatter);
+                let last = (pairs.iterations % 2) as usize;
+                for c in chunks {
+                    pass.set_bind_group(0, &c.scatter[last], &[]);
+                    dispatch(&mut pass, c.count);
+                }
             }
             self.queue.submit([encoder.finish()]);
         }
@@ -781,6 +831,25 @@ impl WgpuBackend {
                 .write_buffer(&kernel.state, COUNTS_AT, &[0u8; 16]);
         }
         Ok(report)
+    }
+}
+
+/// Which of [`PairBuffers::iterate_groups`] iteration `i` uses.
+fn iterate_group(i: u32) -> usize {
+    match i {
+        0 => 0,
+        _ if i % 2 == 1 => 1,
+        _ => 2,
+    }
+}
+
+/// Which of `vel[0]` and `vel[1]` holds the last of `iterations` (at least 1) iterations'
+/// output.
+fn last_velocities(iterations: u32) -> usize {
+    if iterations % 2 == 1 {
+        0
+    } else {
+        1
     }
 }
 

@@ -10,30 +10,36 @@
 //! around its own, in a fixed order, and changes only its own velocity
 //! ([`pair_velocity`]). Then each particle's displacement over the substep is marched against
 //! the scene with gravity already integrated (the step with zero gravity and the substep's
-//! `dt`): the scene comes last, so no neighbour can push a particle through a surface.
+//! `dt`): the scene comes last, so no neighbour can push a particle through a surface. Last,
+//! as many **debiasing iterations** ([`debias_pairs`]) solve the same contacts again from the
+//! marched velocities without the overlaps' removal ([`PairStep::unbiased`]): what moved
+//! overlapping particles apart in the march does not stay as their velocity (Box2D v3's
+//! "relax" iterations after its soft step).
 //!
 //! **The contact** between particles `i` and `j` (centres `x`, velocities `v`, radius `R`,
 //! substep `h`) is speculative: with `n` the unit vector from `j` to `i`, `gap = |x_i − x_j| −
 //! 2R` and `v_n = (v_i − v_j)·n`, the pair is in contact when `gap + v_n·h < 0` (it would
-//! close within the substep). The relative normal velocity is then raised to
-//! `e·(−v_n) + (1 − e)·(−gap/h)` (restitution `e`: reflected, or arriving just touching),
-//! and, when the pair overlaps, to `−β·gap/h` (the overlap removed at the rate `β`,
-//! [`PairParams::relaxation`]): at least that when it closes (more only by a bounce), and
-//! exactly that when it parts, so a pair parting faster than its overlap's removal is held
-//! back to it. Without that hold, what removes the overlaps of a deep pile in one substep
-//! would stay as velocity: in a stack each grain parts from the one below at its overlap's
-//! rate, the top takes the sum, and piles 30 grains deep threw their top grains up at metres
-//! per second. The tangential relative velocity loses up to `μ` times the normal change
-//! (Coulomb's cone on impulses) when the contact pushes: all of it below the cone (static
-//! friction: touching particles stop sliding, so piles stand), `μ·Δv_n` above it. Particle
-//! `i` takes `share_i` of the pair's change and `j` the rest, `share_i = ½ + ½·s·σ` with `s`
-//! the height of `i` above `j` along `−gravity` in diameters (clamped to ±1) and `σ`
+//! close within the substep). Its relative normal velocity is then brought to a **target**
+//! fixed for the substep ([`PairGeometry::target`]): `e·a + (1 − e)·(−gap/h)`, with `a` the
+//! speed at which the pair approached entering the iterations (the bounce is of that speed,
+//! not of an iteration's: in a falling column each grain would otherwise bounce off the one
+//! below as it is raised, and the top take the sum) and restitution `e` (reflected, or
+//! arriving just touching); when the pair overlaps, at least `−β·gap/h` (the overlap removed
+//! at the rate `β`, [`PairParams::relaxation`]). A pair closing faster is pushed; an
+//! overlapping pair parting faster is held back (so what removes the overlaps of a deep pile
+//! does not throw its top). The tangential relative velocity loses up to `μ` times the normal
+//! change (Coulomb's cone on impulses) when the contact pushes: all of it below the cone
+//! (static friction: touching particles stop sliding, so piles stand), `μ·Δv_n` above it.
+//! Particle `i` takes `share_i` of the pair's change and `j` the rest, `share_i = ½ + ½·s·σ`
+//! with `s` the height of `i` above `j` along `−gravity` in diameters (clamped to ±1) and `σ`
 //! [`PairParams::stacking`] (Macklin's mass scaling: a particle resting on another takes the
 //! correction, so stacks do not sink into each other). With `σ = 0`, or without gravity, each
 //! takes half: momentum is kept exactly, and an elastic frictionless pair leaves with the
-//! velocities its contact normal gives. Each particle averages its pairs' changes (the sum
-//! divided by its count of contacts). Coincident centres take the normal `±y` by index (the
-//! higher index goes up), so the pair's normals stay opposite.
+//! velocities its contact normal gives. Each particle takes the mean of its pairs' changes,
+//! each pair weighted by its share against an even split ([`pair_weight`]: a grain under
+//! another is not moved by that contact, and it does not halve what the contacts under it
+//! do). Coincident centres take the normal `±y` by index (the higher index goes up), so the
+//! pair's normals stay opposite.
 //!
 //! **No tunnelling between particles.** Within a substep, positions move in straight lines. A
 //! pair whose constraint holds after the iterations (`gap + v_n·h ≥ 0`) ends in the half-space
@@ -72,6 +78,10 @@ pub const PAIR_HASH_NONE: u32 = u32::MAX;
 /// The cell edge is this many times `2R + 2·v_max·h`: rounding of `x / cell` cannot lose a
 /// pair at the search distance.
 pub const PAIR_CELL_MARGIN: f32 = 1.0625;
+
+/// A grain rests on a surface leaf's plane ([`pair_support`]) when it is at most this part
+/// of the leaf's edge above it.
+pub const PAIR_SUPPORT_REACH: f32 = 1.0 / 64.0;
 
 /// Most substeps a step is split into.
 pub const MAX_PAIR_SUBSTEPS: u32 = 256;
@@ -114,7 +124,7 @@ impl Default for PairParams {
         Self {
             restitution: 0.1,
             friction: 0.5,
-            relaxation: 0.5,
+            relaxation: 0.4,
             stacking: 1.0,
             iterations: 8,
             substeps: 0,
@@ -275,6 +285,15 @@ pub fn pair_table_size(n: usize) -> usize {
 }
 
 impl PairStep {
+    /// The same substep without the overlap's removal (`relaxation` 0): the constants of the
+    /// debiasing iterations after the march ([`debias_pairs`]).
+    pub fn unbiased(&self) -> Self {
+        Self {
+            relaxation: 0.0,
+            ..*self
+        }
+    }
+
     /// The constants of a substep of `h` seconds for `n` particles whose largest speed after
     /// gravity ([`pair_prepare`]'s) is `v_max`.
     pub fn new(step: &StepParams, pairs: &PairParams, h: f32, n: usize, v_max: f32) -> Self {
@@ -374,8 +393,9 @@ pub fn pair_prepare(p: &Particle, s: &PairStep) -> Option<(Vec3, f32)> {
 }
 
 /// The support of a grain resting on the scene: the unit normal of the one-sided surface
-/// leaf its hint holds (the leaf it rests in, on its plane, as the march left it), facing the
-/// grain's side, with `w = 1`; zeros when it rests on nothing. In the pass a supported grain
+/// leaf its hint holds (the leaf it rests in, on its plane, as the march left it: within
+/// [`PAIR_SUPPORT_REACH`] of the leaf's edge), facing the grain's side, with `w = 1`; zeros
+/// when it rests on nothing. In the pass a supported grain
 /// cannot move into its support: what its contacts push into it is the scene's normal
 /// impulse, and the scene's friction acts with it ([`pair_velocity`]), so a grain under a
 /// pile holds on a slope by the pile's weight, not only its own.
@@ -384,13 +404,22 @@ pub fn pair_support(view: &ProxyView<'_>, p: &Particle, hint: LeafHint) -> [f32;
     if hint.z_depth_label & LeafHint::SURFACE == 0 || p.side & !SIDE_MASK != 0 {
         return [0.0; 4];
     }
-    match hint.leaf(view, Vec3::from_array(p.position)) {
+    let x = Vec3::from_array(p.position);
+    match hint.leaf(view, x) {
         Some(leaf) => {
-            let n = if p.side == SIDE_BACK {
-                -leaf.normal
+            let (n, sign) = if p.side == SIDE_BACK {
+                (-leaf.normal, -1.0)
             } else {
-                leaf.normal
+                (leaf.normal, 1.0)
             };
+            // On the plane, as the march leaves a grain it stopped: a grain inside a large
+            // leaf well above its plane is falling, not resting.
+            let centre = (leaf.aabb.min + leaf.aabb.max) * 0.5;
+            let above = (leaf.normal.dot(x - centre) - leaf.plane_offset) * sign;
+            let reach = (leaf.aabb.max.x - leaf.aabb.min.x) * PAIR_SUPPORT_REACH;
+            if !(above <= reach) {
+                return [0.0; 4];
+            }
             [n.x, n.y, n.z, 1.0]
         }
         None => [0.0; 4],
@@ -463,9 +492,9 @@ pub fn pair_range_marks(keys: &[[u32; 2]], k: usize) -> (bool, bool) {
     (first, last)
 }
 
-/// What a pair's contact needs of its positions, fixed within a substep: the unit normal
-/// from `other` to `me` (`±y` by index for coincident centres), the gap, and `me`'s share of
-/// the pair's change ([the contact](self)).
+/// What a pair's contact needs, fixed within a substep: the unit normal from `other` to
+/// `me` (`±y` by index for coincident centres), the gap, `me`'s share of the pair's change,
+/// and the relative normal velocity the contact aims at ([the contact](self)).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct PairGeometry {
     /// The unit normal.
@@ -474,11 +503,41 @@ pub struct PairGeometry {
     pub gap: f32,
     /// `me`'s share, `½ + ½·s·σ`.
     pub share: f32,
+    /// The target relative normal velocity, from the gap and the velocities the pair
+    /// entered the iterations with.
+    pub target: f32,
+    /// The target without the overlap's removal (β = 0): the debiasing iterations'
+    /// ([`debias_pairs`]).
+    pub unbiased: f32,
 }
 
-/// The geometry of `me`'s contact with `other` ([`PairGeometry`]).
+/// A pair's target relative normal velocity ([the contact](self)) at the relaxation `beta`,
+/// from its gap and the speed `approach` at which it closed entering the iterations.
 #[inline(always)]
-pub fn pair_geometry(me: &PairBody, other: &PairBody, s: &PairStep) -> PairGeometry {
+fn pair_target(gap: f32, approach: f32, beta: f32, s: &PairStep) -> f32 {
+    let closing = if gap >= 0.0 {
+        gap * s.inv_h
+    } else {
+        beta * gap * s.inv_h
+    };
+    let mut target = s.restitution * approach + (1.0 - s.restitution) * -closing;
+    // Overlapping: parting at least at the overlap's removal.
+    if gap < 0.0 && target < -closing {
+        target = -closing;
+    }
+    target
+}
+
+/// The geometry of `me`'s contact with `other` ([`PairGeometry`]); `v0` and `w0` are their
+/// velocities entering the substep's iterations ([`pair_start`]'s).
+#[inline(always)]
+pub fn pair_geometry(
+    me: &PairBody,
+    other: &PairBody,
+    v0: &PairVelocity,
+    w0: &PairVelocity,
+    s: &PairStep,
+) -> PairGeometry {
     let x = Vec3::from_array(me.position) - Vec3::from_array(other.position);
     let d2 = x.dot(x);
     let (dist, n) = if d2 > 0.0 {
@@ -490,27 +549,40 @@ pub fn pair_geometry(me: &PairBody, other: &PairBody, s: &PairStep) -> PairGeome
     };
     let height = x.dot(Vec3::from_array(s.up)) * s.inv_diameter;
     let height = height.clamp(-1.0, 1.0);
+    let gap = dist - s.diameter;
+    // The bounce is of the speed the pair approached with entering the iterations, not of
+    // an iteration's: in a falling column each grain would otherwise bounce off the one
+    // below as it is raised, and the top take the sum.
+    let vn0 = (Vec3::new(v0[0], v0[1], v0[2]) - Vec3::new(w0[0], w0[1], w0[2])).dot(n);
+    let approach = if vn0 < 0.0 { -vn0 } else { 0.0 };
     PairGeometry {
         n: n.to_array(),
-        gap: dist - s.diameter,
+        gap,
         share: 0.5 + height * s.half_stacking,
+        target: pair_target(gap, approach, s.relaxation, s),
+        unbiased: pair_target(gap, approach, 0.0, s),
     }
 }
 
 /// The change of `me`'s velocity `v` from its contact with `other` (velocity `w`), if the
-/// pair is in contact ([the contact](self)).
+/// pair is in contact ([the contact](self)); `v0` and `w0` as in [`pair_geometry`].
 #[inline(always)]
+#[allow(clippy::too_many_arguments)]
 pub fn pair_impulse(
     me: &PairBody,
     v: Vec3,
+    v0: &PairVelocity,
     other: &PairBody,
     w: Vec3,
+    w0: &PairVelocity,
     s: &PairStep,
 ) -> Option<Vec3> {
-    pair_response(&pair_geometry(me, other, s), v, w, s)
+    pair_response(&pair_geometry(me, other, v0, w0, s), v, w, s)
 }
 
-/// [`pair_impulse`] from the pair's geometry ([`pair_geometry`]).
+/// [`pair_impulse`] from the pair's geometry ([`pair_geometry`]): a pair that would close
+/// within the substep (`gap + v_n·h < 0`) is brought to its target, pushed when it closes
+/// faster, and held back when it overlaps and parts faster.
 #[inline(always)]
 pub fn pair_response(g: &PairGeometry, v: Vec3, w: Vec3, s: &PairStep) -> Option<Vec3> {
     let n = Vec3::from_array(g.n);
@@ -520,18 +592,7 @@ pub fn pair_response(g: &PairGeometry, v: Vec3, w: Vec3, s: &PairStep) -> Option
     if gap + vn * s.h >= 0.0 {
         return None;
     }
-    let closing = if gap >= 0.0 {
-        gap * s.inv_h
-    } else {
-        s.relaxation * gap * s.inv_h
-    };
-    let mut target = s.restitution * -vn + (1.0 - s.restitution) * -closing;
-    // Overlapping (and still so at the substep's end): parting at exactly the overlap's
-    // removal, faster only by a bounce; a pair that parts faster is held back to it.
-    if gap < 0.0 && (target < -closing || vn > 0.0) {
-        target = -closing;
-    }
-    let jn = target - vn;
+    let jn = g.target - vn;
     let (pushes, pulls) = (jn > 0.0, gap < 0.0 && jn < 0.0);
     if !(pushes || pulls) {
         return None;
@@ -604,7 +665,22 @@ pub fn pair_candidates(
 struct PairSum {
     v: Vec3,
     sum: Vec3,
-    contacts: u32,
+    /// The contacts' weights ([`pair_weight`]).
+    weight: f32,
+}
+
+/// How much a contact counts in a particle's mean: its share relative to an even split,
+/// `min(1, 2·share)`. A grain under another (share 0 at full stacking) is not moved by that
+/// contact, and it does not dilute what the contacts under it do: in a column each grain
+/// takes all of its correction from below, not half.
+#[inline(always)]
+pub fn pair_weight(share: f32) -> f32 {
+    let w = 2.0 * share;
+    if w < 1.0 {
+        w
+    } else {
+        1.0
+    }
 }
 
 impl PairSum {
@@ -613,7 +689,7 @@ impl PairSum {
         Self {
             v: Vec3::new(vel[k][0], vel[k][1], vel[k][2]),
             sum: Vec3::ZERO,
-            contacts: 0,
+            weight: 0.0,
         }
     }
 
@@ -622,15 +698,15 @@ impl PairSum {
         let w = Vec3::new(w[0], w[1], w[2]);
         if let Some(dv) = pair_response(g, self.v, w, s) {
             self.sum += dv;
-            self.contacts += 1;
+            self.weight += pair_weight(g.share);
         }
     }
 
     /// The velocity: the contacts' mean change, then the support's response.
     #[inline(always)]
     fn finish(self, sup: [f32; 4], s: &PairStep) -> PairVelocity {
-        let mut out = if self.contacts > 0 {
-            self.v + self.sum * (1.0 / self.contacts as f32)
+        let mut out = if self.weight > 0.0 {
+            self.v + self.sum * (1.0 / self.weight)
         } else {
             self.v
         };
@@ -648,13 +724,14 @@ impl PairSum {
 
 /// One Jacobi iteration for the particle at sorted position `k`: its velocity after its
 /// contacts with its candidates ([`pair_candidates`]; velocities from `vel`, the last
-/// iteration's), and its support's response ([`pair_support`], `support[k]`: what moves into
+/// iteration's, and from `start`, those entering the iterations), and its support's response ([`pair_support`], `support[k]`: what moves into
 /// the scene is taken as the scene's normal impulse, with its friction, `respond` with no
 /// restitution), and whether its neighbour loop stopped at the cap.
 #[inline]
 pub fn pair_velocity(
     k: usize,
     bodies: &[PairBody],
+    start: &[PairVelocity],
     vel: &[PairVelocity],
     support: &[[f32; 4]],
     ranges: &[[u32; 2]],
@@ -663,14 +740,16 @@ pub fn pair_velocity(
     let me = &bodies[k];
     let mut sum = PairSum::new(vel, k);
     let capped = pair_candidates(k, bodies, ranges, s, |m| {
-        sum.add(&pair_geometry(me, &bodies[m], s), &vel[m], s);
+        let g = pair_geometry(me, &bodies[m], &start[k], &start[m], s);
+        sum.add(&g, &vel[m], s);
     });
     (sum.finish(support[k], s), capped)
 }
 
 /// [`pair_velocity`] from the particle's candidates listed once for the substep (sorted
 /// positions, in [`pair_candidates`]' order) with their geometry ([`pair_geometry`]): the
-/// same bits, without the search or the geometry.
+/// same bits, without the search or the geometry. `debias` takes each pair's unbiased
+/// target: [`pair_velocity`]'s with [`PairStep::unbiased`].
 #[inline]
 pub fn pair_velocity_listed(
     k: usize,
@@ -679,22 +758,33 @@ pub fn pair_velocity_listed(
     vel: &[PairVelocity],
     support: &[[f32; 4]],
     s: &PairStep,
+    debias: bool,
 ) -> PairVelocity {
     let mut sum = PairSum::new(vel, k);
     for (&m, g) in candidates.iter().zip(geometry) {
-        sum.add(g, &vel[m as usize], s);
+        if debias {
+            let g = PairGeometry {
+                target: g.unbiased,
+                ..*g
+            };
+            sum.add(&g, &vel[m as usize], s);
+        } else {
+            sum.add(g, &vel[m as usize], s);
+        }
     }
     sum.finish(support[k], s)
 }
 
-/// The caller's scratch for [`collide_pairs`]: `n` keys, bodies and two velocity buffers,
-/// and [`pair_table_size`]`(n)` ranges.
+/// The caller's scratch for [`collide_pairs`]: `n` keys, bodies and three velocity
+/// buffers, and [`pair_table_size`]`(n)` ranges.
 pub struct PairScratch<'a> {
     /// `(hash, index)` per particle, sorted in place.
     pub keys: &'a mut [[u32; 2]],
     /// The particles in sorted order.
     pub bodies: &'a mut [PairBody],
-    /// Velocities in sorted order, and the next iteration's.
+    /// Velocities entering the iterations, in sorted order.
+    pub start: &'a mut [PairVelocity],
+    /// An iteration's velocities in sorted order.
     pub vel: &'a mut [PairVelocity],
     /// The next iteration's velocities.
     pub vel_next: &'a mut [PairVelocity],
@@ -724,6 +814,7 @@ pub fn collide_pairs(
     let t = pair_table_size(n);
     if scratch.keys.len() < n
         || scratch.bodies.len() < n
+        || scratch.start.len() < n
         || scratch.vel.len() < n
         || scratch.vel_next.len() < n
         || scratch.support.len() < n
@@ -743,8 +834,9 @@ pub fn collide_pairs(
     }
     keys.sort_unstable();
     let valid = keys.partition_point(|k| k[0] != PAIR_HASH_NONE);
-    let (bodies, vel, vel_next, support) = (
+    let (bodies, start, vel, vel_next, support) = (
         &mut scratch.bodies[..valid],
+        &mut scratch.start[..valid],
         &mut scratch.vel[..valid],
         &mut scratch.vel_next[..valid],
         &mut scratch.support[..valid],
@@ -758,8 +850,10 @@ pub fn collide_pairs(
             cell: pair_cell(p.position, s),
             hash: keys[k][0],
         };
-        (vel[k], support[k]) = pair_start(view, p, hints[i], s);
+        (start[k], support[k]) = pair_start(view, p, hints[i], s);
     }
+    vel.copy_from_slice(start);
+    let start = &*start;
     let ranges = &mut scratch.ranges[..t];
     ranges.fill([0, 0]);
     for k in 0..valid {
@@ -776,7 +870,61 @@ pub fn collide_pairs(
     let (mut a, mut b) = (vel, vel_next);
     for _ in 0..iterations {
         for (k, out) in b.iter_mut().enumerate() {
-            let (v, cap) = pair_velocity(k, bodies, a, support, ranges, s);
+            let (v, cap) = pair_velocity(k, bodies, start, a, support, ranges, s);
+            *out = v;
+            capped += cap as u64;
+        }
+        core::mem::swap(&mut a, &mut b);
+    }
+    for k in 0..valid {
+        particles[bodies[k].index as usize].velocity = [a[k][0], a[k][1], a[k][2]];
+    }
+    Some(capped)
+}
+
+/// The debiasing iterations after the march, on one thread ([`collide_pairs`]' second
+/// half): the substep's contacts solved again from the particles' velocities after the march,
+/// without the overlap's removal ([`PairStep::unbiased`]), so what moved overlapping
+/// particles apart does not stay as their velocity. `s`, `iterations` and `scratch` must be
+/// those of the [`collide_pairs`] call before the march, its scratch unchanged since; then
+/// positions are those it saw but for the march. Returns the particles whose neighbour loop
+/// hit the cap, summed over iterations; `None` for scratch unlike [`collide_pairs`]'.
+pub fn debias_pairs(
+    particles: &mut [Particle],
+    s: &PairStep,
+    iterations: u32,
+    scratch: PairScratch<'_>,
+) -> Option<u64> {
+    let n = particles.len();
+    let t = pair_table_size(n);
+    if scratch.keys.len() < n
+        || scratch.bodies.len() < n
+        || scratch.start.len() < n
+        || scratch.vel.len() < n
+        || scratch.vel_next.len() < n
+        || scratch.support.len() < n
+        || scratch.ranges.len() < t
+        || s.mask as usize != t - 1
+    {
+        return None;
+    }
+    let valid = scratch.keys[..n].partition_point(|k| k[0] != PAIR_HASH_NONE);
+    let (bodies, start, support, ranges) = (
+        &scratch.bodies[..valid],
+        &scratch.start[..valid],
+        &scratch.support[..valid],
+        &scratch.ranges[..t],
+    );
+    let (mut a, mut b) = (&mut scratch.vel[..valid], &mut scratch.vel_next[..valid]);
+    for k in 0..valid {
+        let v = particles.get(bodies[k].index as usize)?.velocity;
+        a[k] = [v[0], v[1], v[2], 0.0];
+    }
+    let u = s.unbiased();
+    let mut capped = 0u64;
+    for _ in 0..iterations {
+        for (k, out) in b.iter_mut().enumerate() {
+            let (v, cap) = pair_velocity(k, bodies, start, a, support, ranges, &u);
             *out = v;
             capped += cap as u64;
         }
@@ -827,11 +975,13 @@ mod tests {
         let n = ps.len();
         let (mut keys, mut bodies) = (vec![[0u32; 2]; n], vec![PairBody::default(); n]);
         let (mut vel, mut vel_next) = (vec![[0f32; 4]; n], vec![[0f32; 4]; n]);
+        let mut start = vec![[0f32; 4]; n];
         let mut ranges = vec![[0u32; 2]; pair_table_size(n)];
         let mut support = vec![[0f32; 4]; n];
         let scratch = PairScratch {
             keys: &mut keys,
             bodies: &mut bodies,
+            start: &mut start,
             vel: &mut vel,
             vel_next: &mut vel_next,
             support: &mut support,

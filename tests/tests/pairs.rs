@@ -421,7 +421,9 @@ fn pour(
         if baked.truth.is_inside(p.position) {
             inside += 1;
         }
-        if !touching && dist > (r + 2.0 * baked.leaf * 3f32.sqrt()) as f64 {
+        // A resting grain touches a neighbour or the scene.
+        let resting = Vec3::from_array(p.velocity).length() < 0.02 * impact;
+        if resting && !touching && dist > (r + 2.0 * baked.leaf * 3f32.sqrt()) as f64 {
             unsupported += 1;
         }
     }
@@ -466,16 +468,10 @@ fn fifty_thousand_grains_poured_on_a_plate_come_to_rest() {
     }
 }
 
-/// Sand poured onto Spot standing on a floor keeps every centre at its radius from the mesh
-/// and its neighbours, and the pile stands. Not all of it is at rest after 6 s: 96 % (the
-/// issue asks 98 %); grains still slide on the cow's steep flanks, a few fall off the floor's
-/// edge, and the deepest grains of the pile settle more slowly in the Jacobi iterations.
-#[test]
-fn sand_poured_on_a_shared_mesh_keeps_its_distance() {
-    let Some(mut cow) = octoproxy_tests::meshes::load("spot.obj.gz") else {
-        return;
-    };
-    // Spot, 1.2 long, standing on a floor.
+/// Spot, 1.2 long, standing in a tray 3 wide (a floor and four walls, overlapping at the
+/// corners), baked for `radius` at `dmax`; and the cow's highest point.
+fn spot_in_a_tray(dmax: u32, radius: f32) -> Option<(RadiusScene, f32)> {
+    let mut cow = octoproxy_tests::meshes::load("spot.obj.gz")?;
     let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
     for p in &cow.positions {
         lo = lo.min(Vec3::from_array(*p));
@@ -487,21 +483,48 @@ fn sand_poured_on_a_shared_mesh_keeps_its_distance() {
         *p = ((Vec3::from_array(*p) - base) * scale).to_array();
     }
     let top = cow.positions.iter().map(|p| p[1]).fold(f32::MIN, f32::max);
-    let floor = scenes::slab([0.0, -0.1, 0.0], [3.0, 0.2, 3.0]);
-    let baked = bake_for(&[cow, floor], 7, 0.05);
-    let rest = pour(&baked, [13, 13, 13], [0.05, 0.0], top, 0.3, 1.0 / 60.0, 6.0);
-    eprintln!(
-        "Spot on a floor: {} of {} particles slower than 2 % of the impact speed, {} off the floor, the top sank {:.2} R in the last second",
-        rest.slow, rest.particles, rest.unsupported, rest.sank / rest.radius
-    );
-    assert!(rest.overlap < 0.1, "overlaps {}", rest.overlap);
-    assert_eq!(rest.too_near + rest.inside, 0, "centres too near the mesh");
-    assert!(rest.slow * 100 >= rest.particles * 95, "not settling");
-    assert!(rest.sank.abs() < 0.25 * rest.radius, "the pile creeps");
+    let (w, t, h) = (3.0, 0.1, 0.8);
+    let parts = [
+        cow,
+        scenes::slab([0.0, -0.1, 0.0], [w, 0.2, w]),
+        scenes::slab([0.5 * (w - t), 0.5 * h, 0.0], [t, h, w]),
+        scenes::slab([-0.5 * (w - t), 0.5 * h, 0.0], [t, h, w]),
+        scenes::slab([0.0, 0.5 * h, 0.5 * (w - t)], [w, h, t]),
+        scenes::slab([0.0, 0.5 * h, -0.5 * (w - t)], [w, h, t]),
+    ];
+    Some((bake_for(&parts, dmax, radius), top))
 }
 
-/// The CPU backend's parallel pass is core's one-thread pass (`collide_pairs`) followed by
-/// the march with the substep and no gravity, bit for bit.
+/// Sand poured onto Spot standing in a tray keeps every centre at its radius from the mesh
+/// and its neighbours, and the pile stands.
+#[test]
+fn sand_poured_on_a_shared_mesh_keeps_its_distance() {
+    let Some((baked, top)) = spot_in_a_tray(7, 0.05) else {
+        return;
+    };
+    let rest = pour(&baked, [13, 13, 13], [0.05, 0.0], top, 0.3, 1.0 / 60.0, 6.0);
+    rest.check("Spot in a tray");
+}
+
+/// 51,376 grains (a block 52 × 19 × 52) poured onto Spot in a tray, at dt 1/60 and at 4 ms:
+/// 98 % at rest after 4 s, every resting grain supported, no centre inside the mesh or
+/// nearer it than R less a leaf diagonal (exact ground truth), overlaps under 10 %. A deeper
+/// block (37³) dumped from higher threw grains over the walls before the debiasing
+/// iterations; beyond what the iterations reach in a substep it still springs back.
+#[test]
+fn fifty_thousand_grains_poured_on_a_shared_mesh_come_to_rest() {
+    let Some((baked, top)) = spot_in_a_tray(8, 0.023) else {
+        return;
+    };
+    for dt in [1.0 / 60.0, 0.004] {
+        let rest = pour(&baked, [52, 19, 52], [0.05, 0.0], top, 0.3, dt, 4.0);
+        rest.check(&format!("50k grains on Spot at dt {dt}"));
+    }
+}
+
+/// The CPU backend's parallel pass is core's one-thread pass (`collide_pairs`), the march
+/// with the substep and no gravity, and core's debiasing iterations (`debias_pairs`), bit for
+/// bit.
 #[test]
 fn the_parallel_pass_is_cores_serial_pass() {
     let r = 0.15;
@@ -543,6 +566,7 @@ fn the_parallel_pass_is_cores_serial_pass() {
         vec![octoproxy_core::PairBody::default(); n],
     );
     let (mut vel, mut vel_next) = (vec![[0f32; 4]; n], vec![[0f32; 4]; n]);
+    let mut start = vec![[0f32; 4]; n];
     let mut ranges = vec![[0u32; 2]; octoproxy_core::pairs::pair_table_size(n)];
     let mut support = vec![[0f32; 4]; n];
     let mut hints = vec![octoproxy_core::LeafHint::NONE; n];
@@ -556,6 +580,7 @@ fn the_parallel_pass_is_cores_serial_pass() {
             let scratch = octoproxy_core::PairScratch {
                 keys: &mut keys,
                 bodies: &mut bodies,
+                start: &mut start,
                 vel: &mut vel,
                 vel_next: &mut vel_next,
                 support: &mut support,
@@ -566,6 +591,16 @@ fn the_parallel_pass_is_cores_serial_pass() {
             for (p, hint) in ps.iter_mut().zip(&mut hints) {
                 octoproxy_core::step_particle_hinted(&view, p, &march, hint);
             }
+            let scratch = octoproxy_core::PairScratch {
+                keys: &mut keys,
+                bodies: &mut bodies,
+                start: &mut start,
+                vel: &mut vel,
+                vel_next: &mut vel_next,
+                support: &mut support,
+                ranges: &mut ranges,
+            };
+            octoproxy_core::debias_pairs(&mut ps, &s, pairs.iterations, scratch).unwrap();
         }
         cpu.download_particles(&mut got).unwrap();
         for (a, b) in got.iter().zip(&ps) {

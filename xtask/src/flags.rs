@@ -88,7 +88,7 @@ pub const PAIR_HELP: &str =
   --particle-iterations N      Jacobi iterations per substep, 1..=64 (default 8)
   --particle-substeps N        substeps per step, 1..=256 (default: the fewest that keep
                                gravity's closing per substep under 1 % of the radius)
-  --particle-relaxation B      share of an overlap removed per substep, (0, 1] (default 0.5)
+  --particle-relaxation B      share of an overlap removed per substep, (0, 1] (default 0.4)
   --particle-stacking S        how much more of a correction the upper particle of a pair
                                takes, [0, 1] (default 1: a stack does not sink)";
 

@@ -49,7 +49,7 @@ struct PairState {
     capped_lo: atomic<u32>,
     capped_hi: atomic<u32>,
     zero: f32,
-    _pad: u32,
+    relaxation: f32,
 }
 
 @group(0) @binding(3) var<storage, read_write> pair_state: PairState;
@@ -65,6 +65,8 @@ struct PairState {
 @group(0) @binding(9) var<storage, read_write> pair_ranges: array<vec2<u32>>;
 // Each grain's support (`pair_support`), in sorted order.
 @group(0) @binding(12) var<storage, read_write> pair_supports: array<vec4<f32>>;
+// The velocities entering the iterations (in sorted order), for each pair's target.
+@group(0) @binding(14) var<storage, read> pair_vel_start: array<vec4<f32>>;
 
 // Rust's `Option<(Vec3, f32)>` of `pair_prepare`.
 struct PreparedOption {
@@ -73,8 +75,10 @@ struct PreparedOption {
     some: bool,
 }
 
-struct Vec3Option {
+// Rust's `Option<Vec3>` of `pair_impulse`, with the pair's share (`PairGeometry::share`).
+struct PairImpulse {
     value: vec3<f32>,
+    share: f32,
     some: bool,
 }
 
@@ -129,8 +133,16 @@ fn pair_support(p: Particle, hint: vec2<u32>) -> vec4<f32> {
         return vec4<f32>(0.0);
     }
     var n = leaf.value.normal;
+    var sign = 1.0;
     if p.side == SIDE_BACK {
         n = -leaf.value.normal;
+        sign = -1.0;
+    }
+    let centre = (leaf.value.aabb.min + leaf.value.aabb.max) * 0.5;
+    let above = (dot3(leaf.value.normal, p.position - centre) - leaf.value.plane_offset) * sign;
+    let reach = (leaf.value.aabb.max.x - leaf.value.aabb.min.x) * PAIR_SUPPORT_REACH;
+    if !(above <= reach) {
+        return vec4<f32>(0.0);
     }
     return vec4<f32>(n, 1.0);
 }
@@ -179,8 +191,19 @@ fn pair_range_marks(k: u32, len: u32) -> vec2<bool> {
     return vec2<bool>(first, last);
 }
 
-fn pair_impulse(me: PairBody, v: vec3<f32>, other: PairBody, w: vec3<f32>, s: PairStep) -> Vec3Option {
-    let none = Vec3Option(vec3<f32>(0.0), false);
+fn pair_target(gap: f32, approach: f32, beta: f32, s: PairStep) -> f32 {
+    var closing = beta * gap * s.inv_h;
+    if gap >= 0.0 {
+        closing = gap * s.inv_h;
+    }
+    var target_vn = s.restitution * approach + (1.0 - s.restitution) * -closing;
+    if gap < 0.0 && target_vn < -closing {
+        target_vn = -closing;
+    }
+    return target_vn;
+}
+
+fn pair_impulse(me: PairBody, v: vec3<f32>, v0: vec3<f32>, other: PairBody, w: vec3<f32>, w0: vec3<f32>, s: PairStep) -> PairImpulse {
     let x = me.position - other.position;
     let d2 = dot3(x, x);
     var dist = 0.0;
@@ -189,19 +212,20 @@ fn pair_impulse(me: PairBody, v: vec3<f32>, other: PairBody, w: vec3<f32>, s: Pa
         dist = sqrt(d2);
         n = x * (1.0 / dist);
     }
+    let height = clamp(dot3(x, s.up) * s.inv_diameter, -1.0, 1.0);
+    let share = 0.5 + height * s.half_stacking;
+    let none = PairImpulse(vec3<f32>(0.0), share, false);
     let gap = dist - s.diameter;
+    let vn0 = dot3(v0 - w0, n);
+    var approach = 0.0;
+    if vn0 < 0.0 {
+        approach = -vn0;
+    }
+    let target_vn = pair_target(gap, approach, s.relaxation, s);
     let vr = v - w;
     let vn = dot3(vr, n);
     if gap + vn * s.h >= 0.0 {
         return none;
-    }
-    var closing = s.relaxation * gap * s.inv_h;
-    if gap >= 0.0 {
-        closing = gap * s.inv_h;
-    }
-    var target_vn = s.restitution * -vn + (1.0 - s.restitution) * -closing;
-    if gap < 0.0 && (target_vn < -closing || vn > 0.0) {
-        target_vn = -closing;
     }
     let jn = target_vn - vn;
     let pushes = jn > 0.0;
@@ -221,9 +245,15 @@ fn pair_impulse(me: PairBody, v: vec3<f32>, other: PairBody, w: vec3<f32>, s: Pa
         }
         dv = dv - vt * keep;
     }
-    let height = clamp(dot3(x, s.up) * s.inv_diameter, -1.0, 1.0);
-    let share = 0.5 + height * s.half_stacking;
-    return Vec3Option(dv * share, true);
+    return PairImpulse(dv * share, share, true);
+}
+
+fn pair_weight(share: f32) -> f32 {
+    let w = 2.0 * share;
+    if w < 1.0 {
+        return w;
+    }
+    return 1.0;
 }
 
 // One Jacobi iteration for the particle at sorted position `k`: the 27 cells around its own,
@@ -236,8 +266,9 @@ fn pair_impulse(me: PairBody, v: vec3<f32>, other: PairBody, w: vec3<f32>, s: Pa
 fn pair_velocity(k: u32, s: PairStep) -> PairVelocityOut {
     let me = pair_bodies[k];
     let v = pair_vel[k].xyz;
+    let v0 = pair_vel_start[k].xyz;
     var sum = vec3<f32>(0.0);
-    var contacts = 0u;
+    var weight = 0.0;
     var visited = 0u;
     var capped = false;
     let reach = s.cell * s.cell;
@@ -261,10 +292,10 @@ fn pair_velocity(k: u32, s: PairStep) -> PairVelocityOut {
                         continue;
                     }
                     let w = pair_vel[m].xyz;
-                    let dv = pair_impulse(me, v, o, w, s);
+                    let dv = pair_impulse(me, v, v0, o, w, pair_vel_start[m].xyz, s);
                     if dv.some {
                         sum += dv.value;
-                        contacts += 1u;
+                        weight += pair_weight(dv.share);
                     }
                 }
                 if capped {
@@ -280,8 +311,8 @@ fn pair_velocity(k: u32, s: PairStep) -> PairVelocityOut {
         }
     }
     var out = v;
-    if contacts > 0u {
-        out = v + sum * (1.0 / f32(contacts));
+    if weight > 0.0 {
+        out = v + sum * (1.0 / weight);
     }
     let support = pair_supports[k];
     if support.w != 0.0 {

@@ -124,6 +124,14 @@ fn pair_step_kernel() {
     let cell = pair_cell_edge(s.diameter, s.radius, v_max, s.h);
     pair_state.step.cell = cell;
     pair_state.step.inv_cell = 1.0 / cell;
+    pair_state.step.relaxation = pair_state.relaxation;
+}
+
+// One invocation, after the march: the debiasing iterations' constants (Rust's
+// `PairStep::unbiased`), until the next substep's `pair_step_kernel` restores the relaxation.
+@compute @workgroup_size(1)
+fn pair_unbias_kernel() {
+    pair_state.step.relaxation = 0.0;
 }
 
 // Per chunk.
@@ -286,7 +294,8 @@ fn pair_gather_kernel(
 }
 
 // Per chunk: a valid grain's velocity entering the iterations and its support, at its place
-// in the sorted order (`pair_vel_next` is the first iteration's input here).
+// in the sorted order (`pair_vel_next` is bound to the velocities entering the iterations
+// here: the first iteration reads them, and every iteration reads them as `pair_vel_start`).
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn pair_start_kernel(
     @builtin(workgroup_id) wg: vec3<u32>,
@@ -323,6 +332,25 @@ fn pair_iterate_kernel(
     if out.capped {
         count_capped();
     }
+}
+
+// Per chunk, after the march: each valid particle's velocity, at its place in the sorted
+// order, for the debiasing iterations (`pair_vel_next` is the first one's input here).
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn pair_regather_kernel(
+    @builtin(workgroup_id) wg: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) local: u32,
+) {
+    let i = particle_index(wg, groups, local);
+    if i >= chunk.count {
+        return;
+    }
+    let k = pair_rank[chunk.first + i];
+    if k >= pair_state.valid {
+        return;
+    }
+    pair_vel_next[k] = vec4<f32>(particles[i].velocity, 0.0);
 }
 
 // Per chunk: the last iteration's velocity of each valid particle (`pair_vel` is the last

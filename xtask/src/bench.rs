@@ -1126,9 +1126,9 @@ impl Report {
             s,
             "Particles that collide with each other (`step_pairs`: the uniform-grid pass, then the \
              march at the radius), radius {} m, `dt` 1/60 s, {} substeps a step (automatic), 8 \
-             iterations. `particles-pile`: a block {} grains wide resting on a floor, one grain \
+             iterations before the march and 8 debiasing ones after it. `particles-pile`: a block {} grains wide resting on a floor, one grain \
              per cell; `particles-cloud`: one grain per (8R)³ falling onto it. Nanoseconds per \
-             particle-step; the pass is the sort and the neighbour loop, per particle-substep:\n\n",
+             particle-step; the pass is the sort and the neighbour loop (both sets of iterations), per particle-substep:\n\n",
             particles::RADIUS,
             cases[0].substeps,
             particles::PILE_WIDTH,

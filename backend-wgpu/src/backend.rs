@@ -128,12 +128,23 @@ pub enum WgpuError {
     /// The particle-particle pass's parameters are out of range.
     #[error("invalid particle-particle parameters: {0}")]
     Pairs(#[from] octoproxy_core::PairParamError),
+    /// A workgroup size the kernel cannot be built with.
+    #[error("workgroup size {size}: expected a power of two from 1 to the device's {limit}")]
+    WorkgroupSize {
+        /// The size asked for.
+        size: u32,
+        /// The device's limit on invocations per workgroup.
+        limit: u32,
+    },
 }
 
 /// The pipelines, layouts and uniform buffers: built once per backend, reused every step.
 #[derive(Debug)]
 pub(crate) struct Kernel {
     layout: wgpu::BindGroupLayout,
+    pipeline_layout: wgpu::PipelineLayout,
+    /// Invocations per workgroup of `step` and `integrate`.
+    workgroup_size: u32,
     step: wgpu::ComputePipeline,
     integrate: wgpu::ComputePipeline,
     pub(crate) params: wgpu::Buffer,
@@ -182,6 +193,30 @@ pub struct WgpuBackend {
     pub(crate) scene: crate::scene::SceneGpu,
     /// The particle-particle pass's kernels and buffers ([`Backend::step_pairs`]).
     pub(crate) pairs: crate::pairs::PairGpu,
+}
+
+/// The plain kernel's pipelines, `step_kernel` and `integrate_kernel`, built with
+/// `workgroup_size` invocations per workgroup.
+fn plain_pipelines(
+    device: &wgpu::Device,
+    layout: &wgpu::PipelineLayout,
+    workgroup_size: u32,
+) -> (wgpu::ComputePipeline, wgpu::ComputePipeline) {
+    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some("octoproxy step"),
+        source: wgpu::ShaderSource::Wgsl(shader::source_with_workgroup_size(workgroup_size).into()),
+    });
+    let pipeline = |entry: &str| {
+        device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some(entry),
+            layout: Some(layout),
+            module: &module,
+            entry_point: Some(entry),
+            compilation_options: Default::default(),
+            cache: None,
+        })
+    };
+    (pipeline("step_kernel"), pipeline("integrate_kernel"))
 }
 
 /// A compute shader's storage-buffer binding.
@@ -306,10 +341,6 @@ impl WgpuBackend {
         uncaptured: Arc<Mutex<Option<String>>>,
     ) -> Result<Self, WgpuError> {
         let scope = ErrorScope::push(&device);
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("octoproxy step"),
-            source: wgpu::ShaderSource::Wgsl(shader::source().into()),
-        });
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("octoproxy"),
             entries: &[
@@ -326,18 +357,7 @@ impl WgpuBackend {
             bind_group_layouts: &[Some(&layout)],
             immediate_size: 0,
         });
-        let pipeline = |entry: &str| {
-            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(entry),
-                layout: Some(&pipeline_layout),
-                module: &module,
-                entry_point: Some(entry),
-                compilation_options: Default::default(),
-                cache: None,
-            })
-        };
-        let step = pipeline("step_kernel");
-        let integrate = pipeline("integrate_kernel");
+        let (step, integrate) = plain_pipelines(&device, &pipeline_layout, WORKGROUP_SIZE);
         let uniform_buffer = |label, size: usize| {
             device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(label),
@@ -357,6 +377,8 @@ impl WgpuBackend {
             software: false,
             kernel: Kernel {
                 layout,
+                pipeline_layout,
+                workgroup_size: WORKGROUP_SIZE,
                 step,
                 integrate,
                 params,
@@ -400,6 +422,37 @@ impl WgpuBackend {
     /// Whether to enter through the lookup table (on by default; off only to measure it).
     pub fn set_use_lut(&mut self, on: bool) {
         self.use_lut = on;
+    }
+
+    /// Rebuilds the plain step (and the floor's kernel) with `size` invocations per
+    /// workgroup: a power of two up to the device's limit on invocations per workgroup. The
+    /// default is [`WORKGROUP_SIZE`]; benchmarks sweep it. Every size steps the same bits:
+    /// each invocation steps one particle alone. The scene kernel and the particle-particle
+    /// pass's own stages keep the default.
+    pub fn set_workgroup_size(&mut self, size: u32) -> Result<(), WgpuError> {
+        let limits = self.device.limits();
+        let limit = limits
+            .max_compute_invocations_per_workgroup
+            .min(limits.max_compute_workgroup_size_x);
+        if !size.is_power_of_two() || size > limit {
+            return Err(WgpuError::WorkgroupSize { size, limit });
+        }
+        if size == self.kernel.workgroup_size {
+            return Ok(());
+        }
+        self.check_health()?;
+        let scope = ErrorScope::push(&self.device);
+        let (step, integrate) = plain_pipelines(&self.device, &self.kernel.pipeline_layout, size);
+        scope.pop().map_err(WgpuError::Shader)?;
+        self.kernel.step = step;
+        self.kernel.integrate = integrate;
+        self.kernel.workgroup_size = size;
+        Ok(())
+    }
+
+    /// Invocations per workgroup of the plain step ([`WgpuBackend::set_workgroup_size`]).
+    pub fn workgroup_size(&self) -> u32 {
+        self.kernel.workgroup_size
     }
 
     /// Caps the particles of one chunk (one storage binding). It is rounded down to a
@@ -586,7 +639,8 @@ impl WgpuBackend {
         }
     }
 
-    /// Workgroups for `count` particles: `(x, y)`, folded into rows of at most `fold_width`.
+    /// Workgroups for `count` particles at [`WORKGROUP_SIZE`] (the scene kernel's and the
+    /// particle-particle pass's): `(x, y)`, folded into rows of at most `fold_width`.
     pub fn dispatch_size(&self, count: u32) -> (u32, u32) {
         self.fold(count.div_ceil(WORKGROUP_SIZE))
     }
@@ -700,7 +754,7 @@ impl WgpuBackend {
             let Some(group) = &chunk.bind_group else {
                 continue;
             };
-            let (x, y) = self.dispatch_size(chunk.count);
+            let (x, y) = self.fold(chunk.count.div_ceil(self.kernel.workgroup_size));
             pass.set_bind_group(0, group, &[]);
             pass.dispatch_workgroups(x, y, 1);
         }

@@ -196,10 +196,20 @@ pub fn shared_constants() -> Vec<(&'static str, SharedValue)> {
 
 /// The generated WGSL prefix: one `const` per [`shared_constants`] entry.
 pub fn constants_wgsl() -> String {
+    constants_wgsl_for(WORKGROUP_SIZE)
+}
+
+/// [`constants_wgsl`] with `workgroup_size` invocations per workgroup in place of
+/// [`WORKGROUP_SIZE`].
+fn constants_wgsl_for(workgroup_size: u32) -> String {
     let mut out = String::from(
         "// Generated from Rust by octoproxy_wgpu::shader::constants_wgsl; do not edit.\n",
     );
     for (name, value) in shared_constants() {
+        let value = match name {
+            "WORKGROUP_SIZE" => SharedValue::U32(workgroup_size),
+            _ => value,
+        };
         let line = match value {
             SharedValue::U32(v) => format!("const {name}: u32 = {v}u;\n"),
             // `{:?}` prints the shortest decimal that reads back to the same f32.
@@ -213,6 +223,14 @@ pub fn constants_wgsl() -> String {
 /// The plain kernel's whole shader: the constants, then [`FILES`] in order.
 pub fn source() -> String {
     source_upto(FILES.len())
+}
+
+/// The plain kernel's whole shader with `workgroup_size` invocations per workgroup
+/// ([`crate::WgpuBackend::set_workgroup_size`]); [`source`] is the default's.
+pub fn source_with_workgroup_size(workgroup_size: u32) -> String {
+    let mut out = constants_wgsl_for(workgroup_size);
+    append(&mut out, &FILES, FILES.len());
+    out
 }
 
 /// The scene kernel's whole shader: the constants, then [`SCENE_FILES`] in order.
@@ -233,9 +251,14 @@ pub fn source_upto(n: usize) -> String {
 /// The constants and the first `n` of `files`.
 pub fn join(files: &[(&str, &str)], n: usize) -> String {
     let mut out = constants_wgsl();
+    append(&mut out, files, n);
+    out
+}
+
+/// Appends the first `n` of `files` to `out`, each under a line naming it.
+fn append(out: &mut String, files: &[(&str, &str)], n: usize) {
     for (name, text) in &files[..n.min(files.len())] {
         out.push_str(&format!("\n// ---- {name}\n"));
         out.push_str(text);
     }
-    out
 }

@@ -708,3 +708,68 @@ fn leaf_hints_are_forgotten_when_the_proxy_changes() {
         );
     }
 }
+
+#[test]
+fn every_workgroup_size_steps_the_same_bits() {
+    // The plain step rebuilt with other workgroup sizes (what the bench sweeps) steps every
+    // particle to the same bytes as the default size: each invocation steps one particle
+    // alone. Chunks of 1000 particles in dispatch rows of 3 workgroups make every size
+    // dispatch a folded grid whose last workgroups are partly empty.
+    let Some(mut gpu) = gpu() else { return };
+    let mesh = scenes::merge(&[
+        scenes::wedge(8.0, 2.0, 1.0),
+        scenes::flat_sheet([0.0, 0.6, 0.0], 1.6, 8),
+    ]);
+    let (words, _) = bake(&[MeshRef::from(&mesh)], &build(6), &()).expect("bakes");
+    let view = ProxyView::new(&words).expect("valid");
+    let gt = GroundTruth::new(&mesh.positions, &mesh.triangles);
+    let speeds: Vec<f32> = [0.1, 1.0, 5.0]
+        .iter()
+        .map(|d| d * view.finest_leaf_size() / DT)
+        .collect();
+    let particles = random_particles(&view, &gt, 5000, &speeds, 9);
+    gpu.set_chunk_particles(1000);
+    gpu.set_fold_width(3);
+    gpu.upload_proxy(&words).unwrap();
+    let params = StepParams {
+        dt: DT,
+        ..StepParams::default()
+    };
+    let run = |gpu: &mut WgpuBackend, size: u32, floor: bool| {
+        gpu.set_workgroup_size(size).unwrap();
+        assert_eq!(gpu.workgroup_size(), size);
+        gpu.upload_particles(&particles).unwrap();
+        if floor {
+            gpu.integrate_only(&params, 20).unwrap();
+        } else {
+            gpu.step(&params, 40).unwrap();
+        }
+        let mut out = vec![Particle::default(); particles.len()];
+        gpu.download_particles(&mut out).unwrap();
+        out
+    };
+    let default = octoproxy_wgpu::shader::WORKGROUP_SIZE;
+    let expected = run(&mut gpu, default, false);
+    let expected_floor = run(&mut gpu, default, true);
+    let collided = expected.iter().filter(|p| p.collisions() > 0).count();
+    assert!(collided > 100, "only {collided} particles collided");
+    for size in [1, 32, 128, 256] {
+        for (floor, want) in [(false, &expected), (true, &expected_floor)] {
+            let got = run(&mut gpu, size, floor);
+            let differ = got
+                .iter()
+                .zip(want.iter())
+                .filter(|(g, e)| bytemuck::bytes_of(*g) != bytemuck::bytes_of(*e))
+                .count();
+            assert_eq!(
+                differ, 0,
+                "workgroup size {size} (floor: {floor}): {differ} particles differ"
+            );
+        }
+    }
+    for bad in [0, 48, 1 << 20] {
+        let e = gpu.set_workgroup_size(bad).unwrap_err().to_string();
+        assert!(e.contains(&format!("workgroup size {bad}")), "{e}");
+    }
+    assert_eq!(gpu.workgroup_size(), 256, "a refused size changes nothing");
+}

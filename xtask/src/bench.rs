@@ -29,6 +29,7 @@ use octoproxy_cpu::{bake, BuildParams, CpuBackend, MeshRef};
 use octoproxy_tests::baselines::{
     parry::ParryTriMesh, sdf_grid::SdfGrid, triangle_octree::TriangleOctree, Method,
 };
+use octoproxy_wgpu::shader::WORKGROUP_SIZE;
 use octoproxy_wgpu::WgpuBackend;
 use rayon::prelude::*;
 
@@ -50,7 +51,18 @@ usage: octoproxy bench [--quick] [--backends cpu,wgpu] [--scenes S,S...] [--part
   --particles L    particle counts (default 10000,100000,1000000,4000000, and 3M and 10M on a
                    hardware GPU; the instance cases 1000000, the particle cases 100000 and
                    1000000, or 100000 with --quick; suffixes k and m work)
-  --steps N        timed steps per case (default: about 4M particle-steps per case, 2..50)
+  --gpu-particles L
+                   the mesh scenes' counts on a hardware GPU alone (default 3000000,10000000
+                   when --particles is not given, else none)
+  --steps N        timed steps per case (default: about 4M particle-steps per case, 2..50,
+                   on the CPU; about 20M, 10..100, on a GPU)
+  --gpu-repeats N  each GPU time is the median of N timed runs from the same start (default 1)
+  --workgroup-sizes L
+                   also time the plain GPU step and its floor at these workgroup sizes (powers
+                   of two up to 256; the default kernel's is 64): the sweep's rows
+  --meshes DIR     where the meshes are (default: ../shared/meshes beside the repository)
+  --no-scene-api   skip the scene API's comparison on the mesh scenes (on NVIDIA's Vulkan
+                   driver its GPU kernel took 2.5 to 4 minutes to build)
   --samples N      particles in each penetration check (default 2000; 60 steps each)
   --out DIR        where results go (default target/bench); with docs/bench, the committed
                    results, it also rewrites the figures in README.md and docs/
@@ -98,6 +110,14 @@ struct Opts {
     pair_particles: Vec<usize>,
     /// Whether `--backends` named wgpu (the scene cases run on a software adapter only then).
     wgpu_asked: bool,
+    /// Timed runs per GPU time, of which the median counts.
+    gpu_repeats: u32,
+    /// Workgroup sizes the plain GPU step is also timed at.
+    workgroup_sizes: Vec<u32>,
+    /// The shared meshes' folder.
+    meshes: PathBuf,
+    /// Skip the scene API's comparison (its GPU kernel takes minutes to build on some drivers).
+    no_scene_api: bool,
 }
 
 /// Every scene, mesh scenes first.
@@ -142,7 +162,12 @@ fn parse(args: Vec<std::ffi::OsString>) -> Result<Option<Opts>> {
         instance_particles: Vec::new(),
         pair_particles: Vec::new(),
         wgpu_asked: false,
+        gpu_repeats: 1,
+        workgroup_sizes: Vec::new(),
+        meshes: meshes_dir(),
+        no_scene_api: false,
     };
+    let mut gpu_only_given = false;
     let mut p = lexopt::Parser::from_args(args);
     while let Some((name, _)) = flags::next_option(&mut p)? {
         match name.as_str() {
@@ -184,6 +209,35 @@ fn parse(args: Vec<std::ffi::OsString>) -> Result<Option<Opts>> {
                 o.steps = Some(n);
             }
             "--samples" => o.samples = flags::number(&mut p, "--samples")?,
+            "--gpu-particles" => {
+                let list = flags::string(&mut p, "--gpu-particles")?;
+                o.gpu_only = list
+                    .split(',')
+                    .filter(|s| !s.trim().is_empty())
+                    .map(parse_count)
+                    .collect::<Result<_>>()?;
+                gpu_only_given = true;
+            }
+            "--gpu-repeats" => {
+                let n: u32 = flags::number(&mut p, "--gpu-repeats")?;
+                if !(1..=15).contains(&n) {
+                    bail!("--gpu-repeats: expected 1 to 15, got {n}");
+                }
+                o.gpu_repeats = n;
+            }
+            "--workgroup-sizes" => {
+                for s in flags::string(&mut p, "--workgroup-sizes")?.split(',') {
+                    let n: u32 = s.trim().parse().map_err(|_| {
+                        anyhow::anyhow!("--workgroup-sizes: expected numbers, got {s:?}")
+                    })?;
+                    if !n.is_power_of_two() || n > 256 {
+                        bail!("--workgroup-sizes: expected powers of two up to 256, got {n}");
+                    }
+                    o.workgroup_sizes.push(n);
+                }
+            }
+            "--meshes" => o.meshes = flags::path(&mut p, "--meshes")?,
+            "--no-scene-api" => o.no_scene_api = true,
             "--out" | "-o" => o.out = flags::path(&mut p, "--out")?,
             "--docs-only" => o.docs_only = true,
             "-h" | "--help" => {
@@ -223,7 +277,7 @@ fn parse(args: Vec<std::ffi::OsString>) -> Result<Option<Opts>> {
         } else {
             vec![10_000, 100_000, 1_000_000, 4_000_000]
         };
-        if !o.quick {
+        if !o.quick && !gpu_only_given {
             // A hardware GPU also runs the sizes it is made for (not the CPU methods).
             o.gpu_only = vec![3_000_000, 10_000_000];
         }
@@ -245,7 +299,7 @@ fn meshes_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/meshes")
 }
 
-fn load_scene(name: &str) -> Result<SceneData> {
+fn load_scene(name: &str, dir: &Path) -> Result<SceneData> {
     let (file, closed, subdivisions) = match name {
         "bunny" => ("stanford-bunny.obj.gz", false, 0),
         "nefertiti" => ("nefertiti.obj.gz", true, 0),
@@ -255,10 +309,11 @@ fn load_scene(name: &str) -> Result<SceneData> {
         "nefertiti-6.4m" => ("nefertiti.obj.gz", true, 3),
         _ => bail!("unknown scene {name}"),
     };
-    let path = meshes_dir().join(file);
+    let path = dir.join(file);
     if !path.exists() {
         bail!(
-            "the benchmark scenes come from ../shared/meshes, and {} is not there (the bench needs those meshes)",
+            "the benchmark scenes come from {} (--meshes), and {} is not there (the bench needs those meshes)",
+            dir.display(),
             path.display()
         );
     }
@@ -299,13 +354,29 @@ pub struct Row {
     /// A particle case's substeps per step (0 elsewhere): its rows time the step with the
     /// particle–particle pass.
     pub substeps: u32,
+    /// A GPU row's workgroup size (invocations per workgroup of the plain step; 0 on the CPU
+    /// rows and in runs that predate the sweep).
+    pub workgroup_size: u32,
+    /// The fastest and slowest of the timed runs whose median `ns_per_particle_step` is (NaN
+    /// where one run was timed).
+    pub ns_min: f64,
+    pub ns_max: f64,
 }
 
 impl Row {
     /// A row of the mesh scenes' table: one proxy, stepped by `Backend::step` (not an
     /// instance case, nor the scene API's comparison).
     pub fn is_mesh_case(&self) -> bool {
-        self.instances == 0 && self.substeps == 0 && !self.method.ends_with(instances::SCENE_API)
+        self.instances == 0
+            && self.substeps == 0
+            && !self.method.ends_with(instances::SCENE_API)
+            && !self.is_sweep()
+    }
+
+    /// A row of the workgroup-size sweep (`--workgroup-sizes`): the plain GPU step or its
+    /// floor at a size other than the default, which the mesh scenes' rows use.
+    pub fn is_sweep(&self) -> bool {
+        self.workgroup_size != 0 && self.workgroup_size != WORKGROUP_SIZE
     }
 }
 
@@ -428,6 +499,113 @@ fn time_steps(
     Ok(t.elapsed().as_secs_f64() * 1e9 / (particles.len() as f64 * steps as f64))
 }
 
+/// Shows what the bench is doing on its bar; where the bar is hidden (stderr is no
+/// terminal: a log, the device check), as a line with the seconds since the bar began.
+fn say(bar: &indicatif::ProgressBar, message: impl Into<String>) {
+    let message = message.into();
+    if bar.is_hidden() {
+        eprintln!("[{:6.1} s] {message}", bar.elapsed().as_secs_f64());
+    }
+    bar.set_message(message);
+}
+
+/// Nanoseconds per particle-step of repeated timed runs: the median, and the fastest and
+/// slowest run.
+#[derive(Clone, Copy, Debug)]
+struct Timing {
+    median: f64,
+    min: f64,
+    max: f64,
+}
+
+impl Timing {
+    /// `row` with the median as its time and the runs' range.
+    fn on(self, mut row: Row) -> Row {
+        row.ns_per_particle_step = self.median;
+        if self.max > self.min {
+            (row.ns_min, row.ns_max) = (self.min, self.max);
+        }
+        row
+    }
+}
+
+/// How long a hardware GPU steps before it is timed: its clocks drop while it idles (during
+/// the CPU's penetration checks and the uploads), and steps timed cold time them rising.
+const GPU_WARM_UP: std::time::Duration = std::time::Duration::from_millis(150);
+
+/// Warms a hardware GPU up for [`GPU_WARM_UP`] with the floor's kernel on the particles it
+/// holds (which moves them: upload them again before timing anything that depends on where
+/// they are).
+pub fn warm_gpu(g: &mut WgpuBackend, params: &StepParams) -> Result<()> {
+    if g.is_software() {
+        return Ok(());
+    }
+    let warm = Instant::now();
+    while warm.elapsed() < GPU_WARM_UP {
+        g.integrate_only(params, 10)?;
+        g.wait()?;
+    }
+    Ok(())
+}
+
+/// `steps` GPU steps of `particles` (with `floor`, the floor's kernel: integration alone),
+/// after a warm-up (on a hardware GPU) and one untimed step: nanoseconds per particle-step,
+/// the median of `repeats` timed runs, each from the same start. A run whose parts take
+/// seconds is reported on stderr.
+fn time_gpu(
+    g: &mut WgpuBackend,
+    particles: &[Particle],
+    params: &StepParams,
+    steps: u32,
+    repeats: u32,
+    floor: bool,
+) -> Result<Timing> {
+    let run = |g: &mut WgpuBackend, steps| {
+        if floor {
+            g.integrate_only(params, steps)
+        } else {
+            g.step(params, steps)
+        }
+    };
+    if !g.is_software() {
+        g.upload_particles(particles)?;
+        let warm = Instant::now();
+        while warm.elapsed() < GPU_WARM_UP {
+            run(g, steps)?;
+            g.wait()?;
+        }
+    }
+    let mut times = Vec::new();
+    for k in 0..repeats.max(1) {
+        let t0 = Instant::now();
+        g.upload_particles(particles)?;
+        run(g, 1)?;
+        g.wait()?;
+        let t = Instant::now();
+        run(g, steps)?;
+        g.wait()?;
+        let (prepare, timed) = (t - t0, t.elapsed());
+        if (prepare + timed).as_secs_f64() > 2.0 {
+            eprintln!(
+                "  slow run {k} of {} particles ({}, workgroups of {}): upload and first step \
+                 {:.2} s, {steps} timed steps {:.2} s",
+                particles.len(),
+                if floor { "floor" } else { "step" },
+                g.workgroup_size(),
+                prepare.as_secs_f64(),
+                timed.as_secs_f64()
+            );
+        }
+        times.push(timed.as_secs_f64() * 1e9 / (particles.len() as f64 * steps as f64));
+    }
+    times.sort_by(f64::total_cmp);
+    Ok(Timing {
+        median: times[times.len() / 2],
+        min: times[0],
+        max: times[times.len() - 1],
+    })
+}
+
 fn machine() -> String {
     let cpu = std::fs::read_to_string("/proc/cpuinfo")
         .ok()
@@ -476,6 +654,7 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
                 eprintln!("wgpu: {}", g.description());
                 Some(g)
             }
+            Err(e) if !o.cpu => bail!("--backends wgpu: no GPU adapter ({e})"),
             Err(e) => {
                 eprintln!("wgpu: skipped ({e})");
                 None
@@ -526,11 +705,11 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
     let bar = crate::progress::bar(total_cases as u64, "bench");
     let mut rows: Vec<Row> = Vec::new();
     for name in mesh_scenes {
-        bar.set_message(format!("{name}: loading"));
-        let scene = load_scene(name)?;
+        say(&bar, format!("{name}: loading"));
+        let scene = load_scene(name, &o.meshes)?;
         let (positions, triangles) = (&scene.mesh.positions, &scene.mesh.triangles);
         let tris = triangles.len();
-        bar.set_message(format!("{name}: building"));
+        say(&bar, format!("{name}: building"));
         let t = Instant::now();
         let (words, _) =
             bake(&[MeshRef::from(&scene.mesh)], &BuildParams::default(), &()).context("baking")?;
@@ -554,7 +733,7 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
         bar.inc(1);
 
         // Penetrations, per method, on a sample.
-        bar.set_message(format!("{name}: penetration checks"));
+        say(&bar, format!("{name}: penetration checks"));
         let gt = GroundTruth::new(positions, triangles);
         let tol = view.finest_leaf_size() * 3f32.sqrt();
         let all_bands: Vec<(f32, f32)> = BANDS.iter().map(|b| (b.1, b.2)).collect();
@@ -602,7 +781,7 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
             .chain(gpu_only.iter().map(|&n| (n, false)))
             .collect();
         for (n, run_cpu) in counts {
-            bar.set_message(format!("{name}: {n} particles"));
+            say(&bar, format!("{name}: {n} particles"));
             let steps = o
                 .steps
                 .unwrap_or(((4_000_000 / n.max(1)) as u32).clamp(2, 50));
@@ -636,8 +815,13 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
                     ratio_to_static: f64::NAN,
                     ratio_to_plain: f64::NAN,
                     substeps: 0,
+                    workgroup_size: 0,
+                    ns_min: f64::NAN,
+                    ns_max: f64::NAN,
                 };
-                let scene_api = band == "mixed" && api_scene.as_deref() == Some(name.as_str());
+                let scene_api = band == "mixed"
+                    && !o.no_scene_api
+                    && api_scene.as_deref() == Some(name.as_str());
                 let mut case_rows = Vec::new();
                 if run_cpu {
                     // Every method gets one untimed step first; octoproxy's leaf hints are
@@ -718,32 +902,65 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
                         }
                     }
                 }
+                let mut sweep_rows = Vec::new();
                 if let Some(g) = gpu.as_mut() {
-                    g.upload_particles(&particles)?;
-                    g.integrate_only(&params, 1)?;
-                    g.wait()?;
-                    let t = Instant::now();
-                    g.integrate_only(&params, steps)?;
-                    g.wait()?;
-                    let floor_ns = t.elapsed().as_secs_f64() * 1e9 / (n as f64 * steps as f64);
-                    g.upload_particles(&particles)?;
-                    g.step(&params, 1)?;
-                    g.wait()?;
-                    let t = Instant::now();
-                    g.step(&params, steps)?;
-                    g.wait()?;
-                    let octo_ns = t.elapsed().as_secs_f64() * 1e9 / (n as f64 * steps as f64);
-                    case_rows.push(row("floor", "wgpu", 0.0, 0, floor_ns, f64::NAN));
-                    case_rows.push(row(
+                    let gpu_steps = o
+                        .steps
+                        .unwrap_or(((20_000_000 / n.max(1)) as u32).clamp(10, 100));
+                    let time = |g: &mut WgpuBackend, floor| {
+                        time_gpu(g, &particles, &params, gpu_steps, o.gpu_repeats, floor)
+                    };
+                    let floor_t = time(g, true)?;
+                    let octo_t = time(g, false)?;
+                    let octo_ns = octo_t.median;
+                    let size = g.workgroup_size();
+                    let mut floor_row = floor_t.on(row("floor", "wgpu", 0.0, 0, 0.0, f64::NAN));
+                    floor_row.workgroup_size = size;
+                    case_rows.push(floor_row);
+                    let mut octo_row = octo_t.on(row(
                         "octoproxy-wgpu",
                         "wgpu",
                         bake_ms,
                         proxy_bytes,
-                        octo_ns,
+                        0.0,
                         pen_octo,
                     ));
+                    octo_row.workgroup_size = size;
+                    case_rows.push(octo_row);
+                    if band == "mixed" {
+                        for &size in o.workgroup_sizes.iter().filter(|&&s| s != WORKGROUP_SIZE) {
+                            say(&bar, format!("{name}: {n} particles, workgroups of {size}"));
+                            g.set_workgroup_size(size)?;
+                            let floor_t = time(g, true)?;
+                            let octo_t = time(g, false)?;
+                            let mut sweep = vec![
+                                floor_t.on(row("floor", "wgpu", 0.0, 0, 0.0, f64::NAN)),
+                                octo_t.on(row(
+                                    "octoproxy-wgpu",
+                                    "wgpu",
+                                    bake_ms,
+                                    proxy_bytes,
+                                    0.0,
+                                    pen_octo,
+                                )),
+                            ];
+                            sweep.iter_mut().for_each(|r| r.workgroup_size = size);
+                            set_floor_ratios(&mut sweep);
+                            sweep_rows.extend(sweep);
+                        }
+                        g.set_workgroup_size(WORKGROUP_SIZE)?;
+                    }
                     if scene_api && gpu_scenes {
+                        say(&bar, format!("{name}: {n} particles, the scene API"));
+                        let t = Instant::now();
                         let ns = instances::time_scene_api(g, &words, &particles, steps, &params)?;
+                        say(
+                            &bar,
+                            format!(
+                                "{name}: {n} particles, the scene API took {:.1} s",
+                                t.elapsed().as_secs_f64()
+                            ),
+                        );
                         let mut r = row(
                             "octoproxy-wgpu-scene-api",
                             "wgpu",
@@ -758,18 +975,19 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
                 }
                 set_floor_ratios(&mut case_rows);
                 rows.extend(case_rows);
+                rows.extend(sweep_rows);
             }
             bar.inc(1);
         }
     }
     if !instance_scenes.is_empty() {
-        bar.set_message("instances: baking the shared meshes");
-        let shared = instances::load_shared(&meshes_dir())?;
+        say(&bar, "instances: baking the shared meshes");
+        let shared = instances::load_shared(&o.meshes)?;
         bar.inc(1);
         let all_bands: Vec<(f32, f32)> = BANDS.iter().map(|b| (b.1, b.2)).collect();
         for (name, n) in instance_scenes {
             let grid = instances::Grid::new(n);
-            bar.set_message(format!("{name}: penetration checks"));
+            say(&bar, format!("{name}: penetration checks"));
             let check_steps = 60;
             let pen_still = instances::penetration_rate(
                 &grid,
@@ -791,7 +1009,7 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
             )?;
             bar.inc(1);
             for &count in &o.instance_particles {
-                bar.set_message(format!("{name}: {count} particles"));
+                say(&bar, format!("{name}: {count} particles"));
                 let steps = o
                     .steps
                     .unwrap_or(((4_000_000 / count.max(1)) as u32).clamp(2, 50));
@@ -818,6 +1036,9 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
                         ratio_to_static: f64::NAN,
                         ratio_to_plain: f64::NAN,
                         substeps: 0,
+                        workgroup_size: 0,
+                        ns_min: f64::NAN,
+                        ns_max: f64::NAN,
                     };
                 let per_step =
                     |t: Instant| t.elapsed().as_secs_f64() * 1e9 / (count as f64 * steps as f64);
@@ -844,6 +1065,8 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
                     // The floor's kernel binds a proxy, though it reads none.
                     g.upload_proxy(shared.proxy(0))?;
                     g.upload_particles(&particles)?;
+                    warm_gpu(g, &params)?;
+                    g.upload_particles(&particles)?;
                     g.integrate_only(&params, 1)?;
                     g.wait()?;
                     let t = Instant::now();
@@ -868,12 +1091,12 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
         }
     }
     if !pair_scenes.is_empty() {
-        bar.set_message("particles: baking the floor for the radius");
+        say(&bar, "particles: baking the floor for the radius");
         let floor = particles::Floor::new()?;
         bar.inc(1);
         for name in pair_scenes {
             for &count in &o.pair_particles {
-                bar.set_message(format!("{name}: {count} particles"));
+                say(&bar, format!("{name}: {count} particles"));
                 // A step with the pass costs tens of times a plain one: few steps.
                 let steps = o
                     .steps
@@ -1014,6 +1237,17 @@ impl Report {
             }
             if r.substeps > 0 {
                 let _ = write!(s, ", \"substeps\": {}", r.substeps);
+            }
+            if r.workgroup_size > 0 {
+                let _ = write!(s, ", \"workgroup_size\": {}", r.workgroup_size);
+            }
+            if r.ns_min.is_finite() && r.ns_max.is_finite() {
+                let _ = write!(
+                    s,
+                    ", \"ns_min\": {}, \"ns_max\": {}",
+                    json_num(r.ns_min),
+                    json_num(r.ns_max)
+                );
             }
             s.push('}');
             s.push_str(if i + 1 < self.rows.len() { ",\n" } else { "\n" });
@@ -1460,10 +1694,14 @@ mod docs {
     /// Where the committed run lives, from the repository root.
     pub const COMMITTED_DIR: &str = "docs/bench";
 
+    /// Where the committed GPU run (the device check, `xtask/gpu-check/`) lives.
+    pub const GPU_DIR: &str = "docs/bench/gpu";
+
     /// Every generated region, and the file (from the repository root) that must hold it. The
     /// same region may appear in other Markdown files too.
-    pub const REGIONS: [(&str, &str); 7] = [
+    pub const REGIONS: [(&str, &str); 8] = [
         ("README.md", "table:headline"),
+        ("README.md", "table:gpu"),
         ("docs/bench/README.md", "table:summary"),
         ("docs/bench/README.md", "text:findings"),
         ("docs/bench/README.md", "table:bands"),
@@ -1653,6 +1891,9 @@ mod docs {
     /// A region's content: a blank line, the rendering, a blank line (so Markdown sees the
     /// markers as their own blocks).
     pub fn render(name: &str, report: &Report) -> Result<String> {
+        if name == "table:gpu" {
+            return Ok(format!("\n{}\n", gpu_region(load_gpu()?.as_ref())));
+        }
         if name == "table:instances" {
             // The scene cases stand apart from the mesh scenes' run.
             return Ok(format!("\n{}\n", scene_cases(report)));
@@ -1684,6 +1925,179 @@ mod docs {
             ),
         };
         Ok(format!("\n{body}\n"))
+    }
+
+    /// The committed GPU run, parsed, if there is one.
+    pub fn load_gpu() -> Result<Option<Report>> {
+        let path = repo_root().join(GPU_DIR).join("results.json");
+        if !path.exists() {
+            return Ok(None);
+        }
+        let text = std::fs::read_to_string(&path)
+            .with_context(|| format!("reading {}", path.display()))?;
+        super::json::parse_report(&text)
+            .with_context(|| format!("parsing {}", path.display()))
+            .map(Some)
+    }
+
+    /// The aim on a real GPU: 10M particles a step in under 1 ms, within 3x the GPU floor.
+    const GPU_AIM_PARTICLES: usize = 10_000_000;
+    const GPU_AIM_MS: f64 = 1.0;
+    const GPU_AIM_FLOOR: f64 = 3.0;
+
+    /// The README's GPU region: the committed GPU run's plain step per scene and count, the
+    /// workgroup-size sweep, the aim, the scene cases and the particle cases; or how to make
+    /// one.
+    pub fn gpu_region(gpu: Option<&Report>) -> String {
+        let Some(r) = gpu else {
+            return "No GPU run is committed yet: the device check (`xtask/gpu-check/`, below) \
+                    writes `docs/bench/gpu/results.json`, and the tables appear here."
+                .into();
+        };
+        let mut s = String::new();
+        let _ = writeln!(
+            s,
+            "Measured {} on {} (host: {}); each time is the median of the run's repeats, \
+             nanoseconds per particle-step ([results.json](docs/bench/gpu/results.json)).\n",
+            r.date,
+            r.gpu.as_deref().unwrap_or("no GPU"),
+            r.machine
+        );
+        let plain = |q: &&Row| q.backend == "wgpu" && q.is_mesh_case() && q.band == "mixed";
+        let steps: Vec<&Row> = r
+            .rows
+            .iter()
+            .filter(plain)
+            .filter(|q| q.method == "octoproxy-wgpu")
+            .collect();
+        if steps.is_empty() {
+            s.push_str("The run has no plain GPU step.\n");
+            return s;
+        }
+        // Every size timed for a case: the default's row and the sweep's.
+        let sizes_of = |q: &Row| -> Vec<&Row> {
+            r.rows
+                .iter()
+                .filter(|x| {
+                    x.backend == "wgpu"
+                        && x.method == q.method
+                        && x.scene == q.scene
+                        && x.particles == q.particles
+                        && x.band == q.band
+                        && x.instances == 0
+                        && x.substeps == 0
+                        && x.workgroup_size > 0
+                })
+                .collect()
+        };
+        s.push_str(
+            "| scene | triangles | particles | floor | octoproxy-wgpu | × floor | ms / step | best workgroup size | at best | ms / step at best |\n",
+        );
+        s.push_str("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
+        for q in &steps {
+            let floor = q.ns_per_particle_step / q.ratio_to_floor;
+            let best = sizes_of(q)
+                .into_iter()
+                .min_by(|a, b| a.ns_per_particle_step.total_cmp(&b.ns_per_particle_step))
+                .unwrap_or(q);
+            let _ = writeln!(
+                s,
+                "| {} | {} | {} | {:.2} | {:.2} | {:.1}× | {:.3} | {} | {:.2} | {:.3} |",
+                q.scene,
+                thousands(q.triangles as u64),
+                thousands(q.particles as u64),
+                floor,
+                q.ns_per_particle_step,
+                q.ratio_to_floor,
+                q.ns_per_particle_step * q.particles as f64 * 1e-6,
+                best.workgroup_size,
+                best.ns_per_particle_step,
+                best.ns_per_particle_step * best.particles as f64 * 1e-6
+            );
+        }
+        // The sweep at the largest count: ms per step at each size.
+        let largest = steps.iter().map(|q| q.particles).max().unwrap_or(0);
+        let mut sizes: Vec<u32> = steps
+            .iter()
+            .flat_map(|q| sizes_of(q))
+            .map(|x| x.workgroup_size)
+            .collect();
+        sizes.sort_unstable();
+        sizes.dedup();
+        if sizes.len() > 1 {
+            let _ = writeln!(
+                s,
+                "\nThe plain step's workgroup size, swept in the same run: milliseconds per step \
+                 of {} particles (the kernel ships with {}).\n",
+                thousands(largest as u64),
+                super::WORKGROUP_SIZE
+            );
+            let _ = writeln!(
+                s,
+                "| scene | {} |",
+                sizes
+                    .iter()
+                    .map(|z| z.to_string())
+                    .collect::<Vec<_>>()
+                    .join(" | ")
+            );
+            let _ = writeln!(s, "|---|{}", "---:|".repeat(sizes.len()));
+            for q in steps.iter().filter(|q| q.particles == largest) {
+                let at = sizes_of(q);
+                let cells: Vec<String> = sizes
+                    .iter()
+                    .map(|z| {
+                        at.iter()
+                            .find(|x| x.workgroup_size == *z)
+                            .map(|x| {
+                                format!("{:.3}", x.ns_per_particle_step * x.particles as f64 * 1e-6)
+                            })
+                            .unwrap_or_else(|| "–".into())
+                    })
+                    .collect();
+                let _ = writeln!(s, "| {} | {} |", q.scene, cells.join(" | "));
+            }
+        }
+        let aim: Vec<&&Row> = steps
+            .iter()
+            .filter(|q| q.particles == GPU_AIM_PARTICLES)
+            .collect();
+        if !aim.is_empty() {
+            let met: Vec<String> = aim
+                .iter()
+                .filter(|q| {
+                    q.ns_per_particle_step * q.particles as f64 * 1e-6 < GPU_AIM_MS
+                        && q.ratio_to_floor <= GPU_AIM_FLOOR
+                })
+                .map(|q| q.scene.clone())
+                .collect();
+            let _ = writeln!(
+                s,
+                "\nThe aim, {} particles a step in under {GPU_AIM_MS} ms within {GPU_AIM_FLOOR}× \
+                 the GPU floor, at the default workgroup size: met on {} of {} scenes{}.",
+                thousands(GPU_AIM_PARTICLES as u64),
+                met.len(),
+                aim.len(),
+                if met.is_empty() {
+                    String::new()
+                } else {
+                    format!(" ({})", and_list(&met))
+                }
+            );
+        }
+        let cases = scene_cases(r);
+        let scene_rows = r
+            .rows
+            .iter()
+            .any(|q| q.instances > 0 || q.ratio_to_plain.is_finite());
+        if scene_rows && !software_gpu(r) {
+            let _ = write!(s, "\n{cases}\n");
+        }
+        let particles = r.particle_cases();
+        if !particles.is_empty() {
+            let _ = write!(s, "\n{particles}\n");
+        }
+        s
     }
 
     /// `1234567` as `1,234,567`.
@@ -2408,6 +2822,56 @@ mod docs {
         /// A run with the scene cases: the mesh scenes' figures leave them out, and their own
         /// region shows them, with the targets judged.
         #[test]
+        fn the_gpu_region_shows_the_best_workgroup_size_and_the_sweep() {
+            assert!(gpu_region(None).contains("No GPU run is committed yet"));
+            let row = |method: &str, size: u32, ns: f64| Row {
+                scene: "beast".into(),
+                triangles: 64_618,
+                particles: 10_000_000,
+                method: method.into(),
+                backend: "wgpu",
+                build_ms: 0.0,
+                memory_bytes: 0,
+                ns_per_particle_step: ns,
+                ratio_to_floor: ns / 0.05,
+                penetrations_per_million: 0.0,
+                band: "mixed",
+                instances: 0,
+                moving: 0,
+                ratio_to_static: f64::NAN,
+                ratio_to_plain: f64::NAN,
+                substeps: 0,
+                workgroup_size: size,
+                ns_min: f64::NAN,
+                ns_max: f64::NAN,
+            };
+            let report = Report {
+                machine: "host".into(),
+                date: "2026-12-04".into(),
+                gpu: Some("NVIDIA H200 (Vulkan, DiscreteGpu)".into()),
+                rows: vec![
+                    row("floor", 64, 0.05),
+                    row("octoproxy-wgpu", 64, 0.2),
+                    row("floor", 32, 0.05),
+                    row("octoproxy-wgpu", 32, 0.09),
+                    row("floor", 256, 0.05),
+                    row("octoproxy-wgpu", 256, 0.3),
+                ],
+            };
+            let text = gpu_region(Some(&report));
+            // One line per case (the default size's), with the sweep's best beside it.
+            assert!(
+                text.contains("| beast | 64,618 | 10,000,000 | 0.05 | 0.20 | 4.0× | 2.000 | 32 | 0.09 | 0.900 |"),
+                "{text}"
+            );
+            assert_eq!(text.matches("| beast | 64,618 |").count(), 1, "{text}");
+            assert!(text.contains("| scene | 32 | 64 | 256 |"), "{text}");
+            assert!(text.contains("| beast | 0.900 | 2.000 | 3.000 |"), "{text}");
+            // 2 ms a step at the default size misses the aim of 1 ms.
+            assert!(text.contains("met on 0 of 1 scenes"), "{text}");
+        }
+
+        #[test]
         fn the_scene_cases_render_apart_from_the_mesh_scenes() {
             let row = |scene: &str, method: &str, ns: f64| Row {
                 scene: scene.into(),
@@ -2426,6 +2890,9 @@ mod docs {
                 ratio_to_static: f64::NAN,
                 ratio_to_plain: f64::NAN,
                 substeps: 0,
+                workgroup_size: 0,
+                ns_min: f64::NAN,
+                ns_max: f64::NAN,
             };
             // The committed run without its scene cases, whether it has them or not.
             let mut committed = load_committed().unwrap();
@@ -2771,6 +3238,9 @@ mod json {
             ratio_to_static: r.num_or("ratio_to_static", f64::NAN)?,
             ratio_to_plain: r.num_or("ratio_to_plain", f64::NAN)?,
             substeps: r.count_or("substeps", 0)? as u32,
+            workgroup_size: r.count_or("workgroup_size", 0)? as u32,
+            ns_min: r.num_or("ns_min", f64::NAN)?,
+            ns_max: r.num_or("ns_max", f64::NAN)?,
         })
     }
 
@@ -2828,6 +3298,9 @@ mod json {
                     ratio_to_static: f64::NAN,
                     ratio_to_plain: f64::NAN,
                     substeps: 0,
+                    workgroup_size: 0,
+                    ns_min: f64::NAN,
+                    ns_max: f64::NAN,
                 }],
             };
             let back = parse_report(&report.json()).unwrap();
@@ -2844,6 +3317,21 @@ mod json {
             assert_eq!((r.instances, r.moving), (0, 0));
             assert!(r.ratio_to_static.is_nan() && r.ratio_to_plain.is_nan());
             assert_eq!(back.json(), report.json());
+            // A GPU row's workgroup size and the range of its runs read back too.
+            let mut gpu = report.rows[0].clone();
+            (gpu.backend, gpu.workgroup_size, gpu.ns_min, gpu.ns_max) = ("wgpu", 256, 1.0, 1.5);
+            let one = Report {
+                rows: vec![gpu],
+                ..Report {
+                    machine: report.machine.clone(),
+                    date: report.date.clone(),
+                    gpu: Some("NVIDIA H200".into()),
+                    rows: Vec::new(),
+                }
+            };
+            let r = &parse_report(&one.json()).unwrap().rows[0];
+            assert_eq!((r.workgroup_size, r.ns_min, r.ns_max), (256, 1.0, 1.5));
+            assert!(r.is_sweep() && !r.is_mesh_case());
             // The scene cases' fields read back too.
             let mut report = report;
             let r = &mut report.rows[0];

@@ -169,6 +169,9 @@ pub fn time_case(
         ratio_to_static: f64::NAN,
         ratio_to_plain: f64::NAN,
         substeps,
+        workgroup_size: 0,
+        ns_min: f64::NAN,
+        ns_max: f64::NAN,
     };
     let per_step = |secs: f64| secs * 1e9 / (n as f64 * steps as f64);
     let mut rows = Vec::new();
@@ -205,6 +208,8 @@ pub fn time_case(
     }
     if let Some(g) = gpu {
         g.upload_proxy(&floor.words)?;
+        g.upload_particles(&particles)?;
+        super::warm_gpu(g, &params)?;
         g.upload_particles(&particles)?;
         g.integrate_only(&params, 1)?;
         g.wait()?;

@@ -793,6 +793,8 @@ const HOST_ONLY: &[(&str, &str, &str)] = &[
     ("pairs.rs", "collide_pairs", "the pass on one thread; the GPU runs its stages as kernels (pairs_kernel.wgsl), the CPU backend as rayon loops"),
     ("pairs.rs", "debias_pairs", "the debiasing iterations on one thread; the GPU runs pair_unbias_kernel, pair_regather_kernel, pair_iterate_kernel and pair_scatter_kernel, the CPU backend PairBuffers::debias"),
     ("pairs.rs", "unbiased", "PairStep::unbiased: pair_unbias_kernel writes its relaxation of zero into the GPU's state, pair_step_kernel restores PairState::relaxation"),
+    ("pairs.rs", "holds", "PairScratch::holds: collide_pairs' and debias_pairs' check of the caller's scratch, on the host"),
+    ("pairs.rs", "iterate", "PairScratch::iterate: the serial iterations of collide_pairs and debias_pairs; the GPU runs pair_iterate_kernel once per iteration"),
     ("pairs.rs", "pair_max_speed", "a reduction: pair_speed_kernel's atomicMax over pair_prepare's speeds"),
     ("pairs.rs", "pair_fast_count", "a reduction: pair_speed_kernel's count over pair_is_fast"),
     ("pairs.rs", "pair_candidates", "pair_velocity's neighbour loop, which pairs.wgsl's pair_velocity inlines; the CPU backend lists a substep's candidates once with it"),

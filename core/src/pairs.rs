@@ -794,6 +794,50 @@ pub struct PairScratch<'a> {
     pub ranges: &'a mut [[u32; 2]],
 }
 
+impl PairScratch<'_> {
+    /// Whether the slices hold `n` particles, and `s` was made for them.
+    fn holds(&self, n: usize, s: &PairStep) -> bool {
+        let t = pair_table_size(n);
+        self.keys.len() >= n
+            && self.bodies.len() >= n
+            && self.start.len() >= n
+            && self.vel.len() >= n
+            && self.vel_next.len() >= n
+            && self.support.len() >= n
+            && self.ranges.len() >= t
+            && s.mask as usize == t - 1
+    }
+
+    /// `iterations` Jacobi iterations of the `valid` sorted particles from `vel` with the
+    /// constants `s`, the last one's velocities written to `particles`; returns the
+    /// particle-iterations whose neighbour loop hit the cap.
+    fn iterate(
+        &mut self,
+        particles: &mut [Particle],
+        valid: usize,
+        s: &PairStep,
+        iterations: u32,
+    ) -> u64 {
+        let t = pair_table_size(particles.len());
+        let (bodies, start) = (&self.bodies[..valid], &self.start[..valid]);
+        let (support, ranges) = (&self.support[..valid], &self.ranges[..t]);
+        let (mut a, mut b) = (&mut self.vel[..valid], &mut self.vel_next[..valid]);
+        let mut capped = 0u64;
+        for _ in 0..iterations {
+            for (k, out) in b.iter_mut().enumerate() {
+                let (v, cap) = pair_velocity(k, bodies, start, a, support, ranges, s);
+                *out = v;
+                capped += cap as u64;
+            }
+            core::mem::swap(&mut a, &mut b);
+        }
+        for k in 0..valid {
+            particles[bodies[k].index as usize].velocity = [a[k][0], a[k][1], a[k][2]];
+        }
+        capped
+    }
+}
+
 /// The pass over one substep, on one thread, for callers without a thread pool (the CPU
 /// backend runs the same functions in parallel): integrates gravity into every valid
 /// particle's velocity and applies the contacts. `view` is the proxy the particles step
@@ -808,21 +852,11 @@ pub fn collide_pairs(
     hints: &[LeafHint],
     s: &PairStep,
     iterations: u32,
-    scratch: PairScratch<'_>,
+    mut scratch: PairScratch<'_>,
 ) -> Option<u64> {
     let n = particles.len();
     let t = pair_table_size(n);
-    if scratch.keys.len() < n
-        || scratch.bodies.len() < n
-        || scratch.start.len() < n
-        || scratch.vel.len() < n
-        || scratch.vel_next.len() < n
-        || scratch.support.len() < n
-        || hints.len() < n
-        || scratch.ranges.len() < t
-        || s.mask as usize != t - 1
-        || n >= PAIR_HASH_NONE as usize
-    {
+    if !scratch.holds(n, s) || hints.len() < n || n >= PAIR_HASH_NONE as usize {
         return None;
     }
     let keys = &mut scratch.keys[..n];
@@ -834,11 +868,10 @@ pub fn collide_pairs(
     }
     keys.sort_unstable();
     let valid = keys.partition_point(|k| k[0] != PAIR_HASH_NONE);
-    let (bodies, start, vel, vel_next, support) = (
+    let (bodies, start, vel, support) = (
         &mut scratch.bodies[..valid],
         &mut scratch.start[..valid],
         &mut scratch.vel[..valid],
-        &mut scratch.vel_next[..valid],
         &mut scratch.support[..valid],
     );
     for k in 0..valid {
@@ -853,7 +886,6 @@ pub fn collide_pairs(
         (start[k], support[k]) = pair_start(view, p, hints[i], s);
     }
     vel.copy_from_slice(start);
-    let start = &*start;
     let ranges = &mut scratch.ranges[..t];
     ranges.fill([0, 0]);
     for k in 0..valid {
@@ -866,20 +898,7 @@ pub fn collide_pairs(
             ranges[h][1] = k as u32 + 1;
         }
     }
-    let mut capped = 0u64;
-    let (mut a, mut b) = (vel, vel_next);
-    for _ in 0..iterations {
-        for (k, out) in b.iter_mut().enumerate() {
-            let (v, cap) = pair_velocity(k, bodies, start, a, support, ranges, s);
-            *out = v;
-            capped += cap as u64;
-        }
-        core::mem::swap(&mut a, &mut b);
-    }
-    for k in 0..valid {
-        particles[bodies[k].index as usize].velocity = [a[k][0], a[k][1], a[k][2]];
-    }
-    Some(capped)
+    Some(scratch.iterate(particles, valid, s, iterations))
 }
 
 /// The debiasing iterations after the march, on one thread ([`collide_pairs`]' second
@@ -893,47 +912,18 @@ pub fn debias_pairs(
     particles: &mut [Particle],
     s: &PairStep,
     iterations: u32,
-    scratch: PairScratch<'_>,
+    mut scratch: PairScratch<'_>,
 ) -> Option<u64> {
     let n = particles.len();
-    let t = pair_table_size(n);
-    if scratch.keys.len() < n
-        || scratch.bodies.len() < n
-        || scratch.start.len() < n
-        || scratch.vel.len() < n
-        || scratch.vel_next.len() < n
-        || scratch.support.len() < n
-        || scratch.ranges.len() < t
-        || s.mask as usize != t - 1
-    {
+    if !scratch.holds(n, s) {
         return None;
     }
     let valid = scratch.keys[..n].partition_point(|k| k[0] != PAIR_HASH_NONE);
-    let (bodies, start, support, ranges) = (
-        &scratch.bodies[..valid],
-        &scratch.start[..valid],
-        &scratch.support[..valid],
-        &scratch.ranges[..t],
-    );
-    let (mut a, mut b) = (&mut scratch.vel[..valid], &mut scratch.vel_next[..valid]);
     for k in 0..valid {
-        let v = particles.get(bodies[k].index as usize)?.velocity;
-        a[k] = [v[0], v[1], v[2], 0.0];
+        let v = particles.get(scratch.bodies[k].index as usize)?.velocity;
+        scratch.vel[k] = [v[0], v[1], v[2], 0.0];
     }
-    let u = s.unbiased();
-    let mut capped = 0u64;
-    for _ in 0..iterations {
-        for (k, out) in b.iter_mut().enumerate() {
-            let (v, cap) = pair_velocity(k, bodies, start, a, support, ranges, &u);
-            *out = v;
-            capped += cap as u64;
-        }
-        core::mem::swap(&mut a, &mut b);
-    }
-    for k in 0..valid {
-        particles[bodies[k].index as usize].velocity = [a[k][0], a[k][1], a[k][2]];
-    }
-    Some(capped)
+    Some(scratch.iterate(particles, valid, &s.unbiased(), iterations))
 }
 
 /// The largest speed of a valid particle after the substep's gravity (0 when none is

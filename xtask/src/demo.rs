@@ -26,7 +26,7 @@ use crate::render::{Camera, Canvas, BACK, FRONT, HIT};
 use crate::scene;
 
 const HELP: &str = "\
-usage: octoproxy demo [--sand] [--particles N] [--steps N] [-o PICTURE.png] [--backend auto|cpu|wgpu]
+usage: octoproxy demo [--sand [--mesh FILE]] [--particles N] [--steps N] [-o PICTURE.png] [--backend auto|cpu|wgpu]
 
 Runs a built-in scene (no files needed): an open dome, and a paddle spinning beneath it, both
 instances of one scene. Half the particles rain onto the dome and slide off its front side;
@@ -35,7 +35,8 @@ their way up. The picture colours the particles the paddle hit.
 
 With --sand: grains of a radius poured from a spout onto a plate with a block on it collide
 with each other (the particle-particle pass) and pile up (default 3000 grains, 480 steps; the
-picture goes to target/octoproxy-sand.png).";
+picture goes to target/octoproxy-sand.png). With --mesh FILE (PLY, OBJ or STL, optionally
+gzipped), onto that mesh in place of the block, scaled to 1.2 units and standing on the plate.";
 
 /// The paddle: two blades (each long in x, tall in y, thin in z) either side of a gap at the
 /// hub, so that the fountain's core rises past it; where it spins (about the vertical axis
@@ -95,6 +96,7 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     let mut out = PathBuf::from("target/octoproxy-demo.png");
     let mut backend = BackendChoice::Auto;
     let mut sand = false;
+    let mut mesh: Option<PathBuf> = None;
     let (mut n_set, mut steps_set) = (None, None);
     let mut parser = lexopt::Parser::from_args(args);
     while let Some((name, unexpected)) = flags::next_option(&mut parser)? {
@@ -102,6 +104,7 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
             "--particles" => n_set = Some(flags::number(&mut parser, "--particles")?),
             "--steps" => steps_set = Some(flags::number(&mut parser, "--steps")?),
             "--sand" => sand = true,
+            "--mesh" => mesh = Some(flags::path(&mut parser, "--mesh")?),
             "-o" | "--out" => out = flags::path(&mut parser, "--out")?,
             "--backend" => {
                 backend = BackendChoice::parse(&flags::string(&mut parser, "--backend")?)?
@@ -116,6 +119,9 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     if n_set == Some(0) {
         anyhow::bail!("--particles must be at least 1");
     }
+    if mesh.is_some() && !sand {
+        anyhow::bail!("--mesh is for --sand (the built-in demo's scene is its own)");
+    }
     if sand {
         let out = if out == Path::new("target/octoproxy-demo.png") {
             PathBuf::from("target/octoproxy-sand.png")
@@ -127,6 +133,7 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
             steps_set.unwrap_or(480),
             &out,
             backend,
+            mesh.as_deref(),
         );
     }
     n = n_set.unwrap_or(n);

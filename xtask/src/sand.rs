@@ -1,14 +1,16 @@
 //! `octoproxy demo --sand`: sand poured from a spout onto a plate with a block standing on it
-//! forms a pile: particles of a radius that collide with each other (the particle–particle
-//! pass) and with a proxy baked for their radius. Writes a picture coloured by height.
+//! (or a mesh of the user's, `--mesh FILE`) forms a pile: particles of a radius that collide
+//! with each other (the particle–particle pass) and with a proxy baked for their radius.
+//! Writes a picture coloured by height.
 
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use anyhow::Result;
+use anyhow::{bail, Context, Result};
 use glam::Vec3;
 use octoproxy_core::{pair_substeps, PairParams, Particle, StepParams};
 use octoproxy_cpu::emit::Rng;
+use octoproxy_cpu::io::Mesh;
 use octoproxy_cpu::scenes;
 use octoproxy_cpu::{BuildParams, Sides};
 
@@ -20,18 +22,60 @@ use crate::scene;
 /// and the steps between two layers of grains (so that a layer has moved on by a diameter).
 const RADIUS: f32 = 0.05;
 const SPOUT: [f32; 3] = [0.2, 1.1, 0.0];
+/// A user's mesh is scaled to this size in its largest extent, and the spout stands this high
+/// above its top.
+const MESH_SIZE: f32 = 1.2;
+const SPOUT_ABOVE: f32 = 0.4;
 const SPOUT_RADIUS: f32 = 0.3;
 const SPOUT_SPEED: f32 = 2.0;
+/// The largest sideways speed a grain leaves the spout with, in each horizontal axis.
+const SPOUT_SPREAD: f32 = 0.15;
 const LAYER_STEPS: u32 = 4;
 
 /// The sand's colours, low to high.
 const SAND_LOW: [f32; 3] = [0.55, 0.38, 0.18];
 const SAND_HIGH: [f32; 3] = [0.98, 0.84, 0.52];
 
-/// Runs the sand demo: `n` grains poured, `steps` steps in all, the picture to `out`.
-pub fn run(n: usize, steps: u32, out: &Path, backend: BackendChoice) -> Result<()> {
+/// `mesh` scaled to [`MESH_SIZE`] in its largest extent, centred over the origin with its
+/// lowest point on the plate (y = 0), and the height of its top.
+fn stand_on_plate(mut mesh: Mesh) -> Result<(Mesh, f32)> {
+    let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
+    for p in &mesh.positions {
+        let p = Vec3::from_array(*p);
+        lo = lo.min(p);
+        hi = hi.max(p);
+    }
+    let extent = (hi - lo).max_element();
+    if !(extent.is_finite() && extent > 0.0) {
+        bail!("the mesh has no extent to scale (its bounding box is {lo} to {hi})");
+    }
+    let scale = MESH_SIZE / extent;
+    let base = Vec3::new((lo.x + hi.x) * 0.5, lo.y, (lo.z + hi.z) * 0.5);
+    for p in &mut mesh.positions {
+        *p = ((Vec3::from_array(*p) - base) * scale).to_array();
+    }
+    Ok((mesh, (hi.y - lo.y) * scale))
+}
+
+/// Runs the sand demo: `n` grains poured, `steps` steps in all, the picture to `out`; onto
+/// `mesh` (a file) standing on the plate, or the built-in block.
+pub fn run(
+    n: usize,
+    steps: u32,
+    out: &Path,
+    backend: BackendChoice,
+    mesh: Option<&Path>,
+) -> Result<()> {
     let plate = scenes::slab([0.0, -0.1, 0.0], [3.0, 0.2, 3.0]);
-    let block = scenes::slab([-0.35, 0.2, 0.0], [0.4, 0.4, 0.4]);
+    let (block, spout) = match mesh {
+        Some(path) => {
+            let loaded = scene::load_meshes(&[path.to_path_buf()])?;
+            let (standing, top) = stand_on_plate(loaded.into_iter().next().unwrap_or_default())
+                .with_context(|| path.display().to_string())?;
+            (standing, [0.05, top + SPOUT_ABOVE, 0.0])
+        }
+        None => (scenes::slab([-0.35, 0.2, 0.0], [0.4, 0.4, 0.4]), SPOUT),
+    };
     let build = BuildParams {
         dmax: 7,
         ..BuildParams::default()
@@ -53,7 +97,10 @@ pub fn run(n: usize, steps: u32, out: &Path, backend: BackendChoice) -> Result<(
         friction: params.friction,
         ..PairParams::default()
     };
-    // One layer of the spout: grains on a square lattice of 2.2 radii in its disc, jittered.
+    // One layer of the spout: grains on a square lattice of 2.2 radii in its disc, jittered,
+    // each leaving with a little sideways speed. Grains that fell in lattice columns would land
+    // dead centre on the grain below, where friction holds them: they stood as a pillar up to
+    // the spout instead of rolling off into a pile.
     let spacing = 2.2 * RADIUS;
     let cells = (SPOUT_RADIUS / spacing) as i32;
     let mut stepper = select_backend(backend)?;
@@ -61,12 +108,20 @@ pub fn run(n: usize, steps: u32, out: &Path, backend: BackendChoice) -> Result<(
     let mut rng = Rng::new(7);
     let mut grains: Vec<Particle> = Vec::new();
     let mut stepping = Duration::ZERO;
+    let mut blocked = 0usize;
     let bar = crate::progress::bar(steps as u64, "pouring sand");
     for step in 0..steps {
         if grains.len() < n && step % LAYER_STEPS == 0 {
             if !grains.is_empty() {
                 stepper.download_particles(&mut grains)?;
             }
+            // A grain is poured only where no grain lies within a diameter: once the pile
+            // reaches the spout, a grain made inside it would be thrown out of the overlap.
+            let near: Vec<Vec3> = grains
+                .iter()
+                .map(|g| Vec3::from_array(g.position))
+                .filter(|g| (g.y - spout[1]).abs() < 2.0 * RADIUS)
+                .collect();
             let mut layer: Vec<Particle> = Vec::new();
             for i in -cells..=cells {
                 for k in -cells..=cells {
@@ -74,9 +129,15 @@ pub fn run(n: usize, steps: u32, out: &Path, backend: BackendChoice) -> Result<(
                     if d.length() > SPOUT_RADIUS || grains.len() + layer.len() >= n {
                         continue;
                     }
-                    let jitter = Vec3::new(rng.range(-0.05, 0.05), 0.0, rng.range(-0.05, 0.05));
-                    let p = Vec3::from_array(SPOUT) + d + jitter * RADIUS;
-                    layer.push(Particle::new(p.to_array(), [0.0, -SPOUT_SPEED, 0.0]));
+                    let jitter = Vec3::new(rng.range(-0.1, 0.1), 0.0, rng.range(-0.1, 0.1));
+                    let p = Vec3::from_array(spout) + d + jitter * RADIUS;
+                    if near.iter().any(|g| g.distance(p) < 2.0 * RADIUS) {
+                        blocked += 1;
+                        continue;
+                    }
+                    let (vx, vz) = (rng.range(-1.0, 1.0), rng.range(-1.0, 1.0));
+                    let v = Vec3::new(vx * SPOUT_SPREAD, -SPOUT_SPEED, vz * SPOUT_SPREAD);
+                    layer.push(Particle::new(p.to_array(), v.to_array()));
                 }
             }
             sides.assign(&mut layer, false);
@@ -96,12 +157,23 @@ pub fn run(n: usize, steps: u32, out: &Path, backend: BackendChoice) -> Result<(
     stepper.download_particles(&mut grains)?;
 
     // The picture: the plate and the block, the grains coloured by height.
-    let cam = Camera::new(Vec3::new(0.0, 0.35, 0.0), 1.25, 0.6, 0.35, 960, 720);
+    // A user's mesh stands taller than the block: a wider view, and its own colour.
+    let (look_at, frame) = if mesh.is_some() {
+        (0.45, 1.6)
+    } else {
+        (0.35, 1.25)
+    };
+    let cam = Camera::new(Vec3::new(0.0, look_at, 0.0), frame, 0.6, 0.35, 960, 720);
     let mut canvas = Canvas::new(960, 720);
-    for mesh in &baked.meshes {
-        for t in &mesh.triangles {
-            let v = t.map(|i| Vec3::from_array(mesh.positions[i as usize]));
-            canvas.triangle(&cam, v, [0.62, 0.64, 0.68]);
+    for (k, part) in baked.meshes.iter().enumerate() {
+        let colour = if k > 0 && mesh.is_some() {
+            [0.55, 0.62, 0.78]
+        } else {
+            [0.62, 0.64, 0.68]
+        };
+        for t in &part.triangles {
+            let v = t.map(|i| Vec3::from_array(part.positions[i as usize]));
+            canvas.triangle(&cam, v, colour);
         }
     }
     let top = grains
@@ -109,7 +181,7 @@ pub fn run(n: usize, steps: u32, out: &Path, backend: BackendChoice) -> Result<(
         .map(|p| p.position[1])
         .fold(0.0f32, f32::max)
         .max(1e-3);
-    let px = RADIUS * 0.5 * 720.0 / 1.25;
+    let px = RADIUS * 0.5 * 720.0 / frame;
     for p in &grains {
         let h = (p.position[1] / top).clamp(0.0, 1.0);
         let c = [0, 1, 2].map(|k| SAND_LOW[k] + (SAND_HIGH[k] - SAND_LOW[k]) * h);
@@ -128,7 +200,13 @@ pub fn run(n: usize, steps: u32, out: &Path, backend: BackendChoice) -> Result<(
         .iter()
         .filter(|p| p.position[1] > -0.2 && p.position[0].abs() < 1.5 && p.position[2].abs() < 1.5)
         .count();
-    println!("octoproxy demo --sand: sand poured onto a plate with a block on it");
+    match mesh {
+        Some(path) => println!(
+            "octoproxy demo --sand: sand poured onto {} standing on a plate",
+            path.display()
+        ),
+        None => println!("octoproxy demo --sand: sand poured onto a plate with a block on it"),
+    }
     println!(
         "  triangles:     {} (the offset surface at the grains' radius: {})",
         baked.triangles,
@@ -143,6 +221,9 @@ pub fn run(n: usize, steps: u32, out: &Path, backend: BackendChoice) -> Result<(
         grains.len(),
         top
     );
+    if blocked > 0 {
+        println!("  spout:         {blocked} grains not poured: the pile had reached the spout");
+    }
     println!(
         "  steps:         {steps} × {:.4} s, {} substeps each, {} iterations; {capped} particle-iterations at the neighbour cap, {fast} particle-substeps faster than a radius",
         params.dt,

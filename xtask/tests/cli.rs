@@ -230,6 +230,9 @@ fn bad_input_gets_one_readable_line() {
             "epsilon",
         ),
         (&["bake", "--mesh", "box.obj"], "--out"),
+        (&["demo", "--mesh", "box.obj"], "--mesh is for --sand"),
+        (&["demo", "--sand", "--mesh", "missing.obj"], "missing.obj"),
+        (&["demo", "--sand", "--mesh", "nan.obj"], "nan.obj"),
         (
             &[
                 "sim",

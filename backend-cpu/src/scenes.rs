@@ -410,6 +410,37 @@ pub fn rotated(mesh: &Mesh, about_z_deg: f32, about_x_deg: f32) -> Mesh {
     }
 }
 
+/// `mesh` scaled to `size` in its largest extent and moved to stand on the plane y = 0,
+/// centred over the origin, with the height of its top; `None` for a mesh with no finite,
+/// non-zero extent.
+pub fn standing(mesh: &Mesh, size: f32) -> Option<(Mesh, f32)> {
+    use glam::Vec3;
+    let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
+    for p in &mesh.positions {
+        lo = lo.min(Vec3::from_array(*p));
+        hi = hi.max(Vec3::from_array(*p));
+    }
+    let extent = (hi - lo).max_element();
+    if !(extent.is_finite() && extent > 0.0) {
+        return None;
+    }
+    let scale = size / extent;
+    let base = Vec3::new((lo.x + hi.x) * 0.5, lo.y, (lo.z + hi.z) * 0.5);
+    let positions: Vec<[f32; 3]> = mesh
+        .positions
+        .iter()
+        .map(|p| ((Vec3::from_array(*p) - base) * scale).to_array())
+        .collect();
+    let top = positions.iter().map(|p| p[1]).fold(f32::MIN, f32::max);
+    Some((
+        Mesh {
+            positions,
+            triangles: mesh.triangles.clone(),
+        },
+        top,
+    ))
+}
+
 /// Faces, edges and corners exactly on the octree's cell planes for a bake with `params`
 /// (open, parts overlapping and touching): a closed cube over [-1, 1]³ that fixes the root
 /// (so the planes are known before baking), boxes on the depth-3 and depth-6 grids (the second
@@ -832,5 +863,27 @@ mod tests {
             t.swap(1, 2);
         }
         assert!(m.is_closed() && m.is_consistently_oriented() && m.signed_volume() < 0.0);
+    }
+
+    #[test]
+    fn a_standing_mesh_is_scaled_centred_and_on_the_floor() {
+        let tall = cube([3.0, 1.0, -2.0], [5.0, 9.0, 0.0]);
+        let (m, top) = standing(&tall, 2.0).unwrap();
+        let ys: Vec<f32> = m.positions.iter().map(|p| p[1]).collect();
+        let xs: Vec<f32> = m.positions.iter().map(|p| p[0]).collect();
+        assert_eq!(ys.iter().copied().fold(f32::MAX, f32::min), 0.0);
+        assert_eq!(top, 2.0);
+        assert_eq!(xs.iter().copied().fold(f32::MAX, f32::min), -0.25);
+        assert_eq!(xs.iter().copied().fold(f32::MIN, f32::max), 0.25);
+        assert_eq!(m.triangles, tall.triangles);
+        let point = Mesh {
+            positions: vec![[1.0, 2.0, 3.0]; 3],
+            triangles: vec![[0, 1, 2]],
+        };
+        assert!(standing(&point, 1.0).is_none());
+        let mut bad = tall.clone();
+        bad.positions[0][1] = f32::NAN;
+        bad.positions[1][0] = f32::INFINITY;
+        assert!(standing(&bad, 1.0).is_none());
     }
 }

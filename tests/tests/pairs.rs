@@ -471,18 +471,8 @@ fn fifty_thousand_grains_poured_on_a_plate_come_to_rest() {
 /// Spot, 1.2 long, standing in a tray 3 wide (a floor and four walls, overlapping at the
 /// corners), baked for `radius` at `dmax`; and the cow's highest point.
 fn spot_in_a_tray(dmax: u32, radius: f32) -> Option<(RadiusScene, f32)> {
-    let mut cow = octoproxy_tests::meshes::load("spot.obj.gz")?;
-    let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
-    for p in &cow.positions {
-        lo = lo.min(Vec3::from_array(*p));
-        hi = hi.max(Vec3::from_array(*p));
-    }
-    let scale = 1.2 / (hi - lo).max_element();
-    let base = Vec3::new((lo.x + hi.x) * 0.5, lo.y, (lo.z + hi.z) * 0.5);
-    for p in &mut cow.positions {
-        *p = ((Vec3::from_array(*p) - base) * scale).to_array();
-    }
-    let top = cow.positions.iter().map(|p| p[1]).fold(f32::MIN, f32::max);
+    let spot = octoproxy_tests::meshes::load("spot.obj.gz")?;
+    let (cow, top) = scenes::standing(&spot, 1.2).expect("Spot has an extent");
     let (w, t, h) = (3.0, 0.1, 0.8);
     let parts = [
         cow,
@@ -571,36 +561,32 @@ fn the_parallel_pass_is_cores_serial_pass() {
     let mut support = vec![[0f32; 4]; n];
     let mut hints = vec![octoproxy_core::LeafHint::NONE; n];
     let mut got = ps.clone();
+    // The caller's scratch, lent to the pass and then to its debiasing iterations.
+    macro_rules! scratch {
+        () => {
+            octoproxy_core::PairScratch {
+                keys: &mut keys,
+                bodies: &mut bodies,
+                start: &mut start,
+                vel: &mut vel,
+                vel_next: &mut vel_next,
+                support: &mut support,
+                ranges: &mut ranges,
+            }
+        };
+    }
     for _ in 0..40 {
         cpu.step_pairs(&step, &pairs, 1).unwrap();
         for _ in 0..substeps {
             let s0 = octoproxy_core::PairStep::new(&step, &pairs, h, n, 0.0);
             let v_max = octoproxy_core::pairs::pair_max_speed(&ps, &s0);
             let s = octoproxy_core::PairStep::new(&step, &pairs, h, n, v_max);
-            let scratch = octoproxy_core::PairScratch {
-                keys: &mut keys,
-                bodies: &mut bodies,
-                start: &mut start,
-                vel: &mut vel,
-                vel_next: &mut vel_next,
-                support: &mut support,
-                ranges: &mut ranges,
-            };
-            octoproxy_core::collide_pairs(&mut ps, &view, &hints, &s, pairs.iterations, scratch)
+            octoproxy_core::collide_pairs(&mut ps, &view, &hints, &s, pairs.iterations, scratch!())
                 .unwrap();
             for (p, hint) in ps.iter_mut().zip(&mut hints) {
                 octoproxy_core::step_particle_hinted(&view, p, &march, hint);
             }
-            let scratch = octoproxy_core::PairScratch {
-                keys: &mut keys,
-                bodies: &mut bodies,
-                start: &mut start,
-                vel: &mut vel,
-                vel_next: &mut vel_next,
-                support: &mut support,
-                ranges: &mut ranges,
-            };
-            octoproxy_core::debias_pairs(&mut ps, &s, pairs.iterations, scratch).unwrap();
+            octoproxy_core::debias_pairs(&mut ps, &s, pairs.iterations, scratch!()).unwrap();
         }
         cpu.download_particles(&mut got).unwrap();
         for (a, b) in got.iter().zip(&ps) {

@@ -373,6 +373,11 @@ impl Row {
             && !self.is_sweep()
     }
 
+    /// Milliseconds per step of all the row's particles.
+    pub fn ms_per_step(&self) -> f64 {
+        self.ns_per_particle_step * self.particles as f64 * 1e-6
+    }
+
     /// A row of the workgroup-size sweep (`--workgroup-sizes`): the plain GPU step or its
     /// floor at a size other than the default, which the mesh scenes' rows use.
     pub fn is_sweep(&self) -> bool {
@@ -549,7 +554,7 @@ pub fn warm_gpu(g: &mut WgpuBackend, params: &StepParams) -> Result<()> {
 }
 
 /// `steps` GPU steps of `particles` (with `floor`, the floor's kernel: integration alone),
-/// after a warm-up (on a hardware GPU) and one untimed step: nanoseconds per particle-step,
+/// after a warm-up ([`warm_gpu`]) and one untimed step: nanoseconds per particle-step,
 /// the median of `repeats` timed runs, each from the same start. A run whose parts take
 /// seconds is reported on stderr.
 fn time_gpu(
@@ -567,14 +572,8 @@ fn time_gpu(
             g.step(params, steps)
         }
     };
-    if !g.is_software() {
-        g.upload_particles(particles)?;
-        let warm = Instant::now();
-        while warm.elapsed() < GPU_WARM_UP {
-            run(g, steps)?;
-            g.wait()?;
-        }
-    }
+    g.upload_particles(particles)?;
+    warm_gpu(g, params)?;
     let mut times = Vec::new();
     for k in 0..repeats.max(1) {
         let t0 = Instant::now();
@@ -910,41 +909,32 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
                     let time = |g: &mut WgpuBackend, floor| {
                         time_gpu(g, &particles, &params, gpu_steps, o.gpu_repeats, floor)
                     };
-                    let floor_t = time(g, true)?;
-                    let octo_t = time(g, false)?;
-                    let octo_ns = octo_t.median;
-                    let size = g.workgroup_size();
-                    let mut floor_row = floor_t.on(row("floor", "wgpu", 0.0, 0, 0.0, f64::NAN));
-                    floor_row.workgroup_size = size;
-                    case_rows.push(floor_row);
-                    let mut octo_row = octo_t.on(row(
-                        "octoproxy-wgpu",
-                        "wgpu",
-                        bake_ms,
-                        proxy_bytes,
-                        0.0,
-                        pen_octo,
-                    ));
-                    octo_row.workgroup_size = size;
-                    case_rows.push(octo_row);
+                    // The floor and the plain step at the kernel's workgroup size, each row
+                    // naming it.
+                    let timed = |g: &mut WgpuBackend| -> Result<[Row; 2]> {
+                        let size = g.workgroup_size();
+                        let floor = time(g, true)?.on(row("floor", "wgpu", 0.0, 0, 0.0, f64::NAN));
+                        let octo = time(g, false)?.on(row(
+                            "octoproxy-wgpu",
+                            "wgpu",
+                            bake_ms,
+                            proxy_bytes,
+                            0.0,
+                            pen_octo,
+                        ));
+                        Ok([floor, octo].map(|mut r| {
+                            r.workgroup_size = size;
+                            r
+                        }))
+                    };
+                    let plain = timed(g)?;
+                    let octo_ns = plain[1].ns_per_particle_step;
+                    case_rows.extend(plain);
                     if band == "mixed" {
                         for &size in o.workgroup_sizes.iter().filter(|&&s| s != WORKGROUP_SIZE) {
                             say(&bar, format!("{name}: {n} particles, workgroups of {size}"));
                             g.set_workgroup_size(size)?;
-                            let floor_t = time(g, true)?;
-                            let octo_t = time(g, false)?;
-                            let mut sweep = vec![
-                                floor_t.on(row("floor", "wgpu", 0.0, 0, 0.0, f64::NAN)),
-                                octo_t.on(row(
-                                    "octoproxy-wgpu",
-                                    "wgpu",
-                                    bake_ms,
-                                    proxy_bytes,
-                                    0.0,
-                                    pen_octo,
-                                )),
-                            ];
-                            sweep.iter_mut().for_each(|r| r.workgroup_size = size);
+                            let mut sweep = timed(g)?;
                             set_floor_ratios(&mut sweep);
                             sweep_rows.extend(sweep);
                         }
@@ -1297,7 +1287,7 @@ impl Report {
                 },
                 human_bytes(r.memory_bytes),
                 r.ns_per_particle_step,
-                r.ns_per_particle_step * r.particles as f64 * 1e-6,
+                r.ms_per_step(),
                 fmt_opt(r.ratio_to_floor, 2),
                 fmt_opt(r.penetrations_per_million, 1)
             );
@@ -1442,7 +1432,7 @@ impl Report {
                     r.particles,
                     method,
                     r.ns_per_particle_step,
-                    r.ns_per_particle_step * r.particles as f64 * 1e-6,
+                    r.ms_per_step(),
                     fmt_opt(r.ratio_to_floor, 2),
                     fmt_opt(r.ratio_to_static, 2),
                     fmt_opt(r.penetrations_per_million, 1)
@@ -2009,10 +1999,10 @@ mod docs {
                 floor,
                 q.ns_per_particle_step,
                 q.ratio_to_floor,
-                q.ns_per_particle_step * q.particles as f64 * 1e-6,
+                q.ms_per_step(),
                 best.workgroup_size,
                 best.ns_per_particle_step,
-                best.ns_per_particle_step * best.particles as f64 * 1e-6
+                best.ms_per_step()
             );
         }
         // The sweep at the largest count: ms per step at each size.
@@ -2049,9 +2039,7 @@ mod docs {
                     .map(|z| {
                         at.iter()
                             .find(|x| x.workgroup_size == *z)
-                            .map(|x| {
-                                format!("{:.3}", x.ns_per_particle_step * x.particles as f64 * 1e-6)
-                            })
+                            .map(|x| format!("{:.3}", x.ms_per_step()))
                             .unwrap_or_else(|| "–".into())
                     })
                     .collect();
@@ -2065,10 +2053,7 @@ mod docs {
         if !aim.is_empty() {
             let met: Vec<String> = aim
                 .iter()
-                .filter(|q| {
-                    q.ns_per_particle_step * q.particles as f64 * 1e-6 < GPU_AIM_MS
-                        && q.ratio_to_floor <= GPU_AIM_FLOOR
-                })
+                .filter(|q| q.ms_per_step() < GPU_AIM_MS && q.ratio_to_floor <= GPU_AIM_FLOOR)
                 .map(|q| q.scene.clone())
                 .collect();
             let _ = writeln!(
@@ -2085,13 +2070,12 @@ mod docs {
                 }
             );
         }
-        let cases = scene_cases(r);
         let scene_rows = r
             .rows
             .iter()
             .any(|q| q.instances > 0 || q.ratio_to_plain.is_finite());
         if scene_rows && !software_gpu(r) {
-            let _ = write!(s, "\n{cases}\n");
+            let _ = write!(s, "\n{}\n", scene_cases(r));
         }
         let particles = r.particle_cases();
         if !particles.is_empty() {

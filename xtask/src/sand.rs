@@ -6,11 +6,10 @@
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, Result};
 use glam::Vec3;
 use octoproxy_core::{pair_substeps, PairParams, Particle, StepParams};
 use octoproxy_cpu::emit::Rng;
-use octoproxy_cpu::io::Mesh;
 use octoproxy_cpu::scenes;
 use octoproxy_cpu::{BuildParams, Sides};
 
@@ -36,27 +35,6 @@ const LAYER_STEPS: u32 = 4;
 const SAND_LOW: [f32; 3] = [0.55, 0.38, 0.18];
 const SAND_HIGH: [f32; 3] = [0.98, 0.84, 0.52];
 
-/// `mesh` scaled to [`MESH_SIZE`] in its largest extent, centred over the origin with its
-/// lowest point on the plate (y = 0), and the height of its top.
-fn stand_on_plate(mut mesh: Mesh) -> Result<(Mesh, f32)> {
-    let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
-    for p in &mesh.positions {
-        let p = Vec3::from_array(*p);
-        lo = lo.min(p);
-        hi = hi.max(p);
-    }
-    let extent = (hi - lo).max_element();
-    if !(extent.is_finite() && extent > 0.0) {
-        bail!("the mesh has no extent to scale (its bounding box is {lo} to {hi})");
-    }
-    let scale = MESH_SIZE / extent;
-    let base = Vec3::new((lo.x + hi.x) * 0.5, lo.y, (lo.z + hi.z) * 0.5);
-    for p in &mut mesh.positions {
-        *p = ((Vec3::from_array(*p) - base) * scale).to_array();
-    }
-    Ok((mesh, (hi.y - lo.y) * scale))
-}
-
 /// Runs the sand demo: `n` grains poured, `steps` steps in all, the picture to `out`; onto
 /// `mesh` (a file) standing on the plate, or the built-in block.
 pub fn run(
@@ -70,8 +48,10 @@ pub fn run(
     let (block, spout) = match mesh {
         Some(path) => {
             let loaded = scene::load_meshes(&[path.to_path_buf()])?;
-            let (standing, top) = stand_on_plate(loaded.into_iter().next().unwrap_or_default())
-                .with_context(|| path.display().to_string())?;
+            let mesh = loaded.into_iter().next().unwrap_or_default();
+            let Some((standing, top)) = scenes::standing(&mesh, MESH_SIZE) else {
+                bail!("{}: the mesh has no extent to scale", path.display());
+            };
             (standing, [0.05, top + SPOUT_ABOVE, 0.0])
         }
         None => (scenes::slab([-0.35, 0.2, 0.0], [0.4, 0.4, 0.4]), SPOUT),
@@ -98,9 +78,9 @@ pub fn run(
         ..PairParams::default()
     };
     // One layer of the spout: grains on a square lattice of 2.2 radii in its disc, jittered,
-    // each leaving with a little sideways speed. Grains that fell in lattice columns would land
-    // dead centre on the grain below, where friction holds them: they stood as a pillar up to
-    // the spout instead of rolling off into a pile.
+    // each leaving with a little sideways speed, so that grains do not land dead centre on the
+    // grain below. At this friction the pour still stands as a column (grains do not roll: a
+    // known defect, docs/method.md).
     let spacing = 2.2 * RADIUS;
     let cells = (SPOUT_RADIUS / spacing) as i32;
     let mut stepper = select_backend(backend)?;
@@ -222,7 +202,9 @@ pub fn run(
         top
     );
     if blocked > 0 {
-        println!("  spout:         {blocked} grains not poured: the pile had reached the spout");
+        println!(
+            "  spout:         {blocked} grains not poured: a grain lay within a diameter there (the stream or the pile)"
+        );
     }
     println!(
         "  steps:         {steps} × {:.4} s, {} substeps each, {} iterations; {capped} particle-iterations at the neighbour cap, {fast} particle-substeps faster than a radius",

@@ -10,7 +10,7 @@ use octoproxy_core::{
     Particle, ProxyView, SceneError, SceneSides, SceneStepReport, StepParams,
 };
 
-use crate::shader::{self, WORKGROUP_SIZE};
+use crate::shader::{self, STEP_WORKGROUP_SIZE, WORKGROUP_SIZE};
 
 /// Bytes of one particle record, on both sides.
 pub const PARTICLE_BYTES: u64 = core::mem::size_of::<Particle>() as u64;
@@ -357,7 +357,14 @@ impl WgpuBackend {
             bind_group_layouts: &[Some(&layout)],
             immediate_size: 0,
         });
-        let (step, integrate) = plain_pipelines(&device, &pipeline_layout, WORKGROUP_SIZE);
+        let limits = device.limits();
+        // The default size, lowered to a power of two the device allows.
+        let step_size = STEP_WORKGROUP_SIZE
+            .min(limits.max_compute_invocations_per_workgroup)
+            .min(limits.max_compute_workgroup_size_x)
+            .max(1);
+        let step_size = 1 << step_size.ilog2();
+        let (step, integrate) = plain_pipelines(&device, &pipeline_layout, step_size);
         let uniform_buffer = |label, size: usize| {
             device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(label),
@@ -369,7 +376,6 @@ impl WgpuBackend {
         let params = uniform_buffer("octoproxy step params", core::mem::size_of::<StepParams>());
         let run = uniform_buffer("octoproxy run params", core::mem::size_of::<RunParams>());
         scope.pop().map_err(WgpuError::Shader)?;
-        let limits = device.limits();
         Ok(Self {
             device,
             queue,
@@ -378,7 +384,7 @@ impl WgpuBackend {
             kernel: Kernel {
                 layout,
                 pipeline_layout,
-                workgroup_size: WORKGROUP_SIZE,
+                workgroup_size: step_size,
                 step,
                 integrate,
                 params,
@@ -426,9 +432,9 @@ impl WgpuBackend {
 
     /// Rebuilds the plain step (and the floor's kernel) with `size` invocations per
     /// workgroup: a power of two up to the device's limit on invocations per workgroup. The
-    /// default is [`WORKGROUP_SIZE`]; benchmarks sweep it. Every size steps the same bits:
-    /// each invocation steps one particle alone. The scene kernel and the particle-particle
-    /// pass's own stages keep the default.
+    /// default is [`STEP_WORKGROUP_SIZE`] (or the device's limit, if lower); benchmarks sweep
+    /// it. Every size steps the same bits: each invocation steps one particle alone. The scene
+    /// kernel and the particle-particle pass's own stages keep [`WORKGROUP_SIZE`].
     pub fn set_workgroup_size(&mut self, size: u32) -> Result<(), WgpuError> {
         let limits = self.device.limits();
         let limit = limits

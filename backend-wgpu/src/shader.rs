@@ -17,8 +17,15 @@ use octoproxy_core::pairs;
 use octoproxy_core::scene::{self as sc, BROAD_LEAF, SIDE_SLOTS};
 use octoproxy_core::*;
 
-/// Invocations per workgroup.
+/// Invocations per workgroup of the scene kernel and the particle-particle pass's stages, and
+/// the unit chunks are rounded to.
 pub const WORKGROUP_SIZE: u32 = 64;
+
+/// Invocations per workgroup of the plain step by default (lowered to the device's limit). On
+/// an H200 it was the fastest of 32, 64, 128 and 256 for every bench scene at 1M, 3M and 10M
+/// particles, by 3-9 % over 64 (the device check of 2026-12-04, `docs/bench/gpu/`).
+/// [`crate::WgpuBackend::set_workgroup_size`] changes it; every size steps the same bits.
+pub const STEP_WORKGROUP_SIZE: u32 = 256;
 
 const FORMAT: (&str, &str) = ("format.wgsl", include_str!("wgsl/format.wgsl"));
 const PARTICLE: (&str, &str) = ("particle.wgsl", include_str!("wgsl/particle.wgsl"));

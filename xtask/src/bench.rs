@@ -29,7 +29,6 @@ use octoproxy_cpu::{bake, BuildParams, CpuBackend, MeshRef};
 use octoproxy_tests::baselines::{
     parry::ParryTriMesh, sdf_grid::SdfGrid, triangle_octree::TriangleOctree, Method,
 };
-use octoproxy_wgpu::shader::WORKGROUP_SIZE;
 use octoproxy_wgpu::WgpuBackend;
 use rayon::prelude::*;
 
@@ -357,6 +356,9 @@ pub struct Row {
     /// A GPU row's workgroup size (invocations per workgroup of the plain step; 0 on the CPU
     /// rows and in runs that predate the sweep).
     pub workgroup_size: u32,
+    /// A row of the workgroup-size sweep (`--workgroup-sizes`): the plain GPU step or its
+    /// floor at a size other than the backend's default, which the mesh scenes' rows use.
+    pub sweep: bool,
     /// The fastest and slowest of the timed runs whose median `ns_per_particle_step` is (NaN
     /// where one run was timed).
     pub ns_min: f64,
@@ -370,18 +372,12 @@ impl Row {
         self.instances == 0
             && self.substeps == 0
             && !self.method.ends_with(instances::SCENE_API)
-            && !self.is_sweep()
+            && !self.sweep
     }
 
     /// Milliseconds per step of all the row's particles.
     pub fn ms_per_step(&self) -> f64 {
         self.ns_per_particle_step * self.particles as f64 * 1e-6
-    }
-
-    /// A row of the workgroup-size sweep (`--workgroup-sizes`): the plain GPU step or its
-    /// floor at a size other than the default, which the mesh scenes' rows use.
-    pub fn is_sweep(&self) -> bool {
-        self.workgroup_size != 0 && self.workgroup_size != WORKGROUP_SIZE
     }
 }
 
@@ -817,6 +813,7 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
                     workgroup_size: 0,
                     ns_min: f64::NAN,
                     ns_max: f64::NAN,
+                    sweep: false,
                 };
                 let scene_api = band == "mixed"
                     && !o.no_scene_api
@@ -931,14 +928,18 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
                     let octo_ns = plain[1].ns_per_particle_step;
                     case_rows.extend(plain);
                     if band == "mixed" {
-                        for &size in o.workgroup_sizes.iter().filter(|&&s| s != WORKGROUP_SIZE) {
+                        let default = g.workgroup_size();
+                        for &size in o.workgroup_sizes.iter().filter(|&&s| s != default) {
                             say(&bar, format!("{name}: {n} particles, workgroups of {size}"));
                             g.set_workgroup_size(size)?;
                             let mut sweep = timed(g)?;
                             set_floor_ratios(&mut sweep);
-                            sweep_rows.extend(sweep);
+                            sweep_rows.extend(sweep.map(|mut r| {
+                                r.sweep = true;
+                                r
+                            }));
                         }
-                        g.set_workgroup_size(WORKGROUP_SIZE)?;
+                        g.set_workgroup_size(default)?;
                     }
                     if scene_api && gpu_scenes {
                         say(&bar, format!("{name}: {n} particles, the scene API"));
@@ -1029,6 +1030,7 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
                         workgroup_size: 0,
                         ns_min: f64::NAN,
                         ns_max: f64::NAN,
+                        sweep: false,
                     };
                 let per_step =
                     |t: Instant| t.elapsed().as_secs_f64() * 1e9 / (count as f64 * steps as f64);
@@ -1230,6 +1232,9 @@ impl Report {
             }
             if r.workgroup_size > 0 {
                 let _ = write!(s, ", \"workgroup_size\": {}", r.workgroup_size);
+            }
+            if r.sweep {
+                s.push_str(", \"sweep\": true");
             }
             if r.ns_min.is_finite() && r.ns_max.is_finite() {
                 let _ = write!(
@@ -2018,9 +2023,9 @@ mod docs {
             let _ = writeln!(
                 s,
                 "\nThe plain step's workgroup size, swept in the same run: milliseconds per step \
-                 of {} particles (the kernel ships with {}).\n",
+                 of {} particles (the run's default was {}).\n",
                 thousands(largest as u64),
-                super::WORKGROUP_SIZE
+                steps[0].workgroup_size
             );
             let _ = writeln!(
                 s,
@@ -2828,6 +2833,7 @@ mod docs {
                 workgroup_size: size,
                 ns_min: f64::NAN,
                 ns_max: f64::NAN,
+                sweep: false,
             };
             let report = Report {
                 machine: "host".into(),
@@ -2840,7 +2846,13 @@ mod docs {
                     row("octoproxy-wgpu", 32, 0.09),
                     row("floor", 256, 0.05),
                     row("octoproxy-wgpu", 256, 0.3),
-                ],
+                ]
+                .into_iter()
+                .map(|mut q| {
+                    q.sweep = q.workgroup_size != 64;
+                    q
+                })
+                .collect(),
             };
             let text = gpu_region(Some(&report));
             // One line per case (the default size's), with the sweep's best beside it.
@@ -2850,6 +2862,7 @@ mod docs {
             );
             assert_eq!(text.matches("| beast | 64,618 |").count(), 1, "{text}");
             assert!(text.contains("| scene | 32 | 64 | 256 |"), "{text}");
+            assert!(text.contains("(the run's default was 64)"), "{text}");
             assert!(text.contains("| beast | 0.900 | 2.000 | 3.000 |"), "{text}");
             // 2 ms a step at the default size misses the aim of 1 ms.
             assert!(text.contains("met on 0 of 1 scenes"), "{text}");
@@ -2877,6 +2890,7 @@ mod docs {
                 workgroup_size: 0,
                 ns_min: f64::NAN,
                 ns_max: f64::NAN,
+                sweep: false,
             };
             // The committed run without its scene cases, whether it has them or not.
             let mut committed = load_committed().unwrap();
@@ -3008,6 +3022,17 @@ mod json {
                 self.num(key)
             } else {
                 Ok(default)
+            }
+        }
+
+        /// A boolean, or `default` when there is no `key`.
+        fn bool_or(&self, key: &str, default: bool) -> Result<bool> {
+            if !self.has(key) {
+                return Ok(default);
+            }
+            match self.get(key)? {
+                Value::Bool(b) => Ok(*b),
+                v => bail!("\"{key}\" is {v:?}, not true or false"),
             }
         }
 
@@ -3223,6 +3248,7 @@ mod json {
             ratio_to_plain: r.num_or("ratio_to_plain", f64::NAN)?,
             substeps: r.count_or("substeps", 0)? as u32,
             workgroup_size: r.count_or("workgroup_size", 0)? as u32,
+            sweep: r.bool_or("sweep", false)?,
             ns_min: r.num_or("ns_min", f64::NAN)?,
             ns_max: r.num_or("ns_max", f64::NAN)?,
         })
@@ -3285,6 +3311,7 @@ mod json {
                     workgroup_size: 0,
                     ns_min: f64::NAN,
                     ns_max: f64::NAN,
+                    sweep: false,
                 }],
             };
             let back = parse_report(&report.json()).unwrap();
@@ -3315,7 +3342,11 @@ mod json {
             };
             let r = &parse_report(&one.json()).unwrap().rows[0];
             assert_eq!((r.workgroup_size, r.ns_min, r.ns_max), (256, 1.0, 1.5));
-            assert!(r.is_sweep() && !r.is_mesh_case());
+            assert!(!r.sweep && r.is_mesh_case());
+            let mut swept = one;
+            swept.rows[0].sweep = true;
+            let r = &parse_report(&swept.json()).unwrap().rows[0];
+            assert!(r.sweep && !r.is_mesh_case());
             // The scene cases' fields read back too.
             let mut report = report;
             let r = &mut report.rows[0];

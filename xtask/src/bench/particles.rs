@@ -172,6 +172,7 @@ pub fn time_case(
         workgroup_size: 0,
         ns_min: f64::NAN,
         ns_max: f64::NAN,
+        sweep: false,
     };
     let per_step = |secs: f64| secs * 1e9 / (n as f64 * steps as f64);
     let mut rows = Vec::new();

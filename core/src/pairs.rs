@@ -30,6 +30,16 @@
 //! does not throw its top). The tangential relative velocity loses up to `μ` times the normal
 //! change (Coulomb's cone on impulses) when the contact pushes: all of it below the cone
 //! (static friction: touching particles stop sliding, so piles stand), `μ·Δv_n` above it.
+//! **Friction acts only on a grain held by two contacts or more** (two grains, or a grain and
+//! the scene; counted in the iteration, contacts that move it): a grain on a single other
+//! grain is not held by friction. Particles do not spin, and without spin friction would hold
+//! a grain anywhere on another's top within `atan μ` of the vertical, where a real sphere
+//! rolls off (a sphere on a sphere stands only at the very top, unstably, whatever the
+//! friction): poured grains then stuck where they landed, each on the one before, and a tower
+//! rose to the spout. With the rule a grain slides off a lone support as it would roll off,
+//! and comes to rest in a pocket (two or three grains under it), where rolling on one contact
+//! would slip on another and friction does hold it: poured sand makes a cone at 25-45° at
+//! `μ = 0.6` (`poured_sand_stands_at_its_angle_of_repose`).
 //! Particle `i` takes `share_i` of the pair's change and `j` the rest, `share_i = ½ + ½·s·σ`
 //! with `s` the height of `i` above `j` along `−gravity` in diameters (clamped to ±1) and `σ`
 //! [`PairParams::stacking`] (Macklin's mass scaling: a particle resting on another takes the
@@ -576,15 +586,17 @@ pub fn pair_impulse(
     w: Vec3,
     w0: &PairVelocity,
     s: &PairStep,
-) -> Option<Vec3> {
+) -> Option<PairChange> {
     pair_response(&pair_geometry(me, other, v0, w0, s), v, w, s)
 }
 
 /// [`pair_impulse`] from the pair's geometry ([`pair_geometry`]): a pair that would close
 /// within the substep (`gap + v_n·h < 0`) is brought to its target, pushed when it closes
-/// faster, and held back when it overlaps and parts faster.
+/// faster, and held back when it overlaps and parts faster. Returns `me`'s share of the
+/// normal change and of the friction apart ([`PairChange`]): friction holds a grain only
+/// where more than one thing holds it ([the contact](self)).
 #[inline(always)]
-pub fn pair_response(g: &PairGeometry, v: Vec3, w: Vec3, s: &PairStep) -> Option<Vec3> {
+pub fn pair_response(g: &PairGeometry, v: Vec3, w: Vec3, s: &PairStep) -> Option<PairChange> {
     let n = Vec3::from_array(g.n);
     let gap = g.gap;
     let vr = v - w;
@@ -599,15 +611,29 @@ pub fn pair_response(g: &PairGeometry, v: Vec3, w: Vec3, s: &PairStep) -> Option
     }
     let vt = vr - n * vn;
     let t2 = vt.dot(vt);
-    let mut dv = n * jn;
+    let mut friction = Vec3::ZERO;
     if t2 > 0.0 && pushes {
         // Friction acts with a push; a pull (held back) moves along the normal only.
         let tl = math::sqrt(t2);
         let limit = s.friction * jn;
         let keep = if tl <= limit { 1.0 } else { limit / tl };
-        dv -= vt * keep;
+        friction = vt * -keep;
     }
-    Some(dv * g.share)
+    Some(PairChange {
+        normal: n * (jn * g.share),
+        friction: friction * g.share,
+    })
+}
+
+/// `me`'s part of a contact's change of velocity ([`pair_response`]): along the normal, and
+/// the friction's.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PairChange {
+    /// Along the contact's normal: the push or the hold.
+    pub normal: Vec3,
+    /// Across it: the friction, which a particle's mean takes only when it is held by two
+    /// contacts or more ([the contact](self)).
+    pub friction: Vec3,
 }
 
 /// The candidates of the particle at sorted position `k`, in the pass's fixed order: the
@@ -665,8 +691,12 @@ pub fn pair_candidates(
 struct PairSum {
     v: Vec3,
     sum: Vec3,
+    /// The contacts' friction, apart: it acts only on a grain held by more than one thing.
+    friction: Vec3,
     /// The contacts' weights ([`pair_weight`]).
     weight: f32,
+    /// The contacts that move it (weight above 0).
+    holds: u32,
 }
 
 /// How much a contact counts in a particle's mean: its share relative to an even split,
@@ -689,7 +719,9 @@ impl PairSum {
         Self {
             v: Vec3::new(vel[k][0], vel[k][1], vel[k][2]),
             sum: Vec3::ZERO,
+            friction: Vec3::ZERO,
             weight: 0.0,
+            holds: 0,
         }
     }
 
@@ -697,16 +729,27 @@ impl PairSum {
     fn add(&mut self, g: &PairGeometry, w: &PairVelocity, s: &PairStep) {
         let w = Vec3::new(w[0], w[1], w[2]);
         if let Some(dv) = pair_response(g, self.v, w, s) {
-            self.sum += dv;
-            self.weight += pair_weight(g.share);
+            self.sum += dv.normal;
+            self.friction += dv.friction;
+            let weight = pair_weight(g.share);
+            self.weight += weight;
+            self.holds += (weight > 0.0) as u32;
         }
     }
 
     /// The velocity: the contacts' mean change, then the support's response.
     #[inline(always)]
     fn finish(self, sup: [f32; 4], s: &PairStep) -> PairVelocity {
+        // A grain on one other grain alone rolls off it (it is not held by friction at a
+        // sphere's top); held by two or more, or by one and the scene, friction holds it.
+        let held = self.holds >= 2 || (self.holds == 1 && sup[3] != 0.0);
+        let sum = if held {
+            self.sum + self.friction
+        } else {
+            self.sum
+        };
         let mut out = if self.weight > 0.0 {
-            self.v + self.sum * (1.0 / self.weight)
+            self.v + sum * (1.0 / self.weight)
         } else {
             self.v
         };

@@ -79,8 +79,8 @@ pub fn run(
     };
     // One layer of the spout: grains on a square lattice of 2.2 radii in its disc, jittered,
     // each leaving with a little sideways speed, so that grains do not land dead centre on the
-    // grain below. At this friction the pour still stands as a column (grains do not roll: a
-    // known defect, docs/method.md).
+    // grain below (friction holds a grain only in a pocket, not on a single grain: it rolls
+    // off; docs/method.md).
     let spacing = 2.2 * RADIUS;
     let cells = (SPOUT_RADIUS / spacing) as i32;
     let mut stepper = select_backend(backend)?;

@@ -75,9 +75,10 @@ struct PreparedOption {
     some: bool,
 }
 
-// Rust's `Option<Vec3>` of `pair_impulse`, with the pair's share (`PairGeometry::share`).
+// Rust's `Option<PairChange>` of `pair_impulse`, with the pair's share (`PairGeometry::share`).
 struct PairImpulse {
-    value: vec3<f32>,
+    normal: vec3<f32>,
+    friction: vec3<f32>,
     share: f32,
     some: bool,
 }
@@ -214,7 +215,7 @@ fn pair_impulse(me: PairBody, v: vec3<f32>, v0: vec3<f32>, other: PairBody, w: v
     }
     let height = clamp(dot3(x, s.up) * s.inv_diameter, -1.0, 1.0);
     let share = 0.5 + height * s.half_stacking;
-    let none = PairImpulse(vec3<f32>(0.0), share, false);
+    let none = PairImpulse(vec3<f32>(0.0), vec3<f32>(0.0), share, false);
     let gap = dist - s.diameter;
     let vn0 = dot3(v0 - w0, n);
     var approach = 0.0;
@@ -235,7 +236,7 @@ fn pair_impulse(me: PairBody, v: vec3<f32>, v0: vec3<f32>, other: PairBody, w: v
     }
     let vt = vr - n * vn;
     let t2 = dot3(vt, vt);
-    var dv = n * jn;
+    var friction = vec3<f32>(0.0);
     if t2 > 0.0 && pushes {
         let tl = sqrt(t2);
         let limit = s.friction * jn;
@@ -243,9 +244,9 @@ fn pair_impulse(me: PairBody, v: vec3<f32>, v0: vec3<f32>, other: PairBody, w: v
         if !(tl <= limit) {
             keep = limit / tl;
         }
-        dv = dv - vt * keep;
+        friction = vt * -keep;
     }
-    return PairImpulse(dv * share, share, true);
+    return PairImpulse(n * (jn * share), friction * share, share, true);
 }
 
 fn pair_weight(share: f32) -> f32 {
@@ -268,7 +269,9 @@ fn pair_velocity(k: u32, s: PairStep) -> PairVelocityOut {
     let v = pair_vel[k].xyz;
     let v0 = pair_vel_start[k].xyz;
     var sum = vec3<f32>(0.0);
+    var friction = vec3<f32>(0.0);
     var weight = 0.0;
+    var holds = 0u;
     var visited = 0u;
     var capped = false;
     let reach = s.cell * s.cell;
@@ -294,8 +297,11 @@ fn pair_velocity(k: u32, s: PairStep) -> PairVelocityOut {
                     let w = pair_vel[m].xyz;
                     let dv = pair_impulse(me, v, v0, o, w, pair_vel_start[m].xyz, s);
                     if dv.some {
-                        sum += dv.value;
-                        weight += pair_weight(dv.share);
+                        sum += dv.normal;
+                        friction += dv.friction;
+                        let wt = pair_weight(dv.share);
+                        weight += wt;
+                        holds += select(0u, 1u, wt > 0.0);
                     }
                 }
                 if capped {
@@ -310,11 +316,15 @@ fn pair_velocity(k: u32, s: PairStep) -> PairVelocityOut {
             break;
         }
     }
+    let support = pair_supports[k];
+    // Friction holds a grain held by two or more contacts, or by one and the scene.
+    if holds >= 2u || (holds == 1u && support.w != 0.0) {
+        sum = sum + friction;
+    }
     var out = v;
     if weight > 0.0 {
         out = v + sum * (1.0 / weight);
     }
-    let support = pair_supports[k];
     if support.w != 0.0 {
         out = respond(out, support.xyz, pair_state.zero, s.scene_friction);
     }

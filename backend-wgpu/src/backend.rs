@@ -195,6 +195,14 @@ pub struct WgpuBackend {
     pub(crate) pairs: crate::pairs::PairGpu,
 }
 
+/// The most invocations a workgroup of the plain step may have on a device with `limits`
+/// (its workgroups are one-dimensional).
+fn step_size_limit(limits: &wgpu::Limits) -> u32 {
+    limits
+        .max_compute_invocations_per_workgroup
+        .min(limits.max_compute_workgroup_size_x)
+}
+
 /// The plain kernel's pipelines, `step_kernel` and `integrate_kernel`, built with
 /// `workgroup_size` invocations per workgroup.
 fn plain_pipelines(
@@ -359,10 +367,7 @@ impl WgpuBackend {
         });
         let limits = device.limits();
         // The default size, lowered to a power of two the device allows.
-        let step_size = STEP_WORKGROUP_SIZE
-            .min(limits.max_compute_invocations_per_workgroup)
-            .min(limits.max_compute_workgroup_size_x)
-            .max(1);
+        let step_size = STEP_WORKGROUP_SIZE.min(step_size_limit(&limits)).max(1);
         let step_size = 1 << step_size.ilog2();
         let (step, integrate) = plain_pipelines(&device, &pipeline_layout, step_size);
         let uniform_buffer = |label, size: usize| {
@@ -436,10 +441,7 @@ impl WgpuBackend {
     /// it. Every size steps the same bits: each invocation steps one particle alone. The scene
     /// kernel and the particle-particle pass's own stages keep [`WORKGROUP_SIZE`].
     pub fn set_workgroup_size(&mut self, size: u32) -> Result<(), WgpuError> {
-        let limits = self.device.limits();
-        let limit = limits
-            .max_compute_invocations_per_workgroup
-            .min(limits.max_compute_workgroup_size_x);
+        let limit = step_size_limit(&self.device.limits());
         if !size.is_power_of_two() || size > limit {
             return Err(WgpuError::WorkgroupSize { size, limit });
         }

@@ -223,6 +223,7 @@ impl PairBuffers {
         let bodies = &self.bodies[..valid];
         // The velocities entering the iterations, for each pair's target (`pair_geometry`).
         let start = &self.vel[..valid];
+        let support = &self.support[..valid];
         let chunks = valid.div_ceil(LIST_CHUNK);
         if self.lists.len() < chunks {
             self.lists.resize_with(chunks, CandidateList::default);
@@ -244,7 +245,9 @@ impl PairBuffers {
                     capped += pair_candidates(k, bodies, ranges, s, |m| {
                         list.push(m as u32);
                         let (me, other) = (&bodies[k], &bodies[m]);
-                        geometry.push(pair_geometry(me, other, &start[k], &start[m], s));
+                        let (v0, w0) = (&start[k], &start[m]);
+                        let (sup_me, sup_other) = (&support[k], &support[m]);
+                        geometry.push(pair_geometry(me, other, v0, w0, sup_me, sup_other, s));
                     }) as u64;
                 }
                 l.offsets.push(l.list.len() as u32);

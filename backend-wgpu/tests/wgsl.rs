@@ -710,6 +710,7 @@ const TWINS: &[(&str, &str, Twin)] = &[
     ("pairs.wgsl", "pair_range_marks", Rust("pairs.rs", "pair_range_marks")),
     ("pairs.wgsl", "pair_target", Rust("pairs.rs", "pair_target")),
     ("pairs.wgsl", "pair_weight", Rust("pairs.rs", "pair_weight")),
+    ("pairs.wgsl", "pair_free", Rust("pairs.rs", "pair_free")),
     ("pairs.wgsl", "pair_impulse", Rust("pairs.rs", "pair_impulse")),
     ("pairs.wgsl", "pair_velocity", Rust("pairs.rs", "pair_velocity")),
     // pairs_kernel.wgsl

@@ -43,8 +43,17 @@
 //! Particle `i` takes `share_i` of the pair's change and `j` the rest, `share_i = ½ + ½·s·σ`
 //! with `s` the height of `i` above `j` along `−gravity` in diameters (clamped to ±1) and `σ`
 //! [`PairParams::stacking`] (Macklin's mass scaling: a particle resting on another takes the
-//! correction, so stacks do not sink into each other). With `σ = 0`, or without gravity, each
-//! takes half: momentum is kept exactly, and an elastic frictionless pair leaves with the
+//! correction, so stacks do not sink into each other). **A grain resting on the scene**
+//! ([`pair_support`], normal `m`) cannot move into it, nor freely along it (the scene's
+//! friction `μ_s`), so the part of a push that would be lost there is the other grain's: with
+//! `c = max(0, −d·m)` for a push along `d` (`d = n` for `i`, `−n` for `j`), `t = √(1 − c²)`
+//! and `f = t·max(0, t − μ_s·c)`, how far the support's response lets the push move it along
+//! `d` (`f = 1` for a grain on nothing), the shares are
+//! `a_i = (½ + ½·s·σ)·f_i` and `a_j = (½ − ½·s·σ)·f_j` made to sum to 1 (each kept when both
+//! are 0). A grain wedged between a wall and a grain the pile presses on would otherwise take
+//! most of the pair's correction, lose it to the wall, and the pair stay overlapped (22 % of
+//! the diameter in the 50k tray at 4 ms). Without supports, with
+//! `σ = 0` or without gravity, each takes half: momentum is kept exactly, and an elastic frictionless pair leaves with the
 //! velocities its contact normal gives. Each particle takes the mean of its pairs' changes,
 //! each pair weighted by its share against an even split ([`pair_weight`]: a grain under
 //! another is not moved by that contact, and it does not halve what the contacts under it
@@ -74,7 +83,8 @@ use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 
 use crate::math;
-use crate::particle::{Particle, SIDE_BACK, SIDE_MASK};
+use crate::particle::{Particle, FLAG_BLOCKED, SIDE_BACK, SIDE_MASK};
+use crate::query::LeafKind;
 use crate::step::{respond, LeafHint, StepParams};
 use crate::view::ProxyView;
 
@@ -409,13 +419,28 @@ pub fn pair_prepare(p: &Particle, s: &PairStep) -> Option<(Vec3, f32)> {
 /// cannot move into its support: what its contacts push into it is the scene's normal
 /// impulse, and the scene's friction acts with it ([`pair_velocity`]), so a grain under a
 /// pile holds on a slope by the pile's weight, not only its own.
+///
+/// A grain whose last march the shell rule stopped ([`crate::FLAG_BLOCKED`]) has no hint: it
+/// lies where it entered the shell, often where it started, in the surface leaf it rests on,
+/// found by descent. Without it such a grain had no support, its contacts pushed it into the
+/// scene again, the shell rule put it back again, and it stood still while the pass took it to
+/// move (its velocity kept, gravity adding to it): its neighbours closed on it by up to 40 % of
+/// the diameter in the corners of a tray.
 #[inline]
 pub fn pair_support(view: &ProxyView<'_>, p: &Particle, hint: LeafHint) -> [f32; 4] {
-    if hint.z_depth_label & LeafHint::SURFACE == 0 || p.side & !SIDE_MASK != 0 {
+    if p.side & !SIDE_MASK != 0 {
         return [0.0; 4];
     }
     let x = Vec3::from_array(p.position);
-    match hint.leaf(view, x) {
+    let leaf = if hint.z_depth_label & LeafHint::SURFACE != 0 {
+        hint.leaf(view, x)
+    } else if p.flags & FLAG_BLOCKED != 0 {
+        view.locate_leaf(x)
+            .filter(|leaf| leaf.kind == LeafKind::Surface && !leaf.two_sided)
+    } else {
+        None
+    };
+    match leaf {
         Some(leaf) => {
             let (n, sign) = if p.side == SIDE_BACK {
                 (-leaf.normal, -1.0)
@@ -538,14 +563,46 @@ fn pair_target(gap: f32, approach: f32, beta: f32, s: &PairStep) -> f32 {
     target
 }
 
-/// The geometry of `me`'s contact with `other` ([`PairGeometry`]); `v0` and `w0` are their
-/// velocities entering the substep's iterations ([`pair_start`]'s).
+/// How far a push along the unit `dir` moves a grain on `support` ([`pair_support`]) along
+/// `dir`, per unit: the support's response (`respond` with no restitution and the scene's
+/// `friction`) takes the part `c` going into the support and up to `friction·c` of the rest,
+/// `t = √(1 − c²)`, which leaves `t·max(0, t − friction·c)`. 1 for a push out of the support or
+/// a grain on nothing.
 #[inline(always)]
+fn pair_free(support: &[f32; 4], dir: Vec3, friction: f32) -> f32 {
+    if support[3] == 0.0 {
+        return 1.0;
+    }
+    let into = -dir.dot(Vec3::new(support[0], support[1], support[2]));
+    if !(into > 0.0) {
+        return 1.0;
+    }
+    let across2 = 1.0 - into * into;
+    let across = if across2 > 0.0 {
+        math::sqrt(across2)
+    } else {
+        0.0
+    };
+    let kept = across - friction * into;
+    if kept > 0.0 {
+        across * kept
+    } else {
+        0.0
+    }
+}
+
+/// The geometry of `me`'s contact with `other` ([`PairGeometry`]); `v0` and `w0` are their
+/// velocities entering the substep's iterations ([`pair_start`]'s), `sup_me` and `sup_other`
+/// their supports ([`pair_support`]).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
 pub fn pair_geometry(
     me: &PairBody,
     other: &PairBody,
     v0: &PairVelocity,
     w0: &PairVelocity,
+    sup_me: &[f32; 4],
+    sup_other: &[f32; 4],
     s: &PairStep,
 ) -> PairGeometry {
     let x = Vec3::from_array(me.position) - Vec3::from_array(other.position);
@@ -559,6 +616,19 @@ pub fn pair_geometry(
     };
     let height = x.dot(Vec3::from_array(s.up)) * s.inv_diameter;
     let height = height.clamp(-1.0, 1.0);
+    // A grain resting on the scene cannot take the part of a push that goes into its
+    // support: that part is the other grain's (wedged against a wall, a grain would otherwise
+    // take most of the correction and lose it to the wall, and the pair stay overlapped).
+    // (`0.5 − height·σ/2`, the other's own even share, not `1 − even`: the same bits as
+    // the other particle computes, and a shape Mesa's NIR does not refold.)
+    let even = 0.5 + height * s.half_stacking;
+    let mine = even * pair_free(sup_me, n, s.scene_friction);
+    let theirs = (0.5 - height * s.half_stacking) * pair_free(sup_other, -n, s.scene_friction);
+    let share = if mine + theirs > 0.0 {
+        mine / (mine + theirs)
+    } else {
+        even
+    };
     let gap = dist - s.diameter;
     // The bounce is of the speed the pair approached with entering the iterations, not of
     // an iteration's: in a falling column each grain would otherwise bounce off the one
@@ -568,7 +638,7 @@ pub fn pair_geometry(
     PairGeometry {
         n: n.to_array(),
         gap,
-        share: 0.5 + height * s.half_stacking,
+        share,
         target: pair_target(gap, approach, s.relaxation, s),
         unbiased: pair_target(gap, approach, 0.0, s),
     }
@@ -582,12 +652,19 @@ pub fn pair_impulse(
     me: &PairBody,
     v: Vec3,
     v0: &PairVelocity,
+    sup_me: &[f32; 4],
     other: &PairBody,
     w: Vec3,
     w0: &PairVelocity,
+    sup_other: &[f32; 4],
     s: &PairStep,
 ) -> Option<PairChange> {
-    pair_response(&pair_geometry(me, other, v0, w0, s), v, w, s)
+    pair_response(
+        &pair_geometry(me, other, v0, w0, sup_me, sup_other, s),
+        v,
+        w,
+        s,
+    )
 }
 
 /// [`pair_impulse`] from the pair's geometry ([`pair_geometry`]): a pair that would close
@@ -783,7 +860,15 @@ pub fn pair_velocity(
     let me = &bodies[k];
     let mut sum = PairSum::new(vel, k);
     let capped = pair_candidates(k, bodies, ranges, s, |m| {
-        let g = pair_geometry(me, &bodies[m], &start[k], &start[m], s);
+        let g = pair_geometry(
+            me,
+            &bodies[m],
+            &start[k],
+            &start[m],
+            &support[k],
+            &support[m],
+            s,
+        );
         sum.add(&g, &vel[m], s);
     });
     (sum.finish(support[k], s), capped)

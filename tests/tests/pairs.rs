@@ -284,6 +284,8 @@ struct Rest {
     slow: usize,
     unsupported: usize,
     overlap: f32,
+    /// The largest overlap between two grains at rest.
+    overlap_resting: f32,
     /// The 99.9th percentile of each grain's largest overlap.
     overlap_999: f32,
     too_near: usize,
@@ -293,15 +295,20 @@ struct Rest {
 
 impl Rest {
     fn check(&self, name: &str) {
-        self.check_overlap(name, 0.1);
+        self.check_overlap(name, 0.1, 0.1);
     }
 
-    /// [`Rest::check`] with the largest overlap allowed (of the diameter); 99.9 % of the
+    /// [`Rest::check`] with the largest overlap allowed (of the diameter) between any two
+    /// grains, those still moving included, and between two grains at rest; 99.9 % of the
     /// grains overlap less than 5 % in every case.
-    fn check_overlap(&self, name: &str, largest: f32) {
+    fn check_overlap(&self, name: &str, largest: f32, resting: f32) {
         eprintln!(
-            "{name}: {} particles, {} slower than 2 % of the impact speed {:.2}, {} unsupported, the largest overlap {:.3} of the diameter (99.9 % under {:.3}), {} nearer the mesh than R less a leaf diagonal, {} inside it, the top sank {:.4} R in the last second",
-            self.particles, self.slow, self.impact, self.unsupported, self.overlap, self.overlap_999, self.too_near, self.inside, self.sank / self.radius
+            "{name}: {} particles, {} slower than 2 % of the impact speed {:.2}, {} unsupported, the largest overlap {:.3} of the diameter ({:.3} between grains at rest, 99.9 % under {:.3}), {} nearer the mesh than R less a leaf diagonal, {} inside it, the top sank {:.4} R in the last second",
+            self.particles, self.slow, self.impact, self.unsupported, self.overlap, self.overlap_resting, self.overlap_999, self.too_near, self.inside, self.sank / self.radius
+        );
+        assert!(
+            self.overlap_resting < resting,
+            "{name}: resting grains overlap"
         );
         assert!(
             self.slow * 100 >= self.particles * 98,
@@ -401,10 +408,8 @@ fn pour(
     cpu.download_particles(&mut ps).unwrap();
     let sank = standing - height(&ps);
     let impact = (2.0 * 9.81 * drop).sqrt();
-    let slow = ps
-        .iter()
-        .filter(|p| Vec3::from_array(p.velocity).length() < 0.02 * impact)
-        .count();
+    let slow_enough = |p: &Particle| Vec3::from_array(p.velocity).length() < 0.02 * impact;
+    let slow = ps.iter().filter(|p| slow_enough(p)).count();
     // Neighbours within a diameter and a bit, by a grid of cells of the diameter.
     let cell = 2.0 * r;
     let mut grid: std::collections::HashMap<[i32; 3], Vec<usize>> = Default::default();
@@ -413,6 +418,7 @@ fn pour(
         grid.entry(key(p.position)).or_default().push(i);
     }
     let mut overlap = 0.0f32;
+    let mut overlap_resting = 0.0f32;
     let mut worst = Vec::with_capacity(ps.len());
     let mut unsupported = 0;
     let mut too_near = 0;
@@ -436,6 +442,9 @@ fn pour(
                         let d = (x - Vec3::from_array(ps[j].position)).length();
                         let o = (2.0 * r - d) / (2.0 * r);
                         mine = mine.max(o);
+                        if slow_enough(p) && slow_enough(&ps[j]) {
+                            overlap_resting = overlap_resting.max(o);
+                        }
                         touching |= d <= 2.0 * r * 1.05;
                     }
                 }
@@ -451,13 +460,14 @@ fn pour(
             inside += 1;
         }
         // A resting grain touches a neighbour or the scene.
-        let resting = Vec3::from_array(p.velocity).length() < 0.02 * impact;
+        let resting = slow_enough(p);
         if resting && !touching && dist > (r + 2.0 * baked.leaf * 3f32.sqrt()) as f64 {
             unsupported += 1;
         }
     }
     worst.sort_by(f32::total_cmp);
     Rest {
+        overlap_resting,
         overlap_999: worst[worst.len() * 999 / 1000],
         sank,
         radius: r,
@@ -498,8 +508,10 @@ fn sand_poured_in_a_tray_comes_to_rest() {
 }
 
 /// The same pour ten times finer: 49,339 grains (a block 37 wide) of a radius 2.17 times
-/// smaller, in the same tray baked at depth 8, at dt 1/60 and at 4 ms. The largest overlap is
-/// allowed 25 % of the diameter, as on Spot (22 % at 4 ms, 7.6 % at 1/60).
+/// smaller, in the same tray baked at depth 8, at dt 1/60 and at 4 ms. Grains at rest overlap
+/// less than 10 % of the diameter (4.7 % and 5.1 %); any two grains, grains still moving
+/// included, less than 25 % (4.7 % and 11.8 %; 22 % at 4 ms before grains against a wall left
+/// it the other grain's push, and blocked grains found their support).
 #[test]
 fn fifty_thousand_grains_poured_in_a_tray_come_to_rest() {
     let r = 0.023;
@@ -508,7 +520,7 @@ fn fifty_thousand_grains_poured_in_a_tray_come_to_rest() {
     eprintln!("baked in {:.1?}", t.elapsed());
     for dt in [1.0 / 60.0, 0.004] {
         let rest = pour(&baked, [37, 37, 37], [0.0, 0.0], 0.0, 0.3, dt, 4.0);
-        rest.check_overlap(&format!("50k grains in a tray at dt {dt}"), 0.25);
+        rest.check_overlap(&format!("50k grains in a tray at dt {dt}"), 0.25, 0.1);
     }
 }
 
@@ -536,10 +548,14 @@ fn sand_poured_on_a_shared_mesh_keeps_its_distance() {
 /// 50,449 grains (a block 52 × 19 × 52) poured onto Spot in a tray, at dt 1/60 and at 4 ms:
 /// 98 % at rest after 4 s, every resting grain supported, no centre inside the mesh or
 /// nearer it than R less a leaf diagonal (exact ground truth), 99.9 % of the grains
-/// overlapping less than 5 % of the diameter and none 25 % (the worst was 20 % at dt 1/60,
-/// since grains on a single grain are let roll off it; 2.7 % before). A deeper
-/// block (37³) dumped from higher threw grains over the walls before the debiasing
-/// iterations; beyond what the iterations reach in a substep it still springs back.
+/// overlapping less than 5 % of the diameter and none 25 % (20.6 % and 13.7 %: grains still
+/// falling off the cow, faster than a radius a substep). Grains at rest overlap 6.9 % and
+/// 11.0 %, **over the 10 % the pass aims at** at 4 ms: two grains in a vertical corner of the
+/// tray, one on the other, both stopped by the shell rule in every substep (the corner's
+/// surface leaves hold one averaged normal), so neither moves to part them; the bound here is
+/// 12 % until the march lets such grains slide. A deeper block (37³) dumped from higher threw
+/// grains over the walls before the debiasing iterations; beyond what the iterations reach in
+/// a substep it still springs back.
 #[test]
 fn fifty_thousand_grains_poured_on_a_shared_mesh_come_to_rest() {
     let Some((baked, top)) = spot_in_a_tray(8, 0.023) else {
@@ -547,7 +563,7 @@ fn fifty_thousand_grains_poured_on_a_shared_mesh_come_to_rest() {
     };
     for dt in [1.0 / 60.0, 0.004] {
         let rest = pour(&baked, [52, 19, 52], [0.05, 0.0], top, 0.3, dt, 4.0);
-        rest.check_overlap(&format!("50k grains on Spot at dt {dt}"), 0.25);
+        rest.check_overlap(&format!("50k grains on Spot at dt {dt}"), 0.25, 0.12);
     }
 }
 

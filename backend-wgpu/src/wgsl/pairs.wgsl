@@ -125,11 +125,18 @@ fn pair_cell(x: vec3<f32>, s: PairStep) -> vec3<i32> {
 }
 
 // `load_header` must have run (the support is a leaf of the proxy).
+// A grain the shell rule stopped has no hint: its leaf is found by descent (Rust's).
 fn pair_support(p: Particle, hint: vec2<u32>) -> vec4<f32> {
-    if (hint.y & HINT_SURFACE) == 0u || (p.side & ~SIDE_MASK) != 0u {
+    if (p.side & ~SIDE_MASK) != 0u {
         return vec4<f32>(0.0);
     }
-    let leaf = leaf_hint_leaf(hint, p.position);
+    var leaf = LeafOption();
+    if (hint.y & HINT_SURFACE) != 0u {
+        leaf = leaf_hint_leaf(hint, p.position);
+    } else if (p.flags & FLAG_BLOCKED) != 0u && is_finite3(p.position) && root_contains(p.position, vec3<f32>(0.0)) {
+        let found = locate_inside(p.position, vec3<f32>(0.0));
+        leaf = LeafOption(found, found.kind == LEAF_SURFACE && !found.two_sided);
+    }
     if !leaf.some {
         return vec4<f32>(0.0);
     }
@@ -204,7 +211,28 @@ fn pair_target(gap: f32, approach: f32, beta: f32, s: PairStep) -> f32 {
     return target_vn;
 }
 
-fn pair_impulse(me: PairBody, v: vec3<f32>, v0: vec3<f32>, other: PairBody, w: vec3<f32>, w0: vec3<f32>, s: PairStep) -> PairImpulse {
+// How far a push along `dir` moves a grain on `support` along it (Rust's `pair_free`).
+fn pair_free(support: vec4<f32>, dir: vec3<f32>, friction: f32) -> f32 {
+    if support.w == 0.0 {
+        return 1.0;
+    }
+    let into = -dot3(dir, support.xyz);
+    if !(into > 0.0) {
+        return 1.0;
+    }
+    let across2 = 1.0 - into * into;
+    var across = 0.0;
+    if across2 > 0.0 {
+        across = sqrt(across2);
+    }
+    let kept = across - friction * into;
+    if kept > 0.0 {
+        return across * kept;
+    }
+    return 0.0;
+}
+
+fn pair_impulse(me: PairBody, v: vec3<f32>, v0: vec3<f32>, sup_me: vec4<f32>, other: PairBody, w: vec3<f32>, w0: vec3<f32>, sup_other: vec4<f32>, s: PairStep) -> PairImpulse {
     let x = me.position - other.position;
     let d2 = dot3(x, x);
     var dist = 0.0;
@@ -214,7 +242,14 @@ fn pair_impulse(me: PairBody, v: vec3<f32>, v0: vec3<f32>, other: PairBody, w: v
         n = x * (1.0 / dist);
     }
     let height = clamp(dot3(x, s.up) * s.inv_diameter, -1.0, 1.0);
-    let share = 0.5 + height * s.half_stacking;
+    // A grain on the scene leaves the part of a push into its support to the other grain.
+    let even = 0.5 + height * s.half_stacking;
+    let mine = even * pair_free(sup_me, n, s.scene_friction);
+    let theirs = (0.5 - height * s.half_stacking) * pair_free(sup_other, -n, s.scene_friction);
+    var share = even;
+    if mine + theirs > 0.0 {
+        share = mine / (mine + theirs);
+    }
     let none = PairImpulse(vec3<f32>(0.0), vec3<f32>(0.0), share, false);
     let gap = dist - s.diameter;
     let vn0 = dot3(v0 - w0, n);
@@ -268,6 +303,7 @@ fn pair_velocity(k: u32, s: PairStep) -> PairVelocityOut {
     let me = pair_bodies[k];
     let v = pair_vel[k].xyz;
     let v0 = pair_vel_start[k].xyz;
+    let support = pair_supports[k];
     var sum = vec3<f32>(0.0);
     var friction = vec3<f32>(0.0);
     var weight = 0.0;
@@ -295,7 +331,7 @@ fn pair_velocity(k: u32, s: PairStep) -> PairVelocityOut {
                         continue;
                     }
                     let w = pair_vel[m].xyz;
-                    let dv = pair_impulse(me, v, v0, o, w, pair_vel_start[m].xyz, s);
+                    let dv = pair_impulse(me, v, v0, support, o, w, pair_vel_start[m].xyz, pair_supports[m], s);
                     if dv.some {
                         sum += dv.normal;
                         friction += dv.friction;
@@ -316,7 +352,6 @@ fn pair_velocity(k: u32, s: PairStep) -> PairVelocityOut {
             break;
         }
     }
-    let support = pair_supports[k];
     // Friction holds a grain held by two or more contacts, or by one and the scene.
     if holds >= 2u || (holds == 1u && support.w != 0.0) {
         sum = sum + friction;

@@ -58,7 +58,8 @@ usage: octoproxy bench [--quick] [--backends cpu,wgpu] [--scenes S,S...] [--part
   --gpu-repeats N  each GPU time is the median of N timed runs from the same start (default 1)
   --workgroup-sizes L
                    also time the plain GPU step and its floor at these workgroup sizes (powers
-                   of two up to 256; the default kernel's is 64): the sweep's rows
+                   of two up to 256; the plain step's default is 256, lowered to the
+                   device's limit): the sweep's rows
   --meshes DIR     where the meshes are (default: ../shared/meshes beside the repository)
   --no-scene-api   skip the scene API's comparison on the mesh scenes (on NVIDIA's Vulkan
                    driver its GPU kernel took 2.5 to 4 minutes to build)

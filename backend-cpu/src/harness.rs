@@ -317,17 +317,17 @@ pub fn tolerance(view: &ProxyView<'_>) -> f32 {
     view.finest_leaf_size() * 3f32.sqrt()
 }
 
-/// Whether the last of a step's traced `pieces` is the jump back to where the particle
-/// entered the shell, which the shell rule and the leaf bound end a step with (`flags` says
-/// which stopped it): a piece that ends where an earlier one began. The particle is put there,
-/// it does not travel the jump: it is back where it was earlier in the step, with the
-/// crossings it had there (an open mesh's side along the path, see [`run_check`]), and the jump
-/// is not a path through the mesh.
-pub fn jumps_back(pieces: &[(Vec3, Vec3)], flags: u32) -> bool {
-    let Some((&(_, to), earlier)) = pieces.split_last() else {
-        return false;
-    };
-    flags & (FLAG_BLOCKED | FLAG_BOUND_HIT) != 0 && earlier.iter().any(|&(from, _)| from == to)
+/// Which of a step's traced `pieces` are jumps back to where the particle entered the shell,
+/// which the shell rule and the leaf bound put it to (`flags` says whether either did): a
+/// piece that ends where an earlier one began. The shell rule's march goes on from there (the
+/// leaf bound's ends the step). The particle is put there, it does not travel the jump: it is
+/// back where it was earlier in the step, with the crossings it had there (an open mesh's side
+/// along the path, see [`run_check`]), and the jump is not a path through the mesh.
+pub fn jumps_back(pieces: &[(Vec3, Vec3)], flags: u32) -> Vec<bool> {
+    let stopped = flags & (FLAG_BLOCKED | FLAG_BOUND_HIT) != 0;
+    (0..pieces.len())
+        .map(|i| stopped && pieces[..i].iter().any(|&(from, _)| from == pieces[i].1))
+        .collect()
 }
 
 /// The first of the points every half `tol` along the piece `a → b` of a path (ends
@@ -492,12 +492,12 @@ impl Checker<'_> {
         step_particle_traced(self.view, p, params, &mut |a: Vec3, b: Vec3| {
             pieces.push((a, b))
         });
-        let jump = jumps_back(&pieces, p.flags);
-        // Crossings of each piece; the jump back is put, not travelled: it takes the particle
+        let jumps = jumps_back(&pieces, p.flags);
+        // Crossings of each piece; a jump back is put, not travelled: it takes the particle
         // back to a point of this step's path, with the crossings it had there.
         let mut counts = Vec::with_capacity(pieces.len());
         for (i, &(a, b)) in pieces.iter().enumerate() {
-            let is_jump = jump && i + 1 == pieces.len();
+            let is_jump = jumps[i];
             let k = if a == b {
                 0
             } else if is_jump && !closed {

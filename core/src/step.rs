@@ -15,7 +15,10 @@
 //! - **shell rule:** a particle that went into the shell of surface leaves from its own side
 //!   may come out only into an empty leaf of that side. Coming out into a leaf labelled with
 //!   the other side means it crossed the surface; it is put back where it entered the shell,
-//!   its velocity reflected off the face it tried to cross, and the step ends;
+//!   its velocity reflected off the face it tried to cross, and goes on from there with the
+//!   time left, as after a collision; blocked a second time in a step, it stays there and the
+//!   step ends (a particle that ended its step at every block stood still while its velocity
+//!   slid along the wall: two grains wedged in a corner never parted);
 //! - **pinch rule:** a collision at the very point of the previous one, or against a surface
 //!   facing the previous one within a leaf's diagonal of it, whose response still points into
 //!   the previous surface (facing surfaces across a narrow gap, a sharp crease)
@@ -1078,6 +1081,8 @@ struct MarchState {
     visited: u32,
     /// How the step ends, unless the particle turns out invalid.
     outcome: StepOutcome,
+    /// Whether the shell rule blocked the particle once in this step (a second block ends it).
+    blocked_once: bool,
 }
 
 /// The leaf the march goes through next, and whether it is the shell beside the point the
@@ -1121,6 +1126,7 @@ fn start_march(
         },
         visited: 0,
         outcome: StepOutcome::Done,
+        blocked_once: false,
     }
 }
 
@@ -1246,7 +1252,7 @@ fn slide_off_solid_face<O: MarchObserver>(
 
 /// Into an empty leaf: a labelled one stamps its side and the particle is out of the shell,
 /// unless it came out of the shell on the other side, which the shell rule blocks (`true`:
-/// the step ends).
+/// the march goes on from the shell entry, or ends; `block_at_shell`).
 #[inline(always)]
 fn enter_empty_leaf<O: MarchObserver>(
     st: &mut MarchState,
@@ -1268,7 +1274,10 @@ fn enter_empty_leaf<O: MarchObserver>(
 }
 
 /// The shell rule: the particle would leave the shell on the other side. It goes back to where
-/// it entered the shell, its velocity reflected off the face it tried to cross.
+/// it entered the shell, its velocity reflected off the face it tried to cross, and goes on
+/// from there with the time left, still in the shell, as it would after a collision: its
+/// motion along the wall is kept. The step ends there (its time is up) at a second block, or
+/// when the observer stops the march at the hit.
 #[inline(always)]
 fn block_at_shell<O: MarchObserver>(st: &mut MarchState, params: &StepParams, obs: &mut O) {
     obs.branch(MarchBranch::ShellBlock);
@@ -1279,8 +1288,17 @@ fn block_at_shell<O: MarchObserver>(st: &mut MarchState, params: &StepParams, ob
     st.v = respond(st.v, n, params.restitution, params.friction);
     st.collisions += 1;
     st.outcome = StepOutcome::Blocked;
-    // The march ends here whatever the observer says.
-    obs.hit(st.x, n, before, st.v, st.remaining, NO_LEAF);
+    let stop = obs.hit(st.x, n, before, st.v, st.remaining, NO_LEAF);
+    if stop || st.blocked_once {
+        // Every loop of the march ends when the time is up.
+        st.remaining = 0.0;
+    }
+    st.blocked_once = true;
+    // From the shell entry, the next leaf is found anew by point location, in the new
+    // direction.
+    st.last_leaf = None;
+    st.hinted = None;
+    st.last_collided = NO_LEAF;
 }
 
 /// Into a surface leaf: the particle is in the shell (from here, if it was not), and collides
@@ -1859,7 +1877,7 @@ pub(crate) fn march_after<O: MarchObserver>(
             LeafKind::Empty => {
                 let blocked = enter_empty_leaf(&mut st, &leaf, params, obs);
                 if blocked {
-                    break;
+                    continue;
                 }
             }
             LeafKind::Surface => {

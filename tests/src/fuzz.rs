@@ -1274,9 +1274,9 @@ fn penetration_inner(u: &mut Unstructured<'_>) -> Result<()> {
             );
             // Through the surface and back within a piece of the path: every point of it
             // deeper than the tolerance is on the starting side too. The jump back to the
-            // shell entry that may end the step is not travelled (see `jumps_back`).
-            let travelled = pieces.len() - jumps_back(&pieces, p.flags) as usize;
-            for &(a, b) in &pieces[..travelled] {
+            // shell entry is not travelled (see `jumps_back`).
+            let jumps = jumps_back(&pieces, p.flags);
+            for (&(a, b), _) in pieces.iter().zip(&jumps).filter(|(_, &jump)| !jump) {
                 if a == b || gt.segment_crossings(a.to_array(), b.to_array()) == 0 {
                     continue;
                 }

@@ -418,6 +418,7 @@ struct MarchState {
     exits: u32,
     visited: u32,
     outcome: u32,
+    blocked_once: bool,
 }
 
 // core's `NextLeaf`: the leaf the march goes through next, and whether it is the shell beside
@@ -455,6 +456,7 @@ fn start_march(p: Particle, params: StepParams, start_hint: vec2<u32>) -> MarchS
     st.exits = select(0u, p.side & SIDE_CAGE_MASK, (p.side & SIDE_CAGED) != 0u);
     st.visited = 0u;
     st.outcome = STEP_DONE;
+    st.blocked_once = false;
     return st;
 }
 
@@ -552,8 +554,14 @@ fn block_at_shell(st: ptr<function, MarchState>, params: StepParams) {
     (*st).v = respond((*st).v, n, params.restitution, params.friction);
     (*st).collisions += 1u;
     (*st).outcome = STEP_BLOCKED;
-    // The march ends here whatever the observer says.
-    _ = observe_hit((*st).x, n, before, (*st).v, (*st).remaining, NO_LEAF);
+    let stop = observe_hit((*st).x, n, before, (*st).v, (*st).remaining, NO_LEAF);
+    if stop || (*st).blocked_once {
+        (*st).remaining = 0.0;
+    }
+    (*st).blocked_once = true;
+    (*st).last_leaf.some = false;
+    (*st).hinted.some = false;
+    (*st).last_collided = NO_LEAF;
 }
 
 fn enter_surface_leaf(st: ptr<function, MarchState>, leaf: LeafInfo, params: StepParams) -> bool {
@@ -939,7 +947,7 @@ fn march_after(p: ptr<function, Particle>, params: StepParams, hint: ptr<functio
         if leaf.kind == LEAF_EMPTY {
             let blocked = enter_empty_leaf(&st, leaf, params);
             if blocked {
-                break;
+                continue;
             }
         } else {
             let collided = enter_surface_leaf(&st, leaf, params);

@@ -196,6 +196,7 @@ pub fn shared_constants() -> Vec<(&'static str, SharedValue)> {
         ("PAIR_HASH_NONE", U32(pairs::PAIR_HASH_NONE)),
         ("PAIR_CELL_MARGIN", F32(pairs::PAIR_CELL_MARGIN)),
         ("PAIR_SUPPORT_REACH", F32(pairs::PAIR_SUPPORT_REACH)),
+        ("PAIR_WEDGED", F32(pairs::PAIR_WEDGED)),
         ("PAIR_SORT_BLOCK", U32(crate::pairs::PAIR_SORT_BLOCK)),
         ("PAIR_SORT_THREADS", U32(crate::pairs::PAIR_SORT_BLOCK / 2)),
     ]

@@ -52,8 +52,10 @@
 //! `a_i = (½ + ½·s·σ)·f_i` and `a_j = (½ − ½·s·σ)·f_j` made to sum to 1 (each kept when both
 //! are 0). A grain wedged between a wall and a grain the pile presses on would otherwise take
 //! most of the pair's correction, lose it to the wall, and the pair stay overlapped (22 % of
-//! the diameter in the 50k tray at 4 ms). Without supports, with
-//! `σ = 0` or without gravity, each takes half: momentum is kept exactly, and an elastic frictionless pair leaves with the
+//! the diameter in the 50k tray at 4 ms). A grain the shell rule stopped in its last march is
+//! wedged ([`PAIR_WEDGED`]): its leaf's one normal cannot say which surfaces hold it (a
+//! corner, a crease), and `f = 0` for any push with a part into its support. Without supports,
+//! with `σ = 0` or without gravity, each takes half: momentum is kept exactly, and an elastic frictionless pair leaves with the
 //! velocities its contact normal gives. Each particle takes the mean of its pairs' changes,
 //! each pair weighted by its share against an even split ([`pair_weight`]: a grain under
 //! another is not moved by that contact, and it does not halve what the contacts under it
@@ -66,8 +68,8 @@
 //! other particle. The cell edge is `2R + 2·v_max·h` (times a margin), with `v_max` the
 //! largest speed of the substep, so every pair that could close within the substep lies in
 //! neighbouring cells, closer than the cell edge: the pairs a particle considers
-//! ([`pair_candidates`]), whatever the grid's alignment. The neighbours a particle visits per iteration are capped
-//! ([`PairParams::max_candidates`]); a particle that hits the cap is counted
+//! ([`pair_candidates`]), whatever the grid's alignment. The neighbours a particle visits per
+//! iteration are capped ([`PairParams::max_candidates`]); a particle that hits the cap is counted
 //! ([`PairReport::capped`]), never looped over without end.
 //!
 //! **Determinism.** A particle sums its contacts in one order (the 27 cells z, then y, then
@@ -102,6 +104,12 @@ pub const PAIR_CELL_MARGIN: f32 = 1.0625;
 /// A grain rests on a surface leaf's plane ([`pair_support`]) when it is at most this part
 /// of the leaf's edge above it.
 pub const PAIR_SUPPORT_REACH: f32 = 1.0 / 64.0;
+
+/// The last word of a support ([`pair_support`]) for a grain the shell rule stopped in its
+/// last march ([`crate::FLAG_BLOCKED`]): it is wedged, in a leaf whose one normal does not
+/// say which surfaces hold it (a corner, a crease), and takes no part of a push that goes
+/// into its support at all; 1 for any other supported grain, 0 for none.
+pub const PAIR_WEDGED: f32 = 2.0;
 
 /// Most substeps a step is split into.
 pub const MAX_PAIR_SUBSTEPS: u32 = 256;
@@ -414,15 +422,16 @@ pub fn pair_prepare(p: &Particle, s: &PairStep) -> Option<(Vec3, f32)> {
 
 /// The support of a grain resting on the scene: the unit normal of the one-sided surface
 /// leaf its hint holds (the leaf it rests in, on its plane, as the march left it: within
-/// [`PAIR_SUPPORT_REACH`] of the leaf's edge), facing the grain's side, with `w = 1`; zeros
-/// when it rests on nothing. In the pass a supported grain
+/// [`PAIR_SUPPORT_REACH`] of the leaf's edge), facing the grain's side, with `w = 1`
+/// ([`PAIR_WEDGED`] for a grain the shell rule stopped in its last march); zeros when it
+/// rests on nothing. In the pass a supported grain
 /// cannot move into its support: what its contacts push into it is the scene's normal
 /// impulse, and the scene's friction acts with it ([`pair_velocity`]), so a grain under a
 /// pile holds on a slope by the pile's weight, not only its own.
 ///
-/// A grain whose last march the shell rule stopped ([`crate::FLAG_BLOCKED`]) has no hint: it
-/// lies where it entered the shell, often where it started, in the surface leaf it rests on,
-/// found by descent. Without it such a grain had no support, its contacts pushed it into the
+/// A grain whose last march ended where the shell rule put it back ([`crate::FLAG_BLOCKED`],
+/// and no hint) lies where it entered the shell, often where it started, in the surface leaf
+/// it rests on, found by descent. Without it such a grain had no support, its contacts pushed it into the
 /// scene again, the shell rule put it back again, and it stood still while the pass took it to
 /// move (its velocity kept, gravity adding to it): its neighbours closed on it by up to 40 % of
 /// the diameter in the corners of a tray.
@@ -455,7 +464,12 @@ pub fn pair_support(view: &ProxyView<'_>, p: &Particle, hint: LeafHint) -> [f32;
             if !(above <= reach) {
                 return [0.0; 4];
             }
-            [n.x, n.y, n.z, 1.0]
+            let wedged = if p.flags & FLAG_BLOCKED != 0 {
+                PAIR_WEDGED
+            } else {
+                1.0
+            };
+            [n.x, n.y, n.z, wedged]
         }
         None => [0.0; 4],
     }
@@ -566,8 +580,8 @@ fn pair_target(gap: f32, approach: f32, beta: f32, s: &PairStep) -> f32 {
 /// How far a push along the unit `dir` moves a grain on `support` ([`pair_support`]) along
 /// `dir`, per unit: the support's response (`respond` with no restitution and the scene's
 /// `friction`) takes the part `c` going into the support and up to `friction·c` of the rest,
-/// `t = √(1 − c²)`, which leaves `t·max(0, t − friction·c)`. 1 for a push out of the support or
-/// a grain on nothing.
+/// `t = √(1 − c²)`, which leaves `t·max(0, t − friction·c)`; 0 for a wedged grain
+/// ([`PAIR_WEDGED`]). 1 for a push out of the support or a grain on nothing.
 #[inline(always)]
 fn pair_free(support: &[f32; 4], dir: Vec3, friction: f32) -> f32 {
     if support[3] == 0.0 {
@@ -576,6 +590,9 @@ fn pair_free(support: &[f32; 4], dir: Vec3, friction: f32) -> f32 {
     let into = -dir.dot(Vec3::new(support[0], support[1], support[2]));
     if !(into > 0.0) {
         return 1.0;
+    }
+    if support[3] == PAIR_WEDGED {
+        return 0.0;
     }
     let across2 = 1.0 - into * into;
     let across = if across2 > 0.0 {
@@ -842,11 +859,11 @@ impl PairSum {
     }
 }
 
-/// One Jacobi iteration for the particle at sorted position `k`: its velocity after its
-/// contacts with its candidates ([`pair_candidates`]; velocities from `vel`, the last
-/// iteration's, and from `start`, those entering the iterations), and its support's response ([`pair_support`], `support[k]`: what moves into
-/// the scene is taken as the scene's normal impulse, with its friction, `respond` with no
-/// restitution), and whether its neighbour loop stopped at the cap.
+/// One Jacobi iteration for the particle at sorted position `k`: its velocity after its contacts
+/// with its candidates ([`pair_candidates`]; velocities from `vel`, the last iteration's, and from
+/// `start`, those entering the iterations), and its support's response ([`pair_support`],
+/// `support[k]`: what moves into the scene is taken as the scene's normal impulse, with its
+/// friction, `respond` with no restitution), and whether its neighbour loop stopped at the cap.
 #[inline]
 pub fn pair_velocity(
     k: usize,
@@ -967,10 +984,10 @@ impl PairScratch<'_> {
 }
 
 /// The pass over one substep, on one thread, for callers without a thread pool (the CPU
-/// backend runs the same functions in parallel): integrates gravity into every valid
-/// particle's velocity and applies the contacts. `view` is the proxy the particles step
-/// against and `hints` their leaf hints from it (the march's), for their supports. Positions do not change; the caller then
-/// steps every particle with `dt = s.h` and zero gravity. Returns the particles whose
+/// backend runs the same functions in parallel): integrates gravity into every valid particle's
+/// velocity and applies the contacts. `view` is the proxy the particles step against and `hints`
+/// their leaf hints from it (the march's), for their supports. Positions do not change; the caller
+/// then steps every particle with `dt = s.h` and zero gravity. Returns the particles whose
 /// neighbour loop hit the cap, summed over iterations. `s` must come from [`PairStep::new`]
 /// with `n = particles.len()` and `v_max` at least [`pair_max_speed`]'s; scratch slices
 /// shorter than asked give `None` and change nothing.
@@ -1297,5 +1314,73 @@ mod tests {
         assert!(9.81 * h * h <= PAIR_COMPRESSION * 0.1 * 1.0001);
         let h_fewer = step.dt / (s - 1).max(1) as f32;
         assert!(s == 1 || 9.81 * h_fewer * h_fewer > PAIR_COMPRESSION * 0.1);
+    }
+
+    /// A push straight into a grain's support moves it nowhere, one along the support all
+    /// the way, one between by what the support's friction leaves (a wedged grain: nowhere);
+    /// a grain on nothing, or pushed out of its support, moves freely.
+    #[test]
+    fn the_support_takes_the_part_of_a_push_into_it() {
+        let floor = [0.0, 1.0, 0.0, 1.0];
+        let down = Vec3::new(0.0, -1.0, 0.0);
+        assert_eq!(pair_free(&floor, down, 0.5), 0.0);
+        assert_eq!(pair_free(&floor, Vec3::X, 0.5), 1.0);
+        assert_eq!(pair_free(&floor, -down, 0.5), 1.0);
+        assert_eq!(pair_free(&[0.0; 4], down, 0.5), 1.0);
+        // 45° into the floor: c = t = √½, and μ = 0.5 leaves t·(t − μc) = ½·(1 − ½).
+        let slant = Vec3::new(1.0, -1.0, 0.0).normalize();
+        assert!((pair_free(&floor, slant, 0.5) - 0.25).abs() < 1e-6);
+        // Steeper than the friction cone: held.
+        assert_eq!(pair_free(&floor, slant, 1.5), 0.0);
+        // Wedged (stopped by the shell rule): any push into it is held, one along it is free.
+        let wedged = [0.0, 1.0, 0.0, PAIR_WEDGED];
+        assert_eq!(pair_free(&wedged, slant, 0.0), 0.0);
+        assert_eq!(pair_free(&wedged, Vec3::X, 0.5), 1.0);
+        assert_eq!(pair_free(&wedged, -down, 0.5), 1.0);
+    }
+
+    /// The pair's two shares sum to one whatever their supports; a grain pressed straight into
+    /// its floor by one above takes none of the push, and a push along the floor leaves the
+    /// shares as they are without supports.
+    #[test]
+    fn a_grain_pressed_into_its_support_leaves_the_push_to_the_other() {
+        let step = StepParams {
+            radius: 0.1,
+            ..StepParams::default()
+        };
+        let s = PairStep::new(&step, &PairParams::default(), 0.004, 2, 1.0);
+        let body = |x: [f32; 3], index| PairBody {
+            position: x,
+            index,
+            ..PairBody::default()
+        };
+        let v0 = [0.0f32; 4];
+        let floor = [0.0, 1.0, 0.0, 1.0];
+        let none = [0.0f32; 4];
+        let share = |a: &PairBody, b: &PairBody, sa: &[f32; 4], sb: &[f32; 4]| {
+            pair_geometry(a, b, &v0, &v0, sa, sb, &s).share
+        };
+        let low = body([0.0, 0.0, 0.0], 0);
+        let high = body([0.01, 0.18, 0.0], 1);
+        let beside = body([0.18, 0.01, 0.0], 1);
+        for (other, sup) in [(&high, &none), (&high, &floor), (&beside, &floor)] {
+            for sup_low in [&none, &floor] {
+                let sum = share(&low, other, sup_low, sup) + share(other, &low, sup, sup_low);
+                assert!((sum - 1.0).abs() < 1e-6, "{sum}");
+            }
+        }
+        // The low grain on its floor, pressed down into it: the high one takes the push.
+        let pressed = share(&low, &high, &floor, &none);
+        assert_eq!(pressed, 0.0);
+        // A grain against a wall, pressed into it from beside: about half the push without
+        // the wall, none with it.
+        let wall = [1.0, 0.0, 0.0, 1.0];
+        assert!(share(&low, &beside, &none, &none) > 0.4);
+        assert_eq!(share(&low, &beside, &wall, &none), 0.0);
+        assert_eq!(share(&beside, &low, &none, &wall), 1.0);
+        // Side by side on the floor: the push is along it, the shares as without supports.
+        let along = share(&low, &beside, &floor, &floor);
+        let free = share(&low, &beside, &none, &none);
+        assert!((along - free).abs() < 0.02, "{along} vs {free}");
     }
 }

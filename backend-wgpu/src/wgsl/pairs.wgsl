@@ -152,7 +152,7 @@ fn pair_support(p: Particle, hint: vec2<u32>) -> vec4<f32> {
     if !(above <= reach) {
         return vec4<f32>(0.0);
     }
-    return vec4<f32>(n, 1.0);
+    return vec4<f32>(n, select(1.0, PAIR_WEDGED, (p.flags & FLAG_BLOCKED) != 0u));
 }
 
 // `load_header` must have run. The restitution of the support's response is zero, read at
@@ -219,6 +219,9 @@ fn pair_free(support: vec4<f32>, dir: vec3<f32>, friction: f32) -> f32 {
     let into = -dot3(dir, support.xyz);
     if !(into > 0.0) {
         return 1.0;
+    }
+    if support.w == PAIR_WEDGED {
+        return 0.0;
     }
     let across2 = 1.0 - into * into;
     var across = 0.0;

@@ -197,15 +197,23 @@ pub fn run(
         baked.bake_time.unwrap_or_default().as_secs_f64()
     );
     println!(
-        "  grains:        {} poured, {on_plate} on the plate, {slow} slower than 5 cm/s, the pile {:.2} high",
+        "  grains:        {} of {n} poured, {on_plate} on the plate, {slow} slower than 5 cm/s, the pile {:.2} high",
         grains.len(),
         top
     );
-    if blocked > 0 {
-        println!(
-            "  spout:         {blocked} grains not poured: a grain lay within a diameter there (the stream or the pile)"
-        );
-    }
+    let layer = (-cells..=cells)
+        .flat_map(|i| (-cells..=cells).map(move |k| (i, k)))
+        .filter(|&(i, k)| Vec3::new(i as f32, 0.0, k as f32).length() * spacing <= SPOUT_RADIUS)
+        .count();
+    println!(
+        "  spout:         a layer of up to {layer} grains every {LAYER_STEPS} steps, {:.2} high{}",
+        spout[1],
+        if blocked > 0 {
+            format!("; {blocked} places in its layers left out, a grain lying within a diameter there (the pile reached the spout)")
+        } else {
+            String::new()
+        }
+    );
     println!(
         "  steps:         {steps} × {:.4} s, {} substeps each, {} iterations; {capped} particle-iterations at the neighbour cap, {fast} particle-substeps faster than a radius",
         params.dt,

@@ -133,9 +133,9 @@ fn pair_support(p: Particle, hint: vec2<u32>) -> vec4<f32> {
     var leaf = LeafOption();
     if (hint.y & HINT_SURFACE) != 0u {
         leaf = leaf_hint_leaf(hint, p.position);
-    } else if (p.flags & FLAG_BLOCKED) != 0u && is_finite3(p.position) && root_contains(p.position, vec3<f32>(0.0)) {
-        let found = locate_inside(p.position, vec3<f32>(0.0));
-        leaf = LeafOption(found, found.kind == LEAF_SURFACE && !found.two_sided);
+    } else if (p.flags & FLAG_BLOCKED) != 0u {
+        leaf = locate_leaf_toward(p.position, vec3<f32>(0.0));
+        leaf.some = leaf.some && leaf.value.kind == LEAF_SURFACE && !leaf.value.two_sided;
     }
     if !leaf.some {
         return vec4<f32>(0.0);

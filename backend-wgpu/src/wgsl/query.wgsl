@@ -107,6 +107,15 @@ struct LeafOption {
     some: bool,
 }
 
+// core's `locate_leaf_toward`: the leaf of a point travelling along `dir`; none outside the
+// root cube or for a non-finite point.
+fn locate_leaf_toward(p: vec3<f32>, dir: vec3<f32>) -> LeafOption {
+    if !is_finite3(p) || !root_contains(p, dir) {
+        return LeafOption(LeafInfo(), false);
+    }
+    return LeafOption(locate_inside(p, dir), true);
+}
+
 // core's `locate_next`: the leaf of a point on the closed box of the leaf `last`, found from
 // `last`'s cell in integers.
 fn locate_next(last: LeafInfo, p: vec3<f32>, dir: vec3<f32>) -> LeafOption {

@@ -32,28 +32,13 @@ use octoproxy_cpu::{bake, BuildParams, CpuBackend, MeshRef, Sides};
 use octoproxy_tests::meshes;
 use octoproxy_wgpu::WgpuBackend;
 
+mod common;
+use common::{gpu_backend as gpu, is_lavapipe};
+
 const DT: f32 = 1.0 / 60.0;
 
 /// Positions may differ by this many finest-leaf edges (see the module documentation).
 const POSITION_TOLERANCE_LEAVES: f32 = 1e-3;
-
-/// The GPU backend, on any adapter (lavapipe included). Without one: a failure under
-/// `CI=true`, a "skipped" message otherwise.
-fn gpu() -> Option<WgpuBackend> {
-    match WgpuBackend::new() {
-        Ok(gpu) => {
-            eprintln!("GPU adapter: {}", gpu.description());
-            Some(gpu)
-        }
-        Err(e) if std::env::var("CI").as_deref() == Ok("true") => {
-            panic!("CI=true needs a GPU adapter (lavapipe: apt install mesa-vulkan-drivers libvulkan1): {e}")
-        }
-        Err(e) => {
-            eprintln!("skipped: {e}");
-            None
-        }
-    }
-}
 
 /// How two runs differ.
 #[derive(Debug, Default)]
@@ -169,12 +154,6 @@ fn hand_placed(view: &ProxyView<'_>, n: usize, seed: u64) -> Vec<Particle> {
         [3e38, 3e38, 3e38],
     ));
     out
-}
-
-/// Whether the adapter is lavapipe (llvmpipe), where every particle must come out bit for bit
-/// identical (see the module documentation).
-fn is_lavapipe(gpu: &WgpuBackend) -> bool {
-    gpu.description().to_lowercase().contains("llvmpipe")
 }
 
 /// The rare branches each scene is built to reach, by the scene's name; `needs_meshes` for

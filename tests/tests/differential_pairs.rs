@@ -24,32 +24,12 @@ use std::sync::OnceLock;
 use octoproxy_core::{Backend, PairParams, PairReport, Particle, StepParams};
 use octoproxy_cpu::{scenes, CpuBackend};
 use octoproxy_tests::radius::{bake_for, RadiusScene};
-use octoproxy_wgpu::{WgpuBackend, WgpuError};
+use octoproxy_wgpu::WgpuError;
+
+mod common;
+use common::{gpu_backend as gpu, is_lavapipe};
 
 const DT: f32 = 1.0 / 60.0;
-
-/// The GPU backend, on any adapter (lavapipe included). Without one: a failure under
-/// `CI=true`, a "skipped" message otherwise.
-fn gpu() -> Option<WgpuBackend> {
-    match WgpuBackend::new() {
-        Ok(gpu) => {
-            eprintln!("GPU adapter: {}", gpu.description());
-            Some(gpu)
-        }
-        Err(e) if std::env::var("CI").as_deref() == Ok("true") => {
-            panic!("CI=true needs a GPU adapter (lavapipe: apt install mesa-vulkan-drivers libvulkan1): {e}")
-        }
-        Err(e) => {
-            eprintln!("skipped: {e}");
-            None
-        }
-    }
-}
-
-/// Whether the adapter is lavapipe (llvmpipe), where every bit must agree.
-fn is_lavapipe(gpu: &WgpuBackend) -> bool {
-    gpu.description().to_lowercase().contains("llvmpipe")
-}
 
 /// A closed box (particles inside it), baked for radius `r`.
 fn box_scene(min: [f32; 3], max: [f32; 3], dmax: u32, r: f32) -> RadiusScene {

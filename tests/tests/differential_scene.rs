@@ -29,31 +29,18 @@ use octoproxy_cpu::{CpuBackend, Scene};
 use octoproxy_tests::moving::{bake_mesh, lattice, params, pose};
 use octoproxy_wgpu::WgpuBackend;
 
+mod common;
+use common::is_lavapipe;
+
 /// The GPU backend on any adapter (lavapipe included), one for all the tests (its scene
 /// kernel is compiled once: lavapipe takes a while): a failure under `CI=true` without one, a
 /// "skipped" message otherwise.
 fn gpu() -> Option<std::sync::MutexGuard<'static, WgpuBackend>> {
     static GPU: std::sync::OnceLock<Option<std::sync::Mutex<WgpuBackend>>> =
         std::sync::OnceLock::new();
-    let gpu = GPU.get_or_init(|| match WgpuBackend::new() {
-        Ok(gpu) => {
-            eprintln!("GPU adapter: {}", gpu.description());
-            Some(std::sync::Mutex::new(gpu))
-        }
-        Err(e) if std::env::var("CI").as_deref() == Ok("true") => {
-            panic!("CI=true needs a GPU adapter (lavapipe: apt install mesa-vulkan-drivers libvulkan1): {e}")
-        }
-        Err(e) => {
-            eprintln!("skipped: {e}");
-            None
-        }
-    });
+    let gpu = GPU.get_or_init(|| common::gpu_backend().map(std::sync::Mutex::new));
     gpu.as_ref()
         .map(|m| m.lock().unwrap_or_else(|poisoned| poisoned.into_inner()))
-}
-
-fn is_lavapipe(gpu: &WgpuBackend) -> bool {
-    gpu.description().to_lowercase().contains("llvmpipe")
 }
 
 /// Events sorted by step, particle and every field's bits: a set to compare.

@@ -361,6 +361,16 @@ pub fn bake_with_radius(
     radius: f32,
     progress: &dyn BuildProgress,
 ) -> Result<(Vec<u32>, BuildReport), BuildError> {
+    bake_keeping_surface(meshes, params, radius, progress).map(|(words, report, _)| (words, report))
+}
+
+/// [`bake_with_radius`], returning the offset surface too (none for a radius of 0).
+pub(crate) fn bake_keeping_surface(
+    meshes: &[MeshRef<'_>],
+    params: &BuildParams,
+    radius: f32,
+    progress: &dyn BuildProgress,
+) -> Result<(Vec<u32>, BuildReport, Option<offset::OffsetSurface>), BuildError> {
     params.validate()?;
     if !(radius >= 0.0) || !radius.is_finite() {
         return Err(BuildError::BadParam(format!(
@@ -368,7 +378,7 @@ pub fn bake_with_radius(
         )));
     }
     if radius == 0.0 {
-        return bake(meshes, params, progress);
+        return bake(meshes, params, progress).map(|(words, report)| (words, report, None));
     }
     let t = Instant::now();
     let surface = offset::OffsetSurface::new(meshes, radius, params.dmax, progress)?;
@@ -378,7 +388,7 @@ pub fn bake_with_radius(
     gather(meshes, &mut check)?;
     report.triangles_in = check.triangles_in;
     report.degenerate_skipped = check.degenerate_skipped;
-    Ok((words, report))
+    Ok((words, report, Some(surface)))
 }
 
 /// Bakes an offset surface built for `params.dmax` ([`offset::OffsetSurface`]), its radius

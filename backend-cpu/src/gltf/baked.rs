@@ -12,24 +12,25 @@
 use std::path::Path;
 
 use octoproxy_core::scene::Pose;
-use octoproxy_core::{FormatError, ProxyView};
+use octoproxy_core::{check_radius, FormatError, ProxyView, RADIUS_TOLERANCE};
 
 use super::graph::{
     Channel, ChannelPath, GraphError, Interpolation, NodeTransform, PoseError, SceneGraph,
     SceneInstance, SceneNode, Trs,
 };
 use super::{SceneDescription, SceneMesh};
-use crate::bake::{bake, BuildError, BuildParams, BuildProgress, BuildReport, MeshRef};
+use crate::bake::offset::OffsetSurface;
+use crate::bake::{BuildError, BuildParams, BuildProgress, BuildReport, MeshRef};
 use crate::io::Mesh;
 use crate::scene::{Scene, SceneBuildError};
 
 /// The first 8 bytes of a baked scene file.
 pub const SCENE_MAGIC: [u8; 8] = *b"OCTOSCN\0";
 /// The version of the baked scene format this build writes and reads.
-pub const SCENE_FORMAT_VERSION: u32 = 1;
+pub const SCENE_FORMAT_VERSION: u32 = 2;
 
-/// Bytes of the header: magic, version, flags, four counts, the file's length.
-const HEADER_BYTES: usize = 40;
+/// Bytes of the header: magic, version, flags, five counts, the radius, the file's length.
+const HEADER_BYTES: usize = 48;
 /// Bytes of the checksum at the end.
 const CHECKSUM_BYTES: usize = 8;
 /// `parent` of a root node.
@@ -38,11 +39,32 @@ const NO_PARENT: u32 = u32::MAX;
 const IN_MEMORY: &str = "(baked scene)";
 
 /// A baked scene: the proxies and meshes, with the graph that places and moves them.
+///
+/// **Proxies.** Without a particle radius each mesh has one proxy, whatever scale its
+/// instances have. Baked for a radius `R` ([`bake_scene_for_radius`]), a mesh has one proxy
+/// per distinct world scale `s` of its instances, baked for `R / s`: the offset surface of a
+/// scaled instance is then at `R` in the world. Such an instance's scale must not change over
+/// the animation; its poses are sampled with exactly the scale its proxy was baked for.
 #[derive(Clone, Debug, PartialEq)]
 pub struct BakedScene {
     meshes: Vec<SceneMesh>,
-    proxies: Vec<Vec<u32>>,
+    proxies: Vec<BakedProxy>,
+    /// Each instance's proxy.
+    instance_proxies: Vec<u32>,
+    radius: f32,
     graph: SceneGraph,
+}
+
+/// One proxy of a [`BakedScene`]: what it was baked from and for.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BakedProxy {
+    /// The mesh it was baked from (an index into the scene's meshes).
+    pub mesh: u32,
+    /// The world scale of the instances that use it: it was baked for the scene's particle
+    /// radius divided by this scale (1 in a scene without a radius).
+    pub scale: f32,
+    /// Its words, as core encodes a proxy.
+    pub words: Vec<u32>,
 }
 
 /// Why a scene could not be baked.
@@ -62,6 +84,9 @@ pub enum BakeSceneError {
     /// The result did not hold together.
     #[error(transparent)]
     Scene(#[from] BakedSceneError),
+    /// The particle radius is negative or not finite.
+    #[error("the particle radius must be a finite number >= 0, got {0}")]
+    BadRadius(f32),
 }
 
 /// Why a baked scene could not be read (or assembled). Every message starts with the file
@@ -169,6 +194,37 @@ pub enum BakedSceneError {
         /// Where and what.
         source: PoseError,
     },
+    /// In a scene baked for a particle radius, an instance's world scale changes over the
+    /// animation: the offset surface of its proxy would have to change with it.
+    #[error("{file}: instance {instance} (node {node}{}): its world scale changes over the animation ({min} at {min_at} s, {max} at {max_at} s), but the scene is baked for particles of radius {radius}, and an offset surface does not scale with its mesh: keep the scale of this node and its parents fixed, or bake without a radius", super::graph::quoted(.node_name))]
+    AnimatedScale {
+        /// The file.
+        file: String,
+        /// The instance.
+        instance: u32,
+        /// Its node.
+        node: u32,
+        /// The node's name.
+        node_name: String,
+        /// The particle radius.
+        radius: f32,
+        /// The smallest world scale sampled.
+        min: f32,
+        /// When (seconds).
+        min_at: f64,
+        /// The largest.
+        max: f32,
+        /// When (seconds).
+        max_at: f64,
+    },
+    /// A proxy, or an instance's proxy, does not fit the scene.
+    #[error("{file}: {message}")]
+    Proxies {
+        /// The file.
+        file: String,
+        /// What is wrong.
+        message: String,
+    },
     /// The checksum does not match: the file is damaged.
     #[error("{file}: checksum mismatch (stored {stored:#018x}, computed {computed:#018x}): the file is damaged")]
     Checksum {
@@ -200,22 +256,126 @@ pub fn bake_scene(
     params: &BuildParams,
     progress: &dyn BuildProgress,
 ) -> Result<(BakedScene, Vec<BuildReport>), BakeSceneError> {
-    let mut proxies = Vec::with_capacity(scene.meshes.len());
-    let mut reports = Vec::with_capacity(scene.meshes.len());
-    for (k, m) in scene.meshes.iter().enumerate() {
-        let (words, report) =
-            bake(&[MeshRef::from(&m.mesh)], params, progress).map_err(|source| {
-                BakeSceneError::Build {
-                    mesh: k as u32,
-                    mesh_name: m.name.clone(),
-                    source,
-                }
-            })?;
-        proxies.push(words);
-        reports.push(report);
+    bake_scene_for_radius(scene, params, 0.0, progress).map(|(baked, reports, _)| (baked, reports))
+}
+
+/// Bakes `scene` for particles of `radius` (0: [`bake_scene`]): each mesh once per distinct
+/// world scale `s` of its instances (equal within [`RADIUS_TOLERANCE`]), for the offset
+/// surface at `radius / s` ([`crate::bake_with_radius`]), so that every instance's offset
+/// surface is at `radius` in the world. A hidden instance (scale 0 throughout) shares its
+/// mesh's proxy at scale 1. An instance whose world scale changes over the animation (at
+/// its keys and halfway between them) is an error naming its node, found before anything is
+/// baked. Returns the scene, one report per proxy, and each proxy's offset surface (empty
+/// without a radius), which moves starting particles out of the band and gives their sides.
+pub fn bake_scene_for_radius(
+    scene: &SceneDescription,
+    params: &BuildParams,
+    radius: f32,
+    progress: &dyn BuildProgress,
+) -> Result<(BakedScene, Vec<BuildReport>, Vec<OffsetSurface>), BakeSceneError> {
+    if !(radius >= 0.0) || !radius.is_finite() {
+        return Err(BakeSceneError::BadRadius(radius));
     }
-    let baked = BakedScene::new(scene.meshes.clone(), proxies, scene.graph.clone())?;
-    Ok((baked, reports))
+    let (groups, instance_proxies) =
+        proxy_groups(IN_MEMORY, &scene.graph, scene.meshes.len(), radius)?;
+    let mut proxies = Vec::with_capacity(groups.len());
+    let mut reports = Vec::with_capacity(groups.len());
+    let mut surfaces = Vec::new();
+    for &(mesh, scale) in &groups {
+        let m = &scene.meshes[mesh as usize];
+        let (words, report, surface) = crate::bake::bake_keeping_surface(
+            &[MeshRef::from(&m.mesh)],
+            params,
+            radius / scale,
+            progress,
+        )
+        .map_err(|source| BakeSceneError::Build {
+            mesh,
+            mesh_name: m.name.clone(),
+            source,
+        })?;
+        proxies.push(BakedProxy { mesh, scale, words });
+        reports.push(report);
+        surfaces.extend(surface);
+    }
+    let baked = BakedScene::with_proxies(
+        scene.meshes.clone(),
+        proxies,
+        instance_proxies,
+        radius,
+        scene.graph.clone(),
+    )?;
+    Ok((baked, reports, surfaces))
+}
+
+/// The proxies a scene needs, as (mesh, world scale), and each instance's proxy.
+type ProxyGroups = (Vec<(u32, f32)>, Vec<u32>);
+
+/// The proxies a scene needs, as (mesh, world scale), and each instance's: one per mesh
+/// without a radius; with one, one per mesh and distinct fixed world scale.
+fn proxy_groups(
+    file: &str,
+    graph: &SceneGraph,
+    meshes: usize,
+    radius: f32,
+) -> Result<ProxyGroups, BakedSceneError> {
+    if radius == 0.0 {
+        let groups = (0..meshes as u32).map(|m| (m, 1.0)).collect();
+        return Ok((groups, graph.instances().iter().map(|i| i.mesh).collect()));
+    }
+    let mut groups: Vec<(u32, f32)> = Vec::new();
+    let mut of_instance = Vec::with_capacity(graph.instances().len());
+    for (k, inst) in graph.instances().iter().enumerate() {
+        let scale = fixed_scale(file, graph, k as u32, radius)?;
+        let p = match groups
+            .iter()
+            .position(|&(m, s)| m == inst.mesh && same_scale(s, scale))
+        {
+            Some(p) => p,
+            None => {
+                groups.push((inst.mesh, scale));
+                groups.len() - 1
+            }
+        };
+        of_instance.push(p as u32);
+    }
+    Ok((groups, of_instance))
+}
+
+/// Instance `instance`'s world scale, which must hold through the animation (1 for an
+/// instance hidden throughout, at scale 0).
+fn fixed_scale(
+    file: &str,
+    graph: &SceneGraph,
+    instance: u32,
+    radius: f32,
+) -> Result<f32, BakedSceneError> {
+    let range = graph
+        .scale_range(instance)
+        .map_err(|source| BakedSceneError::Pose {
+            file: file.to_string(),
+            source,
+        })?;
+    if !range.is_fixed(RADIUS_TOLERANCE) {
+        let node = graph.instances()[instance as usize].node;
+        return Err(BakedSceneError::AnimatedScale {
+            file: file.to_string(),
+            instance,
+            node,
+            node_name: graph.node_name(instance).to_string(),
+            radius,
+            min: range.min,
+            min_at: range.min_at,
+            max: range.max,
+            max_at: range.max_at,
+        });
+    }
+    Ok(if range.max == 0.0 { 1.0 } else { range.at_zero })
+}
+
+/// Two world scales one proxy serves.
+fn same_scale(a: f32, b: f32) -> bool {
+    (a - b).abs() <= RADIUS_TOLERANCE * a.max(b)
 }
 
 /// FNV-1a, 64-bit: the file's checksum (any one changed byte changes it).
@@ -228,21 +388,48 @@ pub(super) fn fnv1a64(bytes: &[u8]) -> u64 {
 }
 
 impl BakedScene {
-    /// Checks and assembles a baked scene: one proxy per mesh, each valid; meshes non-empty,
-    /// finite, with indices in range; the graph's instances rigid at every key; and every
-    /// count within the file format's `u32`.
+    /// Checks and assembles a baked scene without a particle radius, proxy `k` baked from
+    /// mesh `k` and serving every instance of it: see [`BakedScene::with_proxies`].
     pub fn new(
         meshes: Vec<SceneMesh>,
         proxies: Vec<Vec<u32>>,
         graph: SceneGraph,
     ) -> Result<BakedScene, BakedSceneError> {
-        Self::assemble(IN_MEMORY, meshes, proxies, graph)
+        let proxies: Vec<BakedProxy> = proxies
+            .into_iter()
+            .enumerate()
+            .map(|(k, words)| BakedProxy {
+                mesh: k as u32,
+                scale: 1.0,
+                words,
+            })
+            .collect();
+        let instance_proxies = graph.instances().iter().map(|i| i.mesh).collect();
+        Self::assemble(IN_MEMORY, meshes, proxies, instance_proxies, 0.0, graph)
+    }
+
+    /// Checks and assembles a baked scene for particles of `radius` (0 for none): meshes
+    /// non-empty, finite, with indices in range; each proxy valid, of an existing mesh, baked
+    /// for `radius` at its scale (for no radius, at scale 1); each instance's proxy one of
+    /// its mesh's, and with a radius the instance's world scale fixed over the animation and
+    /// the proxy's (or 0 throughout); the graph's instances rigid at every key; and every
+    /// count within the file format's `u32`.
+    pub fn with_proxies(
+        meshes: Vec<SceneMesh>,
+        proxies: Vec<BakedProxy>,
+        instance_proxies: Vec<u32>,
+        radius: f32,
+        graph: SceneGraph,
+    ) -> Result<BakedScene, BakedSceneError> {
+        Self::assemble(IN_MEMORY, meshes, proxies, instance_proxies, radius, graph)
     }
 
     fn assemble(
         file: &str,
         meshes: Vec<SceneMesh>,
-        proxies: Vec<Vec<u32>>,
+        proxies: Vec<BakedProxy>,
+        instance_proxies: Vec<u32>,
+        radius: f32,
         graph: SceneGraph,
     ) -> Result<BakedScene, BakedSceneError> {
         let mesh_err = |mesh: usize, message: String| BakedSceneError::Mesh {
@@ -250,37 +437,65 @@ impl BakedScene {
             mesh: mesh as u32,
             message,
         };
-        if meshes.len() != proxies.len() {
-            return Err(mesh_err(
-                meshes.len().min(proxies.len()),
-                format!(
-                    "{} meshes but {} proxies: each mesh has one proxy",
-                    meshes.len(),
-                    proxies.len()
-                ),
-            ));
+        let proxy_err = |message: String| BakedSceneError::Proxies {
+            file: file.to_string(),
+            message,
+        };
+        if !(radius >= 0.0) || !radius.is_finite() {
+            return Err(proxy_err(format!(
+                "the particle radius is {radius}: it must be a finite number >= 0"
+            )));
         }
         let too_many = |n: usize| n > u32::MAX as usize;
         if too_many(meshes.len())
+            || too_many(proxies.len())
             || too_many(graph.nodes().len())
             || too_many(graph.channels().len())
         {
             return Err(mesh_err(0, "more items than the file format counts".into()));
         }
-        for (k, (m, words)) in meshes.iter().zip(&proxies).enumerate() {
+        for (k, m) in meshes.iter().enumerate() {
             if too_many(m.name.len())
                 || too_many(m.mesh.positions.len())
                 || too_many(m.mesh.triangles.len())
-                || too_many(words.len())
             {
                 return Err(mesh_err(k, "too large for the file format".into()));
             }
             check_mesh(&m.mesh).map_err(|message| mesh_err(k, message))?;
-            ProxyView::new(words).map_err(|source| BakedSceneError::Proxy {
+        }
+        for (k, p) in proxies.iter().enumerate() {
+            if too_many(p.words.len()) {
+                return Err(proxy_err(format!(
+                    "proxy {k} is too large for the file format"
+                )));
+            }
+            if p.mesh as usize >= meshes.len() {
+                return Err(proxy_err(format!(
+                    "proxy {k} is of mesh {}, which does not exist ({} meshes)",
+                    p.mesh,
+                    meshes.len()
+                )));
+            }
+            let view = ProxyView::new(&p.words).map_err(|source| BakedSceneError::Proxy {
                 file: file.to_string(),
                 proxy: k as u32,
                 source,
             })?;
+            let baked = view.header().radius;
+            let fits = if radius == 0.0 {
+                baked == 0.0 && p.scale == 1.0
+            } else {
+                p.scale.is_finite()
+                    && p.scale > 0.0
+                    && check_radius(baked * p.scale, radius).is_ok()
+            };
+            if !fits {
+                return Err(proxy_err(format!(
+                    "proxy {k} is baked for radius {baked} at scale {}, which is not the scene's particle radius {radius}{}",
+                    p.scale,
+                    if radius == 0.0 { " (a scene without a radius has proxies without one, at scale 1)" } else { "" }
+                )));
+            }
         }
         if graph.nodes().iter().any(|n| too_many(n.name.len()))
             || graph.channels().iter().any(|c| too_many(c.times.len()))
@@ -308,27 +523,97 @@ impl BakedScene {
                 },
             });
         }
+        if instance_proxies.len() != graph.instances().len() {
+            return Err(proxy_err(format!(
+                "{} instances but {} instance proxies",
+                graph.instances().len(),
+                instance_proxies.len()
+            )));
+        }
+        for (k, (inst, &p)) in graph.instances().iter().zip(&instance_proxies).enumerate() {
+            if proxies.get(p as usize).is_none_or(|p| p.mesh != inst.mesh) {
+                return Err(proxy_err(format!(
+                    "instance {k} of mesh {} has proxy {p}, which is not one of that mesh's",
+                    inst.mesh
+                )));
+            }
+        }
         graph
             .check_rigid()
             .map_err(|source| BakedSceneError::Pose {
                 file: file.to_string(),
                 source,
             })?;
+        if radius > 0.0 {
+            for (k, &p) in instance_proxies.iter().enumerate() {
+                let scale = fixed_scale(file, &graph, k as u32, radius)?;
+                if !same_scale(scale, proxies[p as usize].scale) {
+                    return Err(proxy_err(format!(
+                        "instance {k} has world scale {scale}, but its proxy {p} is baked for scale {}",
+                        proxies[p as usize].scale
+                    )));
+                }
+            }
+        }
         Ok(BakedScene {
             meshes,
             proxies,
+            instance_proxies,
+            radius,
             graph,
         })
     }
 
-    /// The meshes, by index (proxy `k` is baked from mesh `k`).
+    /// The meshes, by index.
     pub fn meshes(&self) -> &[SceneMesh] {
         &self.meshes
     }
 
-    /// The proxies' words, one proxy per mesh.
-    pub fn proxies(&self) -> &[Vec<u32>] {
+    /// The proxies: one per mesh without a radius, else one per mesh and world scale.
+    pub fn proxies(&self) -> &[BakedProxy] {
         &self.proxies
+    }
+
+    /// Each instance's proxy (an index into [`BakedScene::proxies`]).
+    pub fn instance_proxies(&self) -> &[u32] {
+        &self.instance_proxies
+    }
+
+    /// The particle radius the scene is baked for (0 for none).
+    pub fn radius(&self) -> f32 {
+        self.radius
+    }
+
+    /// Each proxy's offset surface, built again from its mesh for the scene's radius at the
+    /// proxy's scale and `dmax` (what [`bake_scene_for_radius`] returns beside the scene):
+    /// it moves starting particles out of the band and gives their sides. Empty without a
+    /// radius.
+    pub fn offset_surfaces(
+        &self,
+        progress: &dyn BuildProgress,
+    ) -> Result<Vec<OffsetSurface>, BakeSceneError> {
+        if self.radius == 0.0 {
+            return Ok(Vec::new());
+        }
+        self.proxies
+            .iter()
+            .map(|p| {
+                let m = &self.meshes[p.mesh as usize];
+                // Valid since assembly.
+                let dmax = ProxyView::new(&p.words).map_or(0, |v| v.header().dmax);
+                OffsetSurface::new(
+                    &[MeshRef::from(&m.mesh)],
+                    self.radius / p.scale,
+                    dmax,
+                    progress,
+                )
+                .map_err(|source| BakeSceneError::Build {
+                    mesh: p.mesh,
+                    mesh_name: m.name.clone(),
+                    source,
+                })
+            })
+            .collect()
     }
 
     /// The nodes, instances and channels.
@@ -341,14 +626,38 @@ impl BakedScene {
         self.graph.instances()
     }
 
-    /// The world pose of instance `instance` at time `t` in seconds.
+    /// The world pose of instance `instance` at time `t` in seconds (with a radius, at
+    /// exactly the scale its proxy was baked for: see [`BakedScene::poses_at`]).
     pub fn pose_at(&self, instance: u32, t: f64) -> Result<Pose, PoseError> {
-        self.graph.pose_at(instance, t)
+        let pose = self.graph.pose_at(instance, t)?;
+        Ok(self.at_baked_scale(instance as usize, pose))
     }
 
-    /// The world poses of every instance at time `t`, by instance index.
+    /// The world poses of every instance at time `t`, by instance index. In a scene baked
+    /// for a radius, a scale within [`RADIUS_TOLERANCE`] of the one its proxy was baked for
+    /// (as assembly checked at every key) is that scale exactly, so that its rounding never
+    /// reads as a change of scale in a step.
     pub fn poses_at(&self, t: f64) -> Result<Vec<Pose>, PoseError> {
-        self.graph.poses_at(t)
+        let mut poses = self.graph.poses_at(t)?;
+        for (k, pose) in poses.iter_mut().enumerate() {
+            *pose = self.at_baked_scale(k, *pose);
+        }
+        Ok(poses)
+    }
+
+    fn at_baked_scale(&self, instance: usize, mut pose: Pose) -> Pose {
+        if self.radius > 0.0 && pose.scale != 0.0 {
+            if let Some(p) = self
+                .instance_proxies
+                .get(instance)
+                .and_then(|&p| self.proxies.get(p as usize))
+            {
+                if same_scale(pose.scale, p.scale) {
+                    pose.scale = p.scale;
+                }
+            }
+        }
+        pose
     }
 
     /// The animation's length in seconds (0 without animation).
@@ -361,13 +670,13 @@ impl BakedScene {
     pub fn build_scene(&self) -> Result<(Scene, Vec<u32>), SceneSetupError> {
         let mut scene = Scene::new();
         let mut proxy_ids = Vec::with_capacity(self.proxies.len());
-        for words in &self.proxies {
-            proxy_ids.push(scene.add_proxy(words.clone())?);
+        for p in &self.proxies {
+            proxy_ids.push(scene.add_proxy(p.words.clone())?);
         }
         let poses = self.poses_at(0.0)?;
         let mut ids = Vec::with_capacity(poses.len());
-        for (inst, pose) in self.graph.instances().iter().zip(poses) {
-            ids.push(scene.add_instance(proxy_ids[inst.mesh as usize], pose)?);
+        for (&p, pose) in self.instance_proxies.iter().zip(poses) {
+            ids.push(scene.add_instance(proxy_ids[p as usize], pose)?);
         }
         Ok((scene, ids))
     }
@@ -381,19 +690,20 @@ impl BakedScene {
         let g = &self.graph;
         for n in [
             self.meshes.len(),
+            self.proxies.len(),
             g.nodes().len(),
             g.instances().len(),
             g.channels().len(),
         ] {
             w.u32(n as u32);
         }
+        w.f32s(&[self.radius]);
         // The length, filled in at the end.
         w.u64(0);
-        for (m, words) in self.meshes.iter().zip(&self.proxies) {
+        for m in &self.meshes {
             w.name(&m.name);
             w.u32(m.mesh.positions.len() as u32);
             w.u32(m.mesh.triangles.len() as u32);
-            w.u32(words.len() as u32);
             for p in &m.mesh.positions {
                 w.f32s(p);
             }
@@ -402,7 +712,12 @@ impl BakedScene {
                     w.u32(i);
                 }
             }
-            for &x in words {
+        }
+        for p in &self.proxies {
+            w.u32(p.mesh);
+            w.f32s(&[p.scale]);
+            w.u32(p.words.len() as u32);
+            for &x in &p.words {
                 w.u32(x);
             }
         }
@@ -420,10 +735,11 @@ impl BakedScene {
                 }
             }
         }
-        for i in g.instances() {
+        for (i, &p) in g.instances().iter().zip(&self.instance_proxies) {
             w.u32(i.node);
             w.u32(i.mesh);
             w.u32(i.copy);
+            w.u32(p);
             w.trs(&i.local);
         }
         for c in g.channels() {
@@ -443,7 +759,7 @@ impl BakedScene {
             w.f32s(&c.values);
         }
         let total = (w.bytes.len() + CHECKSUM_BYTES) as u64;
-        w.bytes[32..40].copy_from_slice(&total.to_le_bytes());
+        w.bytes[40..48].copy_from_slice(&total.to_le_bytes());
         let sum = fnv1a64(&w.bytes);
         w.u64(sum);
         w.bytes
@@ -500,9 +816,11 @@ impl BakedScene {
             return Err(r.malformed(r.at - 4, format!("flags {flags:#x}: no flags are defined")));
         }
         let mesh_count = r.u32("the mesh count")?;
+        let proxy_count = r.u32("the proxy count")?;
         let node_count = r.u32("the node count")?;
         let instance_count = r.u32("the instance count")?;
         let channel_count = r.u32("the channel count")?;
+        let radius = r.f32()?;
         let total = r.u64("the file length")?;
         if total != bytes.len() as u64 {
             return Err(BakedSceneError::Length {
@@ -513,15 +831,13 @@ impl BakedScene {
         }
         r.end = bytes.len() - CHECKSUM_BYTES;
 
-        // Meshes and proxies: a name and three counts at least, per mesh.
-        r.room(mesh_count as u64, 16, "the meshes")?;
+        // Meshes: a name and two counts at least, per mesh.
+        r.room(mesh_count as u64, 12, "the meshes")?;
         let mut meshes = Vec::with_capacity(mesh_count as usize);
-        let mut proxies = Vec::with_capacity(mesh_count as usize);
         for k in 0..mesh_count {
             let name = r.name(&format!("the name of mesh {k}"))?;
             let vertices = r.u32("a vertex count")?;
             let triangles = r.u32("a triangle count")?;
-            let words = r.u32("a proxy word count")?;
             r.room(
                 vertices as u64,
                 12,
@@ -538,10 +854,6 @@ impl BakedScene {
             let tris: Vec<[u32; 3]> = (0..triangles)
                 .map(|_| Ok([r.u32("")?, r.u32("")?, r.u32("")?]))
                 .collect::<Result<_, BakedSceneError>>()?;
-            r.room(words as u64, 4, &format!("the {words} words of proxy {k}"))?;
-            let proxy: Vec<u32> = (0..words)
-                .map(|_| r.u32(""))
-                .collect::<Result<_, BakedSceneError>>()?;
             meshes.push(SceneMesh {
                 name,
                 mesh: Mesh {
@@ -549,7 +861,20 @@ impl BakedScene {
                     triangles: tris,
                 },
             });
-            proxies.push(proxy);
+        }
+
+        // Proxies: a mesh, a scale and a word count at least, per proxy.
+        r.room(proxy_count as u64, 12, "the proxies")?;
+        let mut proxies = Vec::with_capacity(proxy_count as usize);
+        for k in 0..proxy_count {
+            let mesh = r.u32("a proxy's mesh")?;
+            let scale = r.f32()?;
+            let words = r.u32("a proxy word count")?;
+            r.room(words as u64, 4, &format!("the {words} words of proxy {k}"))?;
+            let words: Vec<u32> = (0..words)
+                .map(|_| r.u32(""))
+                .collect::<Result<_, BakedSceneError>>()?;
+            proxies.push(BakedProxy { mesh, scale, words });
         }
 
         // Nodes: a name, a parent, a kind and ten floats at least.
@@ -582,13 +907,15 @@ impl BakedScene {
             });
         }
 
-        // Instances: 13 words each.
-        r.room(instance_count as u64, 52, "the instances")?;
+        // Instances: 14 words each.
+        r.room(instance_count as u64, 56, "the instances")?;
         let mut instances = Vec::with_capacity(instance_count as usize);
+        let mut instance_proxies = Vec::with_capacity(instance_count as usize);
         for _ in 0..instance_count {
             let node = r.u32("an instance's node")?;
             let mesh = r.u32("an instance's mesh")?;
             let copy = r.u32("an instance's copy")?;
+            instance_proxies.push(r.u32("an instance's proxy")?);
             let local = r.trs()?;
             instances.push(SceneInstance {
                 node,
@@ -662,7 +989,7 @@ impl BakedScene {
                     source,
                 }
             })?;
-        let scene = Self::assemble(name, meshes, proxies, graph)?;
+        let scene = Self::assemble(name, meshes, proxies, instance_proxies, radius, graph)?;
 
         // The checksum last, so that damage the structure shows keeps its own message.
         let body = &bytes[..bytes.len() - CHECKSUM_BYTES];

@@ -643,18 +643,7 @@ impl SceneGraph {
             if instances.is_empty() {
                 continue;
             }
-            times.clear();
-            let mut cur = Some(node as u32);
-            while let Some(c) = cur {
-                for ch in self.node_channels[c as usize].iter().flatten() {
-                    let keys = &self.channels[*ch as usize].times;
-                    times.extend(keys.iter().map(|&t| t as f64));
-                    times.extend(keys.windows(2).map(|w| 0.5 * (w[0] as f64 + w[1] as f64)));
-                }
-                cur = self.nodes[c as usize].parent;
-            }
-            times.sort_by(f64::total_cmp);
-            times.dedup();
+            self.chain_times(node as u32, &mut times);
             for &t in &times {
                 let world = self.node_world(node as u32, Some(t))?;
                 for &i in instances {
@@ -663,6 +652,75 @@ impl SceneGraph {
             }
         }
         Ok(())
+    }
+}
+
+impl SceneGraph {
+    /// The times [`SceneGraph::check_rigid`] samples node `node` at: every key time of every
+    /// channel on its chain and halfway between consecutive keys, sorted, each once.
+    fn chain_times(&self, node: u32, times: &mut Vec<f64>) {
+        times.clear();
+        let mut cur = Some(node);
+        while let Some(c) = cur {
+            for ch in self.node_channels[c as usize].iter().flatten() {
+                let keys = &self.channels[*ch as usize].times;
+                times.extend(keys.iter().map(|&t| t as f64));
+                times.extend(keys.windows(2).map(|w| 0.5 * (w[0] as f64 + w[1] as f64)));
+            }
+            cur = self.nodes[c as usize].parent;
+        }
+        times.sort_by(f64::total_cmp);
+        times.dedup();
+    }
+
+    /// Instance `instance`'s world scale at time 0 with the smallest and largest it takes at
+    /// the times [`SceneGraph::check_rigid`] samples (every key of its chain and halfway
+    /// between keys): a scale that never changes gives three equal values, whatever its
+    /// animation does otherwise.
+    pub fn scale_range(&self, instance: u32) -> Result<ScaleRange, PoseError> {
+        let at_zero = self.pose_at(instance, 0.0)?.scale;
+        let node = self.instances[instance as usize].node;
+        let mut times = Vec::new();
+        self.chain_times(node, &mut times);
+        let (mut min, mut max, mut min_at, mut max_at) = (at_zero, at_zero, 0.0, 0.0);
+        for &t in &times {
+            let s = self.pose_of(instance, Some(t))?.scale;
+            if s < min {
+                (min, min_at) = (s, t);
+            }
+            if s > max {
+                (max, max_at) = (s, t);
+            }
+        }
+        Ok(ScaleRange {
+            at_zero,
+            min,
+            min_at,
+            max,
+            max_at,
+        })
+    }
+}
+
+/// An instance's world scale over its animation ([`SceneGraph::scale_range`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ScaleRange {
+    /// At time 0.
+    pub at_zero: f32,
+    /// The smallest sampled, and when.
+    pub min: f32,
+    /// When it is smallest (seconds).
+    pub min_at: f64,
+    /// The largest sampled.
+    pub max: f32,
+    /// When it is largest (seconds).
+    pub max_at: f64,
+}
+
+impl ScaleRange {
+    /// Whether the scale holds within `tolerance` of the largest (relative).
+    pub fn is_fixed(&self, tolerance: f32) -> bool {
+        self.max - self.min <= tolerance * self.max
     }
 }
 

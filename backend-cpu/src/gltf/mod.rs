@@ -1,5 +1,6 @@
 //! glTF 2.0 scenes: meshes placed by a node hierarchy and moved by animation, read into a
-//! [`SceneDescription`]; baked once into a [`BakedScene`] (one proxy per mesh) and written to
+//! [`SceneDescription`]; baked once into a [`BakedScene`] (one proxy per mesh, or per mesh and
+//! world scale for particles of a radius) and written to
 //! a file that a simulation reads back without baking again.
 //!
 //! # What is read
@@ -42,7 +43,9 @@
 //!
 //! [`bake_scene`] bakes each mesh once ([`crate::bake()`]) into a [`BakedScene`], which holds
 //! the proxies, the meshes (for exact starting sides), the instances and the node hierarchy
-//! with its animation; [`BakedScene::encode`]/[`BakedScene::write`] and
+//! with its animation. For particles of a radius, [`bake_scene_for_radius`] bakes each mesh
+//! once per distinct world scale of its instances (the offset surface at the radius divided
+//! by the scale), and refuses, naming the node, an instance whose scale is animated; [`BakedScene::encode`]/[`BakedScene::write`] and
 //! [`BakedScene::parse`]/[`BakedScene::read`] move it to and from a file whose format is in
 //! `FORMAT.md` beside this module. A [`BakedScene`] samples exactly the poses of the
 //! [`SceneDescription`] it came from: both sample through one [`SceneGraph`].
@@ -89,13 +92,13 @@ mod graph;
 mod load;
 
 pub use baked::{
-    bake_scene, BakeSceneError, BakedScene, BakedSceneError, SceneSetupError, SCENE_FORMAT_VERSION,
-    SCENE_MAGIC,
+    bake_scene, bake_scene_for_radius, BakeSceneError, BakedProxy, BakedScene, BakedSceneError,
+    SceneSetupError, SCENE_FORMAT_VERSION, SCENE_MAGIC,
 };
 pub use base64::{decode_base64, encode_base64};
 pub use graph::{
-    Channel, ChannelPath, GraphError, Interpolation, NodeTransform, PoseError, SceneGraph,
-    SceneInstance, SceneNode, Trs, RIGID_TOLERANCE,
+    Channel, ChannelPath, GraphError, Interpolation, NodeTransform, PoseError, ScaleRange,
+    SceneGraph, SceneInstance, SceneNode, Trs, RIGID_TOLERANCE,
 };
 pub use load::{load_gltf, parse_gltf};
 

@@ -1511,7 +1511,7 @@ fn baked_files_with_consistent_but_bad_content_are_refused() {
     let bytes = baked.encode();
     // The first instance's node (after the header, the mesh section and the nodes).
     let s = BakedScene::parse("x", &bytes).unwrap();
-    let instance_at = bytes.len() - 8 - channels_bytes(&s) - 52 * s.instances().len();
+    let instance_at = bytes.len() - 8 - channels_bytes(&s) - 56 * s.instances().len();
     let mut b = bytes.clone();
     b[instance_at..instance_at + 4].copy_from_slice(&99u32.to_le_bytes());
     assert_says(
@@ -1522,7 +1522,9 @@ fn baked_files_with_consistent_but_bad_content_are_refused() {
     );
     // A proxy word changed: the proxy's own checksum catches it, named by proxy index.
     let mut b = bytes.clone();
-    let proxy_word = 40 + 4 + 4 + 12 + 48 + 48 + 4 * 5;
+    // The header, the mesh (its name, two counts, 4 vertices and 4 triangles), the proxy's
+    // mesh, scale and word count, then its word 5.
+    let proxy_word = 48 + 4 + 4 + 8 + 48 + 48 + 12 + 4 * 5;
     b[proxy_word] ^= 1;
     assert_says(
         &BakedScene::parse("p.oscn", &reseal(b))
@@ -1552,6 +1554,190 @@ fn baked_files_with_consistent_but_bad_content_are_refused() {
             .unwrap_err()
             .to_string(),
         &["m.oscn", "not an octoproxy scene file"],
+    );
+}
+
+/// A tetrahedron placed four times: at scale 1, twice at scale 2 (one of them turning over
+/// the animation, under a parent of scale 2), and at scale 0.5.
+fn scaled_tets() -> SceneDescription {
+    let mut d = Doc::default();
+    let m = d.tet("tet");
+    d.node(&format!(r#"{{"name": "one", "mesh": {m}}}"#));
+    d.node(&format!(
+        r#"{{"name": "two", "mesh": {m}, "scale": [2, 2, 2], "translation": [4, 0, 0]}}"#
+    ));
+    d.node(r#"{"name": "parent", "scale": [2, 2, 2], "translation": [0, 4, 0], "children": [3]}"#);
+    d.node(&format!(r#"{{"name": "turning", "mesh": {m}}}"#));
+    d.node(&format!(
+        r#"{{"name": "half", "mesh": {m}, "scale": [0.5, 0.5, 0.5], "translation": [0, 0, 4]}}"#
+    ));
+    let q = axis_angle([0.3, 0.8, 0.5], 170.0);
+    d.channel(
+        3,
+        "rotation",
+        "LINEAR",
+        &[0.0, 0.5, 1.0],
+        &[
+            0.0, 0.0, 0.0, 1.0, q[0], q[1], q[2], q[3], 0.0, 0.0, 0.0, 1.0,
+        ],
+    );
+    parse(&d.gltf(&[0, 1, 2, 4])).unwrap().0
+}
+
+fn radius_params() -> BuildParams {
+    BuildParams {
+        dmin: 2,
+        dmax: 6,
+        lut_depth: 1,
+        ..Default::default()
+    }
+}
+
+#[test]
+fn a_scene_baked_for_a_radius_has_one_proxy_per_mesh_and_world_scale() {
+    let s = scaled_tets();
+    let radius = 0.1f32;
+    let (baked, reports, surfaces) =
+        bake_scene_for_radius(&s, &radius_params(), radius, &()).unwrap();
+    // Scales 1, 2 (twice: a node's own and a parent's) and 0.5: three proxies.
+    assert_eq!(baked.instance_proxies(), &[0, 1, 1, 2]);
+    let scales: Vec<f32> = baked.proxies().iter().map(|p| p.scale).collect();
+    assert_eq!(scales, [1.0, 2.0, 0.5]);
+    assert_eq!((reports.len(), surfaces.len()), (3, 3));
+    assert_eq!(baked.radius(), radius);
+    for (p, surface) in baked.proxies().iter().zip(&surfaces) {
+        let view = octoproxy_core::ProxyView::new(&p.words).unwrap();
+        let local = view.header().radius;
+        assert!(
+            octoproxy_core::check_radius(local * p.scale, radius).is_ok(),
+            "proxy at scale {} baked for {local}",
+            p.scale
+        );
+        assert_eq!(surface.radius(), local);
+    }
+    // The file keeps it all, and the surfaces are built again from it alike.
+    let back = BakedScene::parse("r.oscn", &baked.encode()).unwrap();
+    assert_eq!(back, baked);
+    let again = back.offset_surfaces(&()).unwrap();
+    assert_eq!(again.len(), 3);
+    for (a, b) in again.iter().zip(&surfaces) {
+        assert_eq!(a.radius(), b.radius());
+        assert_eq!(a.mesh().triangles.len(), b.mesh().triangles.len());
+    }
+    // Every pose the animation samples has exactly its proxy's scale (the turning one's
+    // world scale is rounded from a turning matrix), so a scene step at the radius takes it.
+    for k in 0..=40 {
+        let t = k as f64 / 32.0 - 0.1;
+        for (i, pose) in baked.poses_at(t).unwrap().iter().enumerate() {
+            let p = baked.instance_proxies()[i] as usize;
+            assert_eq!(
+                pose.scale.to_bits(),
+                baked.proxies()[p].scale.to_bits(),
+                "t {t}"
+            );
+            assert_eq!(baked.pose_at(i as u32, t).unwrap(), *pose);
+        }
+    }
+    let (mut scene, _) = baked.build_scene().unwrap();
+    let mut cpu = crate::CpuBackend::new();
+    let particles: Vec<octoproxy_core::Particle> = (0..64)
+        .map(|i| octoproxy_core::Particle::new([i as f32 * 0.1 - 1.0, 6.0, 0.5], [0.0; 3]))
+        .collect();
+    use octoproxy_core::Backend as _;
+    cpu.upload_particles(&particles).unwrap();
+    let params = octoproxy_core::StepParams {
+        dt: 1.0 / 32.0,
+        radius,
+        ..Default::default()
+    };
+    for k in 1..=32 {
+        for (i, pose) in baked
+            .poses_at(k as f64 / 32.0)
+            .unwrap()
+            .into_iter()
+            .enumerate()
+        {
+            scene.move_to(i as u32, pose).unwrap();
+        }
+        scene.step(&mut cpu, &params, false).unwrap();
+    }
+    // Another radius is refused by the step, naming the instance.
+    let wrong = octoproxy_core::StepParams {
+        radius: 0.2,
+        ..params
+    };
+    let e = scene.step(&mut cpu, &wrong, false).unwrap_err().to_string();
+    assert_says(&e, &["instance 0", "radius"]);
+}
+
+#[test]
+fn a_radius_with_an_animated_scale_is_an_error_naming_the_node() {
+    // small_baked's "ärm" grows from 1 to 2 over its animation.
+    let (s, _) = small_baked();
+    let e = match bake_scene_for_radius(&s, &small_params(), 0.05, &()) {
+        Err(e) => e.to_string(),
+        Ok(_) => panic!("an animated scale baked for a radius"),
+    };
+    assert_says(
+        &e,
+        &["instance 1", "ärm", "world scale changes", "radius 0.05"],
+    );
+    for bad in [-1.0, f32::NAN, f32::INFINITY] {
+        let e = match bake_scene_for_radius(&s, &small_params(), bad, &()) {
+            Err(e) => e.to_string(),
+            Ok(_) => panic!("radius {bad} baked"),
+        };
+        assert_says(&e, &["radius must be a finite number"]);
+    }
+}
+
+#[test]
+fn a_baked_file_whose_radius_does_not_fit_its_proxies_is_refused() {
+    let s = scaled_tets();
+    let (baked, _, _) = bake_scene_for_radius(&s, &radius_params(), 0.1, &()).unwrap();
+    let reseal = |mut b: Vec<u8>| {
+        let n = b.len() - 8;
+        let sum = super::baked::fnv1a64(&b[..n]);
+        b[n..].copy_from_slice(&sum.to_le_bytes());
+        b
+    };
+    let bytes = baked.encode();
+    for (radius, needle) in [
+        (0.2f32, "proxy 0 is baked for radius"),
+        (0.0, "proxy 0 is baked for radius"),
+        (f32::NAN, "the particle radius is NaN"),
+        (-0.1, "must be a finite number >= 0"),
+    ] {
+        let mut b = bytes.clone();
+        b[36..40].copy_from_slice(&radius.to_bits().to_le_bytes());
+        assert_says(
+            &BakedScene::parse("r.oscn", &reseal(b))
+                .unwrap_err()
+                .to_string(),
+            &["r.oscn", needle],
+        );
+    }
+    // An instance given another mesh's proxy or another scale's.
+    let instances_at = bytes.len() - 8 - channels_bytes(&baked) - 56 * 4;
+    let mut b = bytes.clone();
+    b[instances_at + 12..instances_at + 16].copy_from_slice(&1u32.to_le_bytes());
+    assert_says(
+        &BakedScene::parse("i.oscn", &reseal(b))
+            .unwrap_err()
+            .to_string(),
+        &[
+            "i.oscn",
+            "instance 0 has world scale 1",
+            "proxy 1 is baked for scale 2",
+        ],
+    );
+    let mut b = bytes.clone();
+    b[instances_at + 12..instances_at + 16].copy_from_slice(&7u32.to_le_bytes());
+    assert_says(
+        &BakedScene::parse("i.oscn", &reseal(b))
+            .unwrap_err()
+            .to_string(),
+        &["i.oscn", "instance 0", "proxy 7"],
     );
 }
 

@@ -80,7 +80,7 @@ pub use bake::{
     MeshRef,
 };
 pub use octoproxy_core::SceneStepReport;
-pub use scene::{starting_scene_sides, Scene, SceneBuildError, SceneStepError};
+pub use scene::{place_in_bands, starting_scene_sides, Scene, SceneBuildError, SceneStepError};
 pub use sides::{starting_sides, CageCounts, Sides, StartCounts};
 
 /// The README's examples, compiled and run as doctests.

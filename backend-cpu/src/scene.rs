@@ -57,6 +57,8 @@ use octoproxy_core::scene::{
 };
 use octoproxy_core::{Aabb, Backend, FormatError, OwnedProxy, ProxyView, StepParams};
 
+use crate::bake::offset::{OffsetSurface, PlaceCounts};
+
 /// What can go wrong with a scene.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
@@ -574,4 +576,80 @@ pub fn starting_scene_sides(
         .collect();
     let count = out.iter().map(|(_, n)| n).sum();
     (out.into_iter().map(|(s, _)| s).collect(), count)
+}
+
+/// Moves every particle that starts inside an instance's band (nearer its mesh than its
+/// offset surface, at the instance's start pose) out of it: instance by instance, in the
+/// instance's frame, by [`OffsetSurface::place`] (away from the nearest surface point, not
+/// into one of its solid leaves). `offsets[proxy]` is the offset surface proxy `proxy` was
+/// baked from (`crate::gltf::bake_scene_for_radius` returns them). Velocities are kept.
+/// Returns how many particles were moved, and how many are still inside some instance's band
+/// afterwards (wedged where bands of several instances meet, or moved into another's): those
+/// start behind that offset surface, where the radius is not kept.
+pub fn place_in_bands(
+    scene: &Scene,
+    offsets: &[OffsetSurface],
+    particles: &mut [octoproxy_core::Particle],
+) -> PlaceCounts {
+    use rayon::prelude::*;
+    let inside = |inst: &Instance, x: Vec3| {
+        let (Some(offset), Some(proxy)) = (
+            offsets.get(inst.proxy as usize),
+            scene.proxies.get(inst.proxy as usize),
+        ) else {
+            return false;
+        };
+        let root = proxy.view().root_aabb();
+        let l = inst.start.to_local(x);
+        l.is_finite()
+            && l.cmpge(root.min).all()
+            && l.cmple(root.max).all()
+            && !offset.outside(l.to_array())
+    };
+    let mut moved = vec![false; particles.len()];
+    for inst in scene.instances.iter().filter(|i| i.is_active()) {
+        let (Some(offset), Some(proxy)) = (
+            offsets.get(inst.proxy as usize),
+            scene.proxies.get(inst.proxy as usize),
+        ) else {
+            continue;
+        };
+        let view = proxy.view();
+        let which: Vec<usize> = particles
+            .par_iter()
+            .enumerate()
+            .filter(|(_, p)| inside(inst, Vec3::from_array(p.position)))
+            .map(|(k, _)| k)
+            .collect();
+        let mut local: Vec<octoproxy_core::Particle> = which
+            .iter()
+            .map(|&k| {
+                let mut q = particles[k];
+                q.position = inst.start.to_local(Vec3::from_array(q.position)).to_array();
+                q
+            })
+            .collect();
+        offset.place(&mut local, Some(&view));
+        for (&k, q) in which.iter().zip(&local) {
+            let x = inst.start.to_world(Vec3::from_array(q.position)).to_array();
+            if x != particles[k].position {
+                particles[k].position = x;
+                moved[k] = true;
+            }
+        }
+    }
+    let stuck = particles
+        .par_iter()
+        .filter(|p| {
+            let x = Vec3::from_array(p.position);
+            scene
+                .instances
+                .iter()
+                .any(|inst| inst.is_active() && inside(inst, x))
+        })
+        .count();
+    PlaceCounts {
+        moved: moved.iter().filter(|&&m| m).count(),
+        stuck,
+    }
 }

@@ -60,13 +60,7 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
                 out.display()
             );
         }
-        if build.radius.is_some() {
-            bail!(
-                "--radius with --scene {}: a glTF scene baked for a particle radius is not supported yet (each mesh needs one bake per distinct world scale); bake its meshes with --mesh --radius",
-                path.display()
-            );
-        }
-        let baked = bake_gltf(&path, build.params()?)?;
+        let (baked, _) = bake_gltf(&path, build.params()?, build.radius()?)?;
         baked.write(&out)?;
         println!("wrote {}", out.display());
         return Ok(());

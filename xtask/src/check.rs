@@ -125,6 +125,7 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     }
     params.validate()?;
     let radius = build.radius()?;
+    let radius_flag = build.radius;
     params.radius = radius;
     let pairs = pair_flags.params(&params)?;
     if particles_file.is_some() && (emit.is_some() || starts.is_some()) {
@@ -155,10 +156,8 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
             if pairs.is_some() {
                 bail!("check --scene FILE --collide-particles is not supported yet: check the pass with --mesh or a built-in --scene NAME");
             }
-            let scene = Instanced::from_file(&path, build.as_ref())?;
-            if radius > 0.0 {
-                bail!("check --scene FILE --radius is not supported yet: check a radius with --mesh or a built-in --scene NAME");
-            }
+            let scene = Instanced::from_file(&path, build.as_ref(), radius_flag)?;
+            params.radius = scene.radius();
             return check_scene(scene, particles_file.as_deref(), emit, seed, steps, &params);
         }
     }
@@ -316,17 +315,49 @@ fn check_scene(
     use octoproxy_cpu::harness::scene::{traced_pieces, SceneCheck, Tally};
     use octoproxy_cpu::CpuBackend;
 
+    inst.offsets()?;
     let t = Instant::now();
-    let refs: Vec<MeshRef<'_>> = inst.meshes.iter().map(|m| MeshRef::from(&m[0])).collect();
     let views: Vec<ProxyView<'_>> = inst.scene.proxies().iter().map(|p| p.view()).collect();
-    let mut check = SceneCheck::new(&refs, &inst.closed, &views);
+    // With a radius, paths are checked against each instance's offset surface (closed), and
+    // step ends against its mesh's exact distance.
+    let (mut check, near) = match &inst.offsets {
+        Some(offsets) => {
+            let refs: Vec<MeshRef<'_>> = offsets.iter().map(|o| o.mesh_ref()).collect();
+            let truths: Vec<GroundTruth> = inst
+                .meshes
+                .iter()
+                .map(|m| GroundTruth::new(&m[0].positions, &m[0].triangles))
+                .collect();
+            let diagonals: Vec<f64> = views
+                .iter()
+                .map(|v| 3f64.sqrt() * v.finest_leaf_size() as f64)
+                .collect();
+            (
+                SceneCheck::new(&refs, &vec![true; refs.len()], &views),
+                Some((truths, diagonals)),
+            )
+        }
+        None => {
+            let refs: Vec<MeshRef<'_>> = inst.meshes.iter().map(|m| MeshRef::from(&m[0])).collect();
+            (SceneCheck::new(&refs, &inst.closed, &views), None)
+        }
+    };
     drop(views);
-    eprintln!(
-        "ground truth: {} meshes ({} closed: winding numbers; the others open: crossing parity), {:.0} ms",
-        inst.closed.len(),
-        inst.closed.iter().filter(|&&c| c).count(),
-        t.elapsed().as_secs_f64() * 1e3
-    );
+    if near.is_some() {
+        eprintln!(
+            "ground truth: the offset surfaces of {} proxies at radius {} (closed: winding numbers), and their meshes' exact distance, {:.0} ms",
+            check.closed.len(),
+            params.radius,
+            t.elapsed().as_secs_f64() * 1e3
+        );
+    } else {
+        eprintln!(
+            "ground truth: {} meshes ({} closed: winding numbers; the others open: crossing parity), {:.0} ms",
+            inst.closed.len(),
+            inst.closed.iter().filter(|&&c| c).count(),
+            t.elapsed().as_secs_f64() * 1e3
+        );
+    }
     let duration = inst.duration();
     let steps = if duration > 0.0 && steps_given == 100 {
         (duration / params.dt as f64).ceil().max(1.0) as u32
@@ -364,9 +395,16 @@ fn check_scene(
     let given = particles.len();
     let particles = outside_all(particles, &check, &inst.scene);
     eprintln!(
-        "particles: {} of {given} start outside every part (two leaf diagonals from every surface); {steps} steps",
-        particles.len()
+        "particles: {} of {given} start outside every part (two leaf diagonals from every surface{}); {steps} steps",
+        particles.len(),
+        if near.is_some() {
+            ", the offset surfaces"
+        } else {
+            ""
+        }
     );
+    let mut too_near = 0usize;
+    let mut nearest = f64::INFINITY;
     let Some(sides_by_proxy): Option<Vec<Sides>> = inst.sides().into_iter().collect() else {
         bail!("the scene's proxies came without their meshes");
     };
@@ -399,6 +437,24 @@ fn check_scene(
             .with_view(|view| traced_pieces(view, &before, &sides, &after, params))?;
         differ += bad.len();
         tally.add(&check.step(inst.scene.instances(), &before, &after, Some(&pieces)));
+        if let Some((truths, diagonals)) = &near {
+            let r = params.radius as f64;
+            for p in after
+                .iter()
+                .filter(|p| p.flags & octoproxy_core::scene::FLAG_CRUSHED == 0)
+            {
+                for i in inst.scene.instances().iter().filter(|i| i.is_active()) {
+                    let k = i.proxy as usize;
+                    let l = i.end.to_local(Vec3::from_array(p.position)).to_array();
+                    let s = i.end.scale as f64;
+                    let d = truths[k].distance_capped(l, 2.0 * r / s) * s;
+                    nearest = nearest.min(d);
+                    if d < r - diagonals[k] * s {
+                        too_near += 1;
+                    }
+                }
+            }
+        }
         inst.scene.hold();
         before = after;
         bar.inc(1);
@@ -419,6 +475,12 @@ fn check_scene(
         "collisions: {}; particle-steps crushed between instances (counted, not checked after): {}",
         tally.collisions, tally.crushed
     );
+    if near.is_some() {
+        println!(
+            "radius {}: the nearest centre to a mesh at a step's end {nearest:.4e}; {too_near} nearer than the radius less a leaf diagonal (too_near)",
+            params.radius
+        );
+    }
     let non_finite = before
         .iter()
         .filter(|p| !Vec3::from_array(p.position).is_finite())
@@ -430,9 +492,9 @@ fn check_scene(
     if differ > 0 {
         bail!("{differ} particle-steps of the traced step differ from the step: a bug, please report it");
     }
-    if tally.penetrations > 0 || non_finite > 0 {
+    if tally.penetrations > 0 || non_finite > 0 || too_near > 0 {
         bail!(
-            "{} penetrations and {non_finite} NaN particles",
+            "{} penetrations, {too_near} centres too near a mesh and {non_finite} NaN particles",
             tally.penetrations
         );
     }

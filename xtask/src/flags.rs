@@ -214,4 +214,5 @@ pub const BUILD_HELP: &str =
   --epsilon X       normal-variance tolerance, >= 0 (default 0.01)
   --lut-depth N     lookup-table depth, 0..=8, clamped to the tree depth (default 5)
   --radius R        the particles' radius, >= 0: bake the offset surface at R from the mesh
-                    (default 0; with sim --proxy, the proxy's own)";
+                    (a glTF scene: each mesh once per world scale s, at R/s; no animated
+                    scale) (default 0; with a proxy or a baked scene, its own)";

@@ -8,7 +8,8 @@ use std::time::Instant;
 use anyhow::{bail, Context, Result};
 use glam::Vec3;
 use octoproxy_core::{Hit, HitEvent, Particle, Pose, ProxyView, SceneSides};
-use octoproxy_cpu::gltf::{bake_scene, load_gltf, BakedScene, SCENE_MAGIC};
+use octoproxy_cpu::bake::offset::OffsetSurface;
+use octoproxy_cpu::gltf::{bake_scene_for_radius, load_gltf, BakedScene, SCENE_MAGIC};
 use octoproxy_cpu::io::ply::{self, Scalar};
 use octoproxy_cpu::io::{Mesh, ParticleCloud};
 use octoproxy_cpu::scenes::MeshExt;
@@ -47,13 +48,21 @@ pub struct Instanced {
     pub meshes: Vec<Vec<Mesh>>,
     /// Whether each proxy's meshes are closed.
     pub closed: Vec<bool>,
+    /// For particles of a radius, each proxy's offset surface (built when first needed, for
+    /// a scene read from a file).
+    pub offsets: Option<Vec<OffsetSurface>>,
 }
 
 impl Instanced {
     /// A scene file: glTF (baked with `params`, each mesh once, shared by every node that
-    /// uses it) or a baked scene (`params` must be `None`: it is baked already).
-    pub fn from_file(path: &Path, params: Option<&BuildParams>) -> Result<Instanced> {
-        let baked = match SceneFile::of(path) {
+    /// uses it, for particles of `radius` when given) or a baked scene (`params` must be
+    /// `None`: it is baked already; a `radius` must be the one it was baked for).
+    pub fn from_file(
+        path: &Path,
+        params: Option<&BuildParams>,
+        radius: Option<f32>,
+    ) -> Result<Instanced> {
+        let (baked, offsets) = match SceneFile::of(path) {
             Some(SceneFile::Baked) => {
                 if params.is_some() {
                     bail!(
@@ -71,15 +80,27 @@ impl Instanced {
                     baked.duration(),
                     t.elapsed().as_secs_f64() * 1e3
                 );
-                baked
+                check_baked_radius(path, &baked, radius)?;
+                (baked, None)
             }
-            Some(SceneFile::Gltf) => bake_gltf(path, params.copied().unwrap_or_default())?,
+            Some(SceneFile::Gltf) => {
+                let (baked, offsets) = bake_gltf(
+                    path,
+                    params.copied().unwrap_or_default(),
+                    radius.unwrap_or(0.0),
+                )?;
+                (baked, Some(offsets))
+            }
             None => bail!(
                 "{}: a scene file is .gltf or .glb (glTF 2.0) or .octoscene (octoproxy bake --scene)",
                 path.display()
             ),
         };
-        Self::from_baked(baked)
+        let mut inst = Self::from_baked(baked)?;
+        if inst.radius() > 0.0 {
+            inst.offsets = offsets;
+        }
+        Ok(inst)
     }
 
     /// The scene of a baked scene, at time 0.
@@ -87,9 +108,9 @@ impl Instanced {
         let (scene, ids) = baked.build_scene()?;
         debug_assert!(ids.iter().enumerate().all(|(i, &id)| id == i as u32));
         let meshes: Vec<Vec<Mesh>> = baked
-            .meshes()
+            .proxies()
             .iter()
-            .map(|m| vec![m.mesh.clone()])
+            .map(|p| vec![baked.meshes()[p.mesh as usize].mesh.clone()])
             .collect();
         let closed = meshes.iter().map(|m| m[0].is_closed()).collect();
         Ok(Instanced {
@@ -97,6 +118,48 @@ impl Instanced {
             baked: Some(baked),
             meshes,
             closed,
+            offsets: None,
+        })
+    }
+
+    /// The particle radius the scene's proxies are baked for (0 for none).
+    pub fn radius(&self) -> f32 {
+        self.baked.as_ref().map_or(0.0, |b| b.radius())
+    }
+
+    /// Each proxy's offset surface, built now if the scene was read from a file; `None`
+    /// without a radius.
+    pub fn offsets(&mut self) -> Result<Option<&[OffsetSurface]>> {
+        if self.radius() == 0.0 {
+            return Ok(None);
+        }
+        if self.offsets.is_none() {
+            if let Some(baked) = &self.baked {
+                let t = Instant::now();
+                let bars = BakeBars::default();
+                let built = baked.offset_surfaces(&bars);
+                bars.finish();
+                self.offsets = Some(built?);
+                eprintln!(
+                    "built the offset surfaces of {} proxies again from their meshes ({:.0} ms)",
+                    baked.proxies().len(),
+                    t.elapsed().as_secs_f64() * 1e3
+                );
+            }
+        }
+        Ok(self.offsets.as_deref())
+    }
+
+    /// Moves every particle that starts inside an instance's band out of it
+    /// ([`octoproxy_cpu::scene::place_in_bands`]); nothing without a radius.
+    pub fn place_out_of_bands(
+        &mut self,
+        particles: &mut [Particle],
+    ) -> Result<octoproxy_cpu::bake::offset::PlaceCounts> {
+        self.offsets()?;
+        Ok(match self.offsets.as_deref() {
+            Some(offsets) => octoproxy_cpu::scene::place_in_bands(&self.scene, offsets, particles),
+            None => Default::default(),
         })
     }
 
@@ -111,6 +174,7 @@ impl Instanced {
             baked: None,
             meshes: vec![meshes],
             closed,
+            offsets: None,
         })
     }
 
@@ -169,8 +233,14 @@ impl Instanced {
     }
 
     /// Exact sides from each proxy's meshes, by proxy (`None` where a proxy came without its
-    /// meshes: a proxy file).
+    /// meshes: a proxy file); for particles of a radius, from each proxy's offset surface.
     pub fn sides(&self) -> Vec<Option<Sides>> {
+        if let Some(offsets) = &self.offsets {
+            return offsets
+                .iter()
+                .map(|o| Some(Sides::new(&[o.mesh_ref()])))
+                .collect();
+        }
         self.meshes
             .iter()
             .map(|ms| {
@@ -221,8 +291,28 @@ pub fn list_instances(path: &Path) -> Result<String> {
     Ok(out)
 }
 
-/// Loads and bakes a glTF file, with progress bars.
-pub fn bake_gltf(path: &Path, params: BuildParams) -> Result<BakedScene> {
+/// A baked scene's radius against `--radius`: a flag that does not match it is an error
+/// naming the file.
+fn check_baked_radius(path: &Path, baked: &BakedScene, radius: Option<f32>) -> Result<()> {
+    if let Some(r) = radius {
+        if octoproxy_core::check_radius(baked.radius(), r).is_err() {
+            bail!(
+                "{}: baked for particles of radius {}, but --radius is {r}: bake the glTF scene again with --radius {r}",
+                path.display(),
+                baked.radius()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Loads and bakes a glTF file for particles of `radius` (0 for none), with progress bars;
+/// returns the scene and, with a radius, each proxy's offset surface.
+pub fn bake_gltf(
+    path: &Path,
+    params: BuildParams,
+    radius: f32,
+) -> Result<(BakedScene, Vec<OffsetSurface>)> {
     let t = Instant::now();
     let (description, warnings) = load_gltf(path)?;
     for w in &warnings {
@@ -243,16 +333,24 @@ pub fn bake_gltf(path: &Path, params: BuildParams) -> Result<BakedScene> {
     );
     let bars = BakeBars::default();
     let t = Instant::now();
-    let result = bake_scene(&description, &params, &bars);
+    let result = bake_scene_for_radius(&description, &params, radius, &bars);
     bars.finish();
-    let (baked, reports) = result?;
+    let (baked, reports, offsets) = result.with_context(|| format!("baking {}", path.display()))?;
     let nodes: usize = reports.iter().map(|r| r.nodes).sum();
     eprintln!(
-        "baked {} proxies ({nodes} nodes) in {:.3} s",
+        "baked {} proxies ({nodes} nodes) in {:.3} s{}",
         reports.len(),
-        t.elapsed().as_secs_f64()
+        t.elapsed().as_secs_f64(),
+        if radius > 0.0 {
+            format!(
+                " for particles of radius {radius}: one per mesh and distinct world scale of its instances ({} meshes)",
+                baked.meshes().len()
+            )
+        } else {
+            String::new()
+        }
     );
-    Ok(baked)
+    Ok((baked, offsets))
 }
 
 /// Whether a file starts as a baked scene does.

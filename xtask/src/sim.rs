@@ -553,10 +553,9 @@ fn instanced_from(path: &Path, build: &BuildFlags) -> Result<Instanced> {
                     path.display()
                 );
             }
-            let baked = octoproxy_cpu::gltf::BakedScene::read(path)?;
-            Instanced::from_baked(baked)
+            Instanced::from_file(path, None, build.radius)
         }
-        _ => Instanced::from_file(path, Some(&build.params()?)),
+        _ => Instanced::from_file(path, Some(&build.params()?), Some(build.radius()?)),
     }
 }
 
@@ -598,9 +597,6 @@ fn one_instance(o: &Opts) -> Result<(Instanced, Option<OffsetSurface>, f32)> {
 /// with hit records, events and each particle's sides for the instances it is near.
 fn run_scene(o: Opts) -> Result<()> {
     let out = o.out.clone().context("sim needs --out FILE (or -o FILE)")?;
-    if o.build.radius.is_some() && o.scene.is_some() {
-        bail!("--radius with --scene is not supported yet (a glTF scene baked for a radius needs one bake per distinct world scale): step particles of a radius with --mesh or --proxy");
-    }
     let defaults = StepParams::default();
     let mut params = StepParams {
         gravity: o.gravity.unwrap_or(defaults.gravity),
@@ -619,7 +615,11 @@ fn run_scene(o: Opts) -> Result<()> {
         bail!("--emit-surface needs --mesh (with --scene, emit in a box)");
     }
     let (mut inst, mut offset) = match &o.scene {
-        Some(path) => (instanced_from(path, &o.build)?, None),
+        Some(path) => {
+            let inst = instanced_from(path, &o.build)?;
+            params.radius = inst.radius();
+            (inst, None)
+        }
         None => {
             let (inst, offset, radius) = one_instance(&o)?;
             params.radius = radius;
@@ -698,6 +698,21 @@ fn run_scene(o: Opts) -> Result<()> {
                     "sides: the file's `side` is for a scene of one instance; with {instances} instances each particle takes its sides from the meshes"
                 );
             }
+            if params.radius > 0.0 {
+                let t = Instant::now();
+                let placed = inst.place_out_of_bands(&mut cloud.particles)?;
+                let (moved, stuck) = (placed.moved, placed.stuck);
+                eprintln!(
+                    "radius: {moved} of {} particles started nearer an instance's mesh than its offset surface (about the radius) and were moved out along the way from their nearest surface point ({:.0} ms){}",
+                    cloud.particles.len(),
+                    t.elapsed().as_secs_f64() * 1e3,
+                    if stuck > 0 {
+                        format!("; {stuck} are still inside an instance's band (wedged between instances) and start behind its offset surface")
+                    } else {
+                        String::new()
+                    }
+                );
+            }
             let per_proxy = inst.sides();
             let Some(all): Option<Vec<Sides>> = per_proxy.into_iter().collect() else {
                 bail!("the scene's proxies came without their meshes");
@@ -706,8 +721,13 @@ fn run_scene(o: Opts) -> Result<()> {
             let (sides, from_mesh) =
                 octoproxy_cpu::starting_scene_sides(&inst.scene, &all, &cloud.particles);
             eprintln!(
-                "sides: {from_mesh} of {} particles start in an instance's surface leaf and take their side from its mesh (exact, {:.0} ms); the others take it from the empty leaf they are in",
+                "sides: {from_mesh} of {} particles start in an instance's surface leaf and take their side from its {} (exact, {:.0} ms); the others take it from the empty leaf they are in",
                 cloud.particles.len(),
+                if params.radius > 0.0 {
+                    "offset surface"
+                } else {
+                    "mesh"
+                },
                 t.elapsed().as_secs_f64() * 1e3
             );
             sides

@@ -200,6 +200,89 @@ fn a_baked_scene_steps_with_hits_and_events_and_a_restart_continues_it() {
 }
 
 #[test]
+fn a_scene_baked_for_a_radius_bakes_once_per_world_scale_and_steps_at_that_radius() {
+    let dir = scratch("radius");
+    let d = &dir;
+    let gltf = fixture("blender/blender_keys.gltf");
+    let text = ok(&octoproxy(
+        &[
+            "bake",
+            "--scene",
+            &gltf,
+            "--dmax",
+            "6",
+            "--radius",
+            "0.12",
+            "-o",
+            "r.octoscene",
+        ],
+        d,
+    ));
+    // Box and Cone at scale 1.5, the icosphere at 0.75 and 1.
+    assert!(text.contains("baked 4 proxies"), "{text}");
+    let text = ok(&octoproxy(
+        &[
+            "sim",
+            "--scene",
+            "r.octoscene",
+            "--emit",
+            "1500",
+            "--emit-speed",
+            "2",
+            "--steps",
+            "30",
+            "--backend",
+            "cpu",
+            "-o",
+            "out.ply",
+        ],
+        d,
+    ));
+    assert!(text.contains("scene: 5 instances of 4 proxies"), "{text}");
+    assert!(
+        text.contains("built the offset surfaces of 4 proxies"),
+        "{text}"
+    );
+    assert!(
+        text.contains("were moved out along the way from their nearest surface point"),
+        "{text}"
+    );
+    assert!(text.contains("from its offset surface"), "{text}");
+    assert_eq!(
+        read_particles(&d.join("out.ply")).unwrap().particles.len(),
+        1500
+    );
+    // The check: paths against each instance's offset surface, ends against its mesh.
+    let text = ok(&octoproxy(
+        &["check", "--scene", "r.octoscene", "--emit", "1500"],
+        d,
+    ));
+    assert!(text.contains("penetrations: 0"), "{text}");
+    assert!(
+        text.contains("0 nearer than the radius less a leaf diagonal"),
+        "{text}"
+    );
+    // Another radius against the baked one names the file.
+    assert_one_line_error(
+        &octoproxy(
+            &[
+                "sim",
+                "--scene",
+                "r.octoscene",
+                "--radius",
+                "0.2",
+                "--emit",
+                "10",
+                "-o",
+                "x.ply",
+            ],
+            d,
+        ),
+        "r.octoscene: baked for particles of radius 0.12, but --radius is 0.2",
+    );
+}
+
+#[test]
 fn a_scene_steps_the_same_on_the_gpu_as_on_the_cpu() {
     let dir = scratch("gpu");
     let d = &dir;

@@ -6,13 +6,13 @@ use octoproxy_core::scene::{step_plain, FLAG_CRUSHED, FLAG_SIDES_LOST, SLOT_INST
 use octoproxy_core::{
     step_particle_hinted, step_particle_scene, Backend, BroadNode, EventCount, FormatError, Hit,
     HitEvent, HitEvents, Instance, LeafHint, OwnedProxy, Particle, ProxyView, SceneError,
-    SceneHint, SceneSides, SceneSlots, SceneStepReport, SceneView, StepParams,
+    SceneHint, SceneSides, SceneSlots, SceneStepReport, SceneSubstep, SceneView, StepParams,
 };
 
 use octoproxy_core::pairs::PairGeometry;
 use octoproxy_core::pairs::{
     pair_candidates, pair_cell, pair_geometry, pair_hash, pair_is_fast, pair_prepare, pair_start,
-    pair_table_size, pair_velocity_listed, PAIR_HASH_NONE,
+    pair_start_scene, pair_table_size, pair_velocity_listed, PAIR_HASH_NONE,
 };
 use octoproxy_core::{pair_substeps, PairBody, PairParams, PairReport, PairStep, PairVelocity};
 use rayon::prelude::*;
@@ -48,6 +48,14 @@ pub enum CpuError {
     #[error("invalid particle collision parameters: {0}")]
     Pairs(#[from] octoproxy_core::PairParamError),
     /// A slice of the wrong length.
+    /// A scene step with the pass given another number of substeps than it takes.
+    #[error("the pass takes {expected} substeps for these parameters, but the scene was posed for {got}")]
+    Substeps {
+        /// [`octoproxy_core::pair_substeps`].
+        expected: u32,
+        /// Substeps given.
+        got: usize,
+    },
     #[error("expected room for {expected} particles, got {got}")]
     LengthMismatch {
         /// Particles held (or the event capacity).
@@ -148,8 +156,7 @@ impl PairBuffers {
     fn substep(
         &mut self,
         particles: &mut [Particle],
-        view: &ProxyView<'_>,
-        hints: &[LeafHint],
+        start: impl Fn(usize, &Particle) -> (PairVelocity, [f32; 4]) + Sync,
         s: &PairStep,
         iterations: u32,
         started: std::time::Instant,
@@ -199,7 +206,7 @@ impl PairBuffers {
                     cell: pair_cell(p.position, s),
                     hash: (keys[k] >> 32) as u32,
                 };
-                (*v, *sup) = pair_start(view, p, hints[i as usize], s);
+                (*v, *sup) = start(i as usize, p);
                 rank[i as usize].store(k as u32, Ordering::Relaxed);
             });
         // Each chunk of the table is a run of the sorted keys: find where it starts, walk it.
@@ -498,6 +505,82 @@ impl CpuBackend {
         }
     }
 
+    /// The substeps of [`Backend::step_scene_pairs`], its checks done, against the scene's
+    /// proxies (taken out of `self` for the call).
+    fn scene_pair_substeps(
+        &mut self,
+        proxies: &[OwnedProxy],
+        substeps: &[SceneSubstep<'_>],
+        params: &StepParams,
+        march: &StepParams,
+        pairs: &PairParams,
+        hits: bool,
+    ) -> Result<(), CpuError> {
+        let views: Vec<ProxyView<'_>> = proxies.iter().map(|p| p.view()).collect();
+        let scenes = substeps
+            .iter()
+            .map(|sub| {
+                let view = SceneView::new(&views, sub.instances, sub.broad)?;
+                view.check_radius(params.radius)?;
+                Ok(view)
+            })
+            .collect::<Result<Vec<_>, SceneError>>()?;
+        let n = self.particles.len();
+        let mut last = if hits { vec![Hit::NONE; n] } else { Vec::new() };
+        if hits {
+            self.hits.resize(n, Hit::NONE);
+        }
+        for (k, scene) in scenes.iter().enumerate() {
+            let started = std::time::Instant::now();
+            let s0 = PairStep::new(params, pairs, march.dt, n, 0.0);
+            let (v_max, fast) = self
+                .particles
+                .par_iter()
+                .with_min_len(4096)
+                .filter_map(|p| pair_prepare(p, &s0).map(|(_, speed)| speed))
+                .map(|speed| (speed, pair_is_fast(speed, &s0) as u64))
+                .reduce(|| (0.0, 0), |a, b| (a.0.max(b.0), a.1 + b.1));
+            let s = PairStep::new(params, pairs, march.dt, n, v_max);
+            self.pair_report.fast += fast;
+            let Self {
+                particles,
+                scene_hints,
+                scene_slots,
+                pairs: buffers,
+                pair_report,
+                ..
+            } = self;
+            let (hints, slots) = (&*scene_hints, &*scene_slots);
+            let start =
+                |i: usize, p: &Particle| pair_start_scene(scene, p, &hints[i], &slots[i], &s);
+            pair_report.capped += buffers.substep(particles, start, &s, pairs.iterations, started);
+            let marched = std::time::Instant::now();
+            let first_event = self.events.len();
+            let (crushed, sides_lost) = self.step_scene_with(scene, march, hits);
+            self.report.crushed += crushed;
+            self.report.sides_lost += sides_lost;
+            // Hits and events at fractions of the whole step.
+            let (k, count) = (k as u32, scenes.len() as u32);
+            for e in &mut self.events[first_event..] {
+                e.hit = e.hit.in_whole_step(k, count);
+            }
+            if hits {
+                for (l, hit) in last.iter_mut().zip(&self.hits) {
+                    if hit.instance >= 0 {
+                        *l = hit.in_whole_step(k, count);
+                    }
+                }
+            }
+            self.pairs.timings.march += marched.elapsed();
+            self.pair_report.capped += self.pairs.debias(&mut self.particles, &s, pairs.iterations);
+            self.pair_report.substeps += 1;
+        }
+        if hits {
+            self.hits = last;
+        }
+        Ok(())
+    }
+
     /// Where the particle–particle pass spent its time since this was last taken.
     pub fn take_pair_timings(&mut self) -> PairTimings {
         std::mem::take(&mut self.pairs.timings)
@@ -697,8 +780,9 @@ impl Backend for CpuBackend {
                     .reduce(|| (0.0, 0), |a, b| (a.0.max(b.0), a.1 + b.1));
                 let s = PairStep::new(params, pairs, h, n, v_max);
                 pair_report.fast += fast;
+                let start = |i: usize, p: &Particle| pair_start(&view, p, hints[i], &s);
                 pair_report.capped +=
-                    buffers.substep(particles, &view, hints, &s, pairs.iterations, started);
+                    buffers.substep(particles, start, &s, pairs.iterations, started);
                 let marched = std::time::Instant::now();
                 particles
                     .par_iter_mut()
@@ -713,6 +797,45 @@ impl Backend for CpuBackend {
             }
             pair_report.steps += 1;
         }
+        Ok(())
+    }
+
+    fn step_scene_pairs(
+        &mut self,
+        substeps: &[SceneSubstep<'_>],
+        params: &StepParams,
+        pairs: &PairParams,
+        hits: bool,
+    ) -> Result<(), CpuError> {
+        params.validate()?;
+        pairs.validate(params)?;
+        let n = self.particles.len();
+        if n >= PAIR_HASH_NONE as usize {
+            return Err(CpuError::LengthMismatch {
+                expected: PAIR_HASH_NONE as usize - 1,
+                got: n,
+            });
+        }
+        let count = pair_substeps(params, pairs);
+        if substeps.len() != count as usize {
+            return Err(CpuError::Substeps {
+                expected: count,
+                got: substeps.len(),
+            });
+        }
+        let h = params.dt / count as f32;
+        let march = StepParams {
+            gravity: [0.0; 3],
+            dt: h,
+            ..*params
+        };
+        march.validate()?;
+        let proxies = std::mem::take(&mut self.scene_proxies);
+        let result = self.scene_pair_substeps(&proxies, substeps, params, &march, pairs, hits);
+        self.scene_proxies = proxies;
+        result?;
+        self.pair_report.steps += 1;
+        self.scene_steps = self.scene_steps.wrapping_add(1);
         Ok(())
     }
 

@@ -55,7 +55,10 @@ use octoproxy_core::scene::{
     BroadNode, Instance, Pose, SceneError, SceneView, BROAD_INTERNAL, BROAD_LEAF, INSTANCE_LIVE,
     MAX_INSTANCES, SIDE_SLOTS,
 };
-use octoproxy_core::{Aabb, Backend, FormatError, OwnedProxy, ProxyView, StepParams};
+use octoproxy_core::{
+    pair_substeps, Aabb, Backend, FormatError, OwnedProxy, PairParams, ProxyView, SceneSubstep,
+    StepParams,
+};
 
 use crate::bake::offset::{OffsetSurface, PlaceCounts};
 
@@ -115,6 +118,9 @@ pub enum SceneStepError<E: std::error::Error + 'static> {
     /// The backend failed.
     #[error(transparent)]
     Backend(E),
+    /// The step or pass parameters are invalid ([`Scene::step_pairs`]).
+    #[error("{0}")]
+    Params(String),
 }
 
 /// A number no other scene of this process has, for [`Scene::proxies_key`].
@@ -232,6 +238,64 @@ impl Scene {
             .map_err(SceneStepError::Backend)?;
         backend
             .step_scene(&self.instances, &self.nodes, params, hits)
+            .map_err(SceneStepError::Backend)?;
+        self.hold();
+        Ok(())
+    }
+
+    /// One step of `backend`'s particles through the scene with the particle–particle pass
+    /// ([`Backend::step_scene_pairs`]): the step's motion of every moving instance cut into
+    /// the pass's substeps (its poses at `k / S` and `(k + 1) / S` of the step,
+    /// `Instance::pose_at`), each substep's broad phase built and checked, then the step, then
+    /// every instance held at its end pose, as [`Scene::step`] does.
+    pub fn step_pairs<B: Backend>(
+        &mut self,
+        backend: &mut B,
+        params: &StepParams,
+        pairs: &PairParams,
+        hits: bool,
+    ) -> Result<(), SceneStepError<B::Error>> {
+        params
+            .validate()
+            .map_err(|e| SceneStepError::Params(e.to_string()))?;
+        pairs
+            .validate(params)
+            .map_err(|e| SceneStepError::Params(e.to_string()))?;
+        self.prepare()?;
+        self.upload_proxies(backend)
+            .map_err(SceneStepError::Backend)?;
+        let count = pair_substeps(params, pairs);
+        let whole = self.instances.clone();
+        let mut substeps: Vec<(Vec<Instance>, Vec<BroadNode>)> = Vec::with_capacity(count as usize);
+        let mut result = Ok(());
+        for k in 0..count {
+            let (u0, u1) = (k as f32 / count as f32, (k + 1) as f32 / count as f32);
+            for (i, w) in self.instances.iter_mut().zip(&whole) {
+                if !w.is_static() {
+                    *i = Instance {
+                        flags: w.flags,
+                        ..Instance::new(w.proxy, w.pose_at(u0), w.pose_at(u1))
+                    };
+                }
+            }
+            self.dirty = true;
+            if let Err(e) = self.prepare() {
+                result = Err(e);
+                break;
+            }
+            substeps.push((self.instances.clone(), self.nodes.clone()));
+        }
+        // The whole step again, whatever happened.
+        self.instances = whole;
+        self.dirty = true;
+        self.prepare()?;
+        result?;
+        let views: Vec<SceneSubstep<'_>> = substeps
+            .iter()
+            .map(|(instances, broad)| SceneSubstep { instances, broad })
+            .collect();
+        backend
+            .step_scene_pairs(&views, params, pairs, hits)
             .map_err(SceneStepError::Backend)?;
         self.hold();
         Ok(())

@@ -93,6 +93,14 @@ pub enum WgpuError {
     /// The particles' radius is not the one the proxy was baked for.
     #[error("{0}")]
     Radius(#[from] octoproxy_core::RadiusMismatch),
+    /// A scene step with the pass given another number of substeps than it takes.
+    #[error("the pass takes {expected} substeps for these parameters, but the scene was posed for {got}")]
+    Substeps {
+        /// `octoproxy_core::pair_substeps`.
+        expected: u32,
+        /// Substeps given.
+        got: usize,
+    },
     /// `download_particles` was given a slice of the wrong length.
     #[error("expected room for {expected} particles, got {got}")]
     LengthMismatch {
@@ -996,6 +1004,16 @@ impl Backend for WgpuBackend {
         steps: u32,
     ) -> Result<(), WgpuError> {
         self.step_pairs_gpu(params, pairs, steps)
+    }
+
+    fn step_scene_pairs(
+        &mut self,
+        substeps: &[octoproxy_core::SceneSubstep<'_>],
+        params: &StepParams,
+        pairs: &octoproxy_core::PairParams,
+        hits: bool,
+    ) -> Result<(), WgpuError> {
+        self.step_scene_pairs_gpu(substeps, params, pairs, hits)
     }
 
     fn take_pair_report(&mut self) -> Result<octoproxy_core::PairReport, WgpuError> {

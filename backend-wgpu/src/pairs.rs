@@ -136,6 +136,7 @@ struct PairKernel {
     rank: wgpu::ComputePipeline,
     gather: wgpu::ComputePipeline,
     start: wgpu::ComputePipeline,
+    start_given: wgpu::ComputePipeline,
     iterate: wgpu::ComputePipeline,
     scatter: wgpu::ComputePipeline,
     unbias: wgpu::ComputePipeline,
@@ -155,6 +156,8 @@ struct PairBuffers {
     /// Two for the iterations, and the velocities entering them (`vel[2]`).
     vel: [wgpu::Buffer; 3],
     supports: wgpu::Buffer,
+    /// In a scene, each particle's support found by the scene module, by upload index.
+    pub(crate) given: wgpu::Buffer,
     /// The sort's dispatches, whether each is a block's (or a pass over all the keys), and
     /// their [`PairSortParams`], one every `sort_stride` bytes.
     sort_blocks: Vec<bool>,
@@ -176,7 +179,10 @@ struct ChunkGroups {
     speed: wgpu::BindGroup,
     key: wgpu::BindGroup,
     gather: wgpu::BindGroup,
-    start: wgpu::BindGroup,
+    /// The starts with supports from the proxy's leaves (none without a proxy).
+    start: Option<wgpu::BindGroup>,
+    /// The starts with the supports given (a scene's).
+    start_given: wgpu::BindGroup,
     /// The scatter from `vel[i]`: the last iteration's output is [`last_velocities`]'s.
     scatter: [wgpu::BindGroup; 2],
     /// The marched velocities into `vel[0]`, for the debiasing iterations.
@@ -184,13 +190,14 @@ struct ChunkGroups {
 }
 
 /// What a chunk's bind groups were made for: its particles' buffer, offset and count, its
-/// parameters' and hints' buffers, and the proxy.
+/// parameters' and hints' buffers, the proxy (if any) and the pass's given supports.
 type ChunkKey = (
     wgpu::Buffer,
     u64,
     u32,
     wgpu::Buffer,
     wgpu::Buffer,
+    Option<wgpu::Buffer>,
     wgpu::Buffer,
 );
 
@@ -259,7 +266,7 @@ fn group(
 }
 
 impl WgpuBackend {
-    fn pair_kernel(&mut self) -> Result<(), WgpuError> {
+    pub(crate) fn pair_kernel(&mut self) -> Result<(), WgpuError> {
         if self.pairs.kernel.is_some() {
             return Ok(());
         }
@@ -314,6 +321,7 @@ impl WgpuBackend {
             rank: pipeline("pair_rank_kernel", None),
             gather: pipeline("pair_gather_kernel", None),
             start: pipeline("pair_start_kernel", None),
+            start_given: pipeline("pair_start_given_kernel", None),
             iterate: pipeline("pair_iterate_kernel", None),
             scatter: pipeline("pair_scatter_kernel", None),
             unbias: pipeline("pair_unbias_kernel", None),
@@ -334,7 +342,7 @@ impl WgpuBackend {
     }
 
     /// The pass's buffers for `n` particles (kept while `n` is the same).
-    fn pair_buffers(&mut self, n: usize) -> Result<(), WgpuError> {
+    pub(crate) fn pair_buffers(&mut self, n: usize) -> Result<(), WgpuError> {
         if self
             .pairs
             .buffers
@@ -416,6 +424,11 @@ impl WgpuBackend {
         });
         let supports = buffer(
             "octoproxy pair supports",
+            n as u64 * SUPPORT_BYTES,
+            storage_usage,
+        );
+        let given = buffer(
+            "octoproxy pair given supports",
             n as u64 * SUPPORT_BYTES,
             storage_usage,
         );
@@ -528,6 +541,7 @@ impl WgpuBackend {
             bodies,
             vel,
             supports,
+            given,
             sort_blocks: passes.iter().map(|(block, _)| *block).collect(),
             sort_stride: stride,
             reset_group,
@@ -540,12 +554,17 @@ impl WgpuBackend {
         Ok(())
     }
 
-    /// Each chunk's bind groups, remade when the chunks or the proxy change.
-    fn pair_chunk_groups(&mut self) {
-        let Some((proxy, _)) = self.proxy() else {
-            return;
-        };
-        let proxy = proxy.clone();
+    /// Each chunk's bind groups, remade when the chunks, the proxy or the pass's buffers
+    /// change.
+    pub(crate) fn pair_chunk_groups(&mut self) {
+        let proxy = self.proxy().map(|(p, _)| p.clone());
+        let given = self
+            .pairs
+            .buffers
+            .as_ref()
+            .expect("made first")
+            .given
+            .clone();
         let keys: Vec<ChunkKey> = self
             .chunks
             .iter()
@@ -557,6 +576,7 @@ impl WgpuBackend {
                     c.params.clone(),
                     c.hints.clone(),
                     proxy.clone(),
+                    given.clone(),
                 )
             })
             .collect();
@@ -626,19 +646,35 @@ impl WgpuBackend {
                             (6, buffers.bodies.as_entire_binding()),
                         ],
                     ),
-                    start: group(
+                    start: proxy.as_ref().map(|proxy| {
+                        group(
+                            device,
+                            &kernel.start,
+                            "octoproxy pair start",
+                            &[
+                                (0, proxy.as_entire_binding()),
+                                (1, particles()),
+                                (2, params.clone()),
+                                (3, state.clone()),
+                                (5, buffers.rank.as_entire_binding()),
+                                (8, buffers.vel[2].as_entire_binding()),
+                                (12, buffers.supports.as_entire_binding()),
+                                (13, chunk.hints.as_entire_binding()),
+                            ],
+                        )
+                    }),
+                    start_given: group(
                         device,
-                        &kernel.start,
-                        "octoproxy pair start",
+                        &kernel.start_given,
+                        "octoproxy pair start (given supports)",
                         &[
-                            (0, proxy.as_entire_binding()),
                             (1, particles()),
                             (2, params.clone()),
                             (3, state.clone()),
                             (5, buffers.rank.as_entire_binding()),
                             (8, buffers.vel[2].as_entire_binding()),
                             (12, buffers.supports.as_entire_binding()),
-                            (13, chunk.hints.as_entire_binding()),
+                            (15, buffers.given.as_entire_binding()),
                         ],
                     ),
                     scatter: [scatter(0), scatter(1)],
@@ -694,29 +730,25 @@ impl WgpuBackend {
             self.pair_kernel()?;
             self.pair_buffers(n)?;
             self.pair_chunk_groups();
-            self.record_pairs(params, pairs, &march, h, steps)?;
+            self.record_pairs(params, pairs, &march, steps)?;
         }
         self.pairs.pending.steps += steps as u64;
         self.pairs.pending.substeps += steps as u64 * substeps as u64;
         self.check_health()
     }
 
-    fn record_pairs(
+    /// The substep's constants for the pass (all but the cell, which the GPU computes from
+    /// the largest speed, `pair_step_kernel`; the counts after them are left alone) and the
+    /// march's parameters.
+    pub(crate) fn write_pair_constants(
         &self,
         params: &StepParams,
         pairs: &PairParams,
         march: &StepParams,
-        h: f32,
-        steps: u32,
-    ) -> Result<(), WgpuError> {
+    ) {
         let kernel = self.pairs.kernel.as_ref().expect("built first");
         let buffers = self.pairs.buffers.as_ref().expect("made first");
-        let n = buffers.count;
-        let substeps = pair_substeps(params, pairs);
-        let scope = ErrorScope::push(&self.device);
-        // Everything of the substep's constants but the cell, which the GPU computes from
-        // the largest speed (`pair_step_kernel`); the counts after it are left alone.
-        let s = PairStep::new(params, pairs, h, n as usize, 0.0);
+        let s = PairStep::new(params, pairs, march.dt, buffers.count as usize, 0.0);
         self.queue
             .write_buffer(&kernel.state, 0, bytemuck::bytes_of(&s));
         self.queue.write_buffer(
@@ -725,7 +757,18 @@ impl WgpuBackend {
             bytemuck::bytes_of(&pairs.relaxation),
         );
         self.write_step_params(march);
-        let chunks = &self.pairs.chunk_groups;
+    }
+
+    fn record_pairs(
+        &self,
+        params: &StepParams,
+        pairs: &PairParams,
+        march: &StepParams,
+        steps: u32,
+    ) -> Result<(), WgpuError> {
+        let substeps = pair_substeps(params, pairs);
+        let scope = ErrorScope::push(&self.device);
+        self.write_pair_constants(params, pairs, march);
         for _ in 0..steps {
             let mut encoder = self.device.create_command_encoder(&Default::default());
             for _ in 0..substeps {
@@ -733,89 +776,138 @@ impl WgpuBackend {
                     label: Some("octoproxy pair substep"),
                     timestamp_writes: None,
                 });
-                let dispatch = |pass: &mut wgpu::ComputePass<'_>, count: u32| {
-                    let (x, y) = self.dispatch_size(count);
-                    pass.dispatch_workgroups(x, y, 1);
-                };
-                pass.set_pipeline(&kernel.reset);
-                pass.set_bind_group(0, &buffers.reset_group, &[]);
-                dispatch(&mut pass, buffers.table);
-                pass.set_pipeline(&kernel.speed);
-                for c in chunks {
-                    pass.set_bind_group(0, &c.speed, &[]);
-                    dispatch(&mut pass, c.count);
-                }
-                pass.set_pipeline(&kernel.step);
-                pass.set_bind_group(0, &buffers.step_group, &[]);
-                pass.dispatch_workgroups(1, 1, 1);
-                pass.set_pipeline(&kernel.key);
-                for c in chunks {
-                    pass.set_bind_group(0, &c.key, &[]);
-                    dispatch(&mut pass, c.count);
-                }
-                for (i, &block) in buffers.sort_blocks.iter().enumerate() {
-                    let offset = i as u32 * buffers.sort_stride;
-                    if block {
-                        pass.set_pipeline(&kernel.sort_block);
-                        pass.set_bind_group(0, &buffers.sort_group, &[offset]);
-                        let groups = buffers.table / buffers.table.min(PAIR_SORT_BLOCK);
-                        let (x, y) = self.fold(groups);
-                        pass.dispatch_workgroups(x, y, 1);
-                    } else {
-                        pass.set_pipeline(&kernel.sort_pass);
-                        pass.set_bind_group(0, &buffers.sort_group, &[offset]);
-                        dispatch(&mut pass, buffers.table / 2);
-                    }
-                }
-                pass.set_pipeline(&kernel.rank);
-                pass.set_bind_group(0, &buffers.rank_group, &[]);
-                dispatch(&mut pass, n);
-                pass.set_pipeline(&kernel.gather);
-                for c in chunks {
-                    pass.set_bind_group(0, &c.gather, &[]);
-                    dispatch(&mut pass, c.count);
-                }
-                pass.set_pipeline(&kernel.start);
-                for c in chunks {
-                    pass.set_bind_group(0, &c.start, &[]);
-                    dispatch(&mut pass, c.count);
-                }
-                pass.set_pipeline(&kernel.iterate);
-                for i in 0..pairs.iterations {
-                    pass.set_bind_group(0, &buffers.iterate_groups[iterate_group(i)], &[]);
-                    dispatch(&mut pass, n);
-                }
-                pass.set_pipeline(&kernel.scatter);
-                let last = last_velocities(pairs.iterations);
-                for c in chunks {
-                    pass.set_bind_group(0, &c.scatter[last], &[]);
-                    dispatch(&mut pass, c.count);
-                }
-                self.record_step(&mut pass, false);
-                // The debiasing iterations: from the marched velocities, in `vel[0]`.
-                pass.set_pipeline(&kernel.unbias);
-                pass.set_bind_group(0, &buffers.unbias_group, &[]);
-                pass.dispatch_workgroups(1, 1, 1);
-                pass.set_pipeline(&kernel.regather);
-                for c in chunks {
-                    pass.set_bind_group(0, &c.regather, &[]);
-                    dispatch(&mut pass, c.count);
-                }
-                pass.set_pipeline(&kernel.iterate);
-                for i in 0..pairs.iterations {
-                    pass.set_bind_group(0, &buffers.iterate_groups[1 + i as usize % 2], &[]);
-                    dispatch(&mut pass, n);
-                }
-                pass.set_pipeline(&kernel.scatter);
-                let last = (pairs.iterations % 2) as usize;
-                for c in chunks {
-                    pass.set_bind_group(0, &c.scatter[last], &[]);
-                    dispatch(&mut pass, c.count);
-                }
+                self.encode_pair_substep(&mut pass, pairs, None, |pass| {
+                    self.record_step(pass, false)
+                });
             }
             self.queue.submit([encoder.finish()]);
         }
         scope.pop().map_err(WgpuError::Gpu)
+    }
+
+    /// One substep of the pass in `pass`: the stages up to the scatter, then `march` (every
+    /// particle marched over the substep), then the debiasing stages. With `scene` (the
+    /// scene module's support pipeline and each chunk's bind group for it), each grain's
+    /// support is found there first and the starts take it (`pair_start_given_kernel`).
+    pub(crate) fn encode_pair_substep(
+        &self,
+        pass: &mut wgpu::ComputePass<'_>,
+        pairs: &PairParams,
+        scene: Option<(&wgpu::ComputePipeline, &[&wgpu::BindGroup])>,
+        march: impl FnOnce(&mut wgpu::ComputePass<'_>),
+    ) {
+        let kernel = self.pairs.kernel.as_ref().expect("built first");
+        let buffers = self.pairs.buffers.as_ref().expect("made first");
+        let chunks = &self.pairs.chunk_groups;
+        let n = buffers.count;
+        let dispatch = |pass: &mut wgpu::ComputePass<'_>, count: u32| {
+            let (x, y) = self.dispatch_size(count);
+            pass.dispatch_workgroups(x, y, 1);
+        };
+        pass.set_pipeline(&kernel.reset);
+        pass.set_bind_group(0, &buffers.reset_group, &[]);
+        dispatch(pass, buffers.table);
+        pass.set_pipeline(&kernel.speed);
+        for c in chunks {
+            pass.set_bind_group(0, &c.speed, &[]);
+            dispatch(pass, c.count);
+        }
+        pass.set_pipeline(&kernel.step);
+        pass.set_bind_group(0, &buffers.step_group, &[]);
+        pass.dispatch_workgroups(1, 1, 1);
+        pass.set_pipeline(&kernel.key);
+        for c in chunks {
+            pass.set_bind_group(0, &c.key, &[]);
+            dispatch(pass, c.count);
+        }
+        for (i, &block) in buffers.sort_blocks.iter().enumerate() {
+            let offset = i as u32 * buffers.sort_stride;
+            if block {
+                pass.set_pipeline(&kernel.sort_block);
+                pass.set_bind_group(0, &buffers.sort_group, &[offset]);
+                let groups = buffers.table / buffers.table.min(PAIR_SORT_BLOCK);
+                let (x, y) = self.fold(groups);
+                pass.dispatch_workgroups(x, y, 1);
+            } else {
+                pass.set_pipeline(&kernel.sort_pass);
+                pass.set_bind_group(0, &buffers.sort_group, &[offset]);
+                dispatch(pass, buffers.table / 2);
+            }
+        }
+        pass.set_pipeline(&kernel.rank);
+        pass.set_bind_group(0, &buffers.rank_group, &[]);
+        dispatch(pass, n);
+        pass.set_pipeline(&kernel.gather);
+        for c in chunks {
+            pass.set_bind_group(0, &c.gather, &[]);
+            dispatch(pass, c.count);
+        }
+        match scene {
+            Some((support, groups)) => {
+                pass.set_pipeline(support);
+                for (c, group) in chunks.iter().zip(groups) {
+                    pass.set_bind_group(0, *group, &[]);
+                    dispatch(pass, c.count);
+                }
+                pass.set_pipeline(&kernel.start_given);
+                for c in chunks {
+                    pass.set_bind_group(0, &c.start_given, &[]);
+                    dispatch(pass, c.count);
+                }
+            }
+            None => {
+                pass.set_pipeline(&kernel.start);
+                for c in chunks {
+                    if let Some(start) = &c.start {
+                        pass.set_bind_group(0, start, &[]);
+                        dispatch(pass, c.count);
+                    }
+                }
+            }
+        }
+        pass.set_pipeline(&kernel.iterate);
+        for i in 0..pairs.iterations {
+            pass.set_bind_group(0, &buffers.iterate_groups[iterate_group(i)], &[]);
+            dispatch(pass, n);
+        }
+        pass.set_pipeline(&kernel.scatter);
+        let last = last_velocities(pairs.iterations);
+        for c in chunks {
+            pass.set_bind_group(0, &c.scatter[last], &[]);
+            dispatch(pass, c.count);
+        }
+        march(pass);
+        // The debiasing iterations: from the marched velocities, in `vel[0]`.
+        pass.set_pipeline(&kernel.unbias);
+        pass.set_bind_group(0, &buffers.unbias_group, &[]);
+        pass.dispatch_workgroups(1, 1, 1);
+        pass.set_pipeline(&kernel.regather);
+        for c in chunks {
+            pass.set_bind_group(0, &c.regather, &[]);
+            dispatch(pass, c.count);
+        }
+        pass.set_pipeline(&kernel.iterate);
+        for i in 0..pairs.iterations {
+            pass.set_bind_group(0, &buffers.iterate_groups[1 + i as usize % 2], &[]);
+            dispatch(pass, n);
+        }
+        pass.set_pipeline(&kernel.scatter);
+        let last = (pairs.iterations % 2) as usize;
+        for c in chunks {
+            pass.set_bind_group(0, &c.scatter[last], &[]);
+            dispatch(pass, c.count);
+        }
+    }
+
+    /// The pass's buffer of supports given by a scene, once the buffers are made.
+    pub(crate) fn pair_given_supports(&self) -> Option<wgpu::Buffer> {
+        self.pairs.buffers.as_ref().map(|b| b.given.clone())
+    }
+
+    /// Counts one step of `substeps` substeps of the pass for the report.
+    pub(crate) fn pair_steps_done(&mut self, substeps: u32) {
+        self.pairs.pending.steps += 1;
+        self.pairs.pending.substeps += substeps as u64;
     }
 
     pub(crate) fn take_pair_report_gpu(&mut self) -> Result<PairReport, WgpuError> {

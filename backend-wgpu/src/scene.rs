@@ -11,10 +11,12 @@
 use std::num::NonZeroU64;
 
 use bytemuck::{Pod, Zeroable};
+use octoproxy_core::pairs::PAIR_HASH_NONE;
 use octoproxy_core::scene::NO_INSTANCE;
 use octoproxy_core::{
-    BroadNode, EventCount, Hit, HitEvent, Instance, OwnedProxy, ProxyView, SceneHint, SceneSides,
-    SceneSlots, SceneStepReport, SceneView, StepParams,
+    pair_substeps, BroadNode, EventCount, Hit, HitEvent, Instance, OwnedProxy, PairParams,
+    ProxyView, SceneHint, SceneSides, SceneSlots, SceneStepReport, SceneSubstep, SceneView,
+    StepParams,
 };
 
 use crate::backend::{storage, uniform, ErrorScope, WgpuBackend, WgpuError, PARTICLE_BYTES};
@@ -44,6 +46,15 @@ pub struct SceneParams {
     pub step: u32,
     /// 1 to enter through the lookup table.
     pub use_lut: u32,
+    /// The substep of a step with the particle-particle pass (0 otherwise): hits and events
+    /// are of the whole step, and a hit record is kept from an earlier substep.
+    pub substep: u32,
+    /// The substeps of the step (1 without the pass).
+    pub substeps: u32,
+    /// Padding.
+    pub _pad0: u32,
+    /// Padding.
+    pub _pad1: u32,
 }
 
 /// Words of the output buffer before its events: WGSL's `SceneOut` header.
@@ -59,6 +70,8 @@ const EVENT_BYTES: u64 = core::mem::size_of::<HitEvent>() as u64;
 pub(crate) struct SceneKernel {
     layout: wgpu::BindGroupLayout,
     pipeline: wgpu::ComputePipeline,
+    /// `scene_support_kernel`: each grain's support for the particle-particle pass.
+    support: wgpu::ComputePipeline,
     params: wgpu::Buffer,
 }
 
@@ -69,6 +82,8 @@ pub(crate) struct ChunkScene {
     slots: wgpu::Buffer,
     hits: Option<wgpu::Buffer>,
     bind_group: Option<wgpu::BindGroup>,
+    /// The support kernel's bind group, with the pass's buffer of supports it writes.
+    support_group: Option<(wgpu::Buffer, wgpu::BindGroup)>,
 }
 
 /// The backend's scene state.
@@ -156,6 +171,16 @@ impl WgpuBackend {
                     compilation_options: Default::default(),
                     cache: None,
                 });
+            let support = self
+                .device
+                .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                    label: Some("scene_support_kernel"),
+                    layout: None,
+                    module: &module,
+                    entry_point: Some("scene_support_kernel"),
+                    compilation_options: Default::default(),
+                    cache: None,
+                });
             let params = self.device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("octoproxy scene params"),
                 size: core::mem::size_of::<SceneParams>() as u64,
@@ -166,6 +191,7 @@ impl WgpuBackend {
             self.scene.kernel = Some(SceneKernel {
                 layout,
                 pipeline,
+                support,
                 params,
             });
         }
@@ -177,6 +203,7 @@ impl WgpuBackend {
         for chunk in &mut self.chunks {
             if let Some(scene) = &mut chunk.scene {
                 scene.bind_group = None;
+                scene.support_group = None;
             }
         }
     }
@@ -225,6 +252,7 @@ impl WgpuBackend {
                     slots,
                     hits: None,
                     bind_group: None,
+                    support_group: None,
                 });
             }
             let needs_hits = hits
@@ -365,34 +393,49 @@ impl WgpuBackend {
         self.scene.key
     }
 
-    pub(crate) fn step_scene_gpu(
-        &mut self,
+    /// The scene's tables for one step (or substep `substep` of `substeps`), as core's bytes
+    /// (proxy offsets, instances, nodes), and the kernel's [`SceneParams`] for them; the scene
+    /// validated first.
+    fn scene_tables(
+        &self,
         instances: &[Instance],
         broad: &[BroadNode],
         params: &StepParams,
         hits: bool,
-    ) -> Result<(), WgpuError> {
-        params.validate()?;
-        self.check_health()?;
+        substep: u32,
+        substeps: u32,
+    ) -> Result<(Vec<u32>, SceneParams), WgpuError> {
         let views: Vec<ProxyView<'_>> = self.scene.host.iter().map(|p| p.view()).collect();
         let view = SceneView::new(&views, instances, broad)?;
         view.check_radius(params.radius)?;
         let plain = view.plain_proxy().map_or(NO_INSTANCE, |(c, _)| c);
-        // The tables, as core's bytes: proxy offsets, instances, nodes.
         let mut words: Vec<u32> = self.scene.offsets.clone();
         let instances_at = words.len() as u32;
         words.extend_from_slice(bytemuck::cast_slice(instances));
         let nodes_at = words.len() as u32;
         words.extend_from_slice(bytemuck::cast_slice(broad));
-        drop(views);
-        if self.count == 0 {
-            self.scene.steps = self.scene.steps.wrapping_add(1);
-            return Ok(());
-        }
-        let scope = ErrorScope::push(&self.device);
+        let scene_params = SceneParams {
+            instances_at,
+            nodes_at,
+            node_count: broad.len() as u32,
+            plain,
+            hits: hits as u32,
+            event_capacity: self.scene.event_capacity as u32,
+            step: self.scene.steps,
+            use_lut: self.use_lut as u32,
+            substep,
+            substeps,
+            ..Default::default()
+        };
+        Ok((words, scene_params))
+    }
+
+    /// The scene kernel, every chunk's scene state and bind group, the output buffer, and a
+    /// tables buffer of `words` words at least.
+    fn prepare_scene(&mut self, hits: bool, words: usize) -> Result<(), WgpuError> {
         self.scene_kernel()?;
         self.ensure_chunk_scenes(hits);
-        let bytes = words.len() as u64 * 4;
+        let bytes = words as u64 * 4;
         if self.scene.tables.as_ref().is_none_or(|t| t.size() < bytes) {
             let size = bytes.next_power_of_two().max(256);
             self.scene.tables = Some(self.buffer_with(
@@ -415,23 +458,50 @@ impl WgpuBackend {
                 &[],
             ));
         }
-        self.bind_scene()?;
-        let tables = self.scene.tables.as_ref().expect("made above");
+        self.bind_scene()
+    }
+
+    /// Writes one step's tables and [`SceneParams`].
+    fn write_scene_tables(&self, words: &[u32], scene_params: &SceneParams) {
+        let tables = self.scene.tables.as_ref().expect("made first");
         self.queue
-            .write_buffer(tables, 0, bytemuck::cast_slice(&words));
-        let scene_params = SceneParams {
-            instances_at,
-            nodes_at,
-            node_count: broad.len() as u32,
-            plain,
-            hits: hits as u32,
-            event_capacity: self.scene.event_capacity as u32,
-            step: self.scene.steps,
-            use_lut: self.use_lut as u32,
-        };
-        let kernel = self.scene.kernel.as_ref().expect("built above");
+            .write_buffer(tables, 0, bytemuck::cast_slice(words));
+        let kernel = self.scene.kernel.as_ref().expect("built first");
         self.queue
-            .write_buffer(&kernel.params, 0, bytemuck::bytes_of(&scene_params));
+            .write_buffer(&kernel.params, 0, bytemuck::bytes_of(scene_params));
+    }
+
+    /// Records one scene step of every chunk (one dispatch each) in `pass`.
+    fn record_scene_step(&self, pass: &mut wgpu::ComputePass<'_>) {
+        let kernel = self.scene.kernel.as_ref().expect("built first");
+        pass.set_pipeline(&kernel.pipeline);
+        for chunk in &self.chunks {
+            let Some(group) = chunk.scene.as_ref().and_then(|s| s.bind_group.as_ref()) else {
+                continue;
+            };
+            let (x, y) = self.dispatch_size(chunk.count);
+            pass.set_bind_group(0, group, &[]);
+            pass.dispatch_workgroups(x, y, 1);
+        }
+    }
+
+    pub(crate) fn step_scene_gpu(
+        &mut self,
+        instances: &[Instance],
+        broad: &[BroadNode],
+        params: &StepParams,
+        hits: bool,
+    ) -> Result<(), WgpuError> {
+        params.validate()?;
+        self.check_health()?;
+        let (words, scene_params) = self.scene_tables(instances, broad, params, hits, 0, 1)?;
+        if self.count == 0 {
+            self.scene.steps = self.scene.steps.wrapping_add(1);
+            return Ok(());
+        }
+        let scope = ErrorScope::push(&self.device);
+        self.prepare_scene(hits, words.len())?;
+        self.write_scene_tables(&words, &scene_params);
         self.queue
             .write_buffer(&self.kernel.params, 0, bytemuck::bytes_of(params));
         let mut encoder = self.device.create_command_encoder(&Default::default());
@@ -440,20 +510,137 @@ impl WgpuBackend {
                 label: Some("octoproxy scene step"),
                 timestamp_writes: None,
             });
-            pass.set_pipeline(&kernel.pipeline);
-            for chunk in &self.chunks {
-                let Some(group) = chunk.scene.as_ref().and_then(|s| s.bind_group.as_ref()) else {
-                    continue;
-                };
-                let (x, y) = self.dispatch_size(chunk.count);
-                pass.set_bind_group(0, group, &[]);
-                pass.dispatch_workgroups(x, y, 1);
-            }
+            self.record_scene_step(&mut pass);
         }
         self.queue.submit([encoder.finish()]);
         scope.pop().map_err(WgpuError::Gpu)?;
         self.scene.steps = self.scene.steps.wrapping_add(1);
         self.check_health()
+    }
+
+    /// One scene step with the particle-particle pass (`Backend::step_scene_pairs`): each
+    /// substep's tables written, then the pass with the supports from the scene
+    /// (`scene_support_kernel`) and the scene step as its march, one submission a substep.
+    pub(crate) fn step_scene_pairs_gpu(
+        &mut self,
+        substeps: &[SceneSubstep<'_>],
+        params: &StepParams,
+        pairs: &PairParams,
+        hits: bool,
+    ) -> Result<(), WgpuError> {
+        params.validate()?;
+        pairs.validate(params)?;
+        self.check_health()?;
+        let n = self.count;
+        if n >= PAIR_HASH_NONE as usize {
+            return Err(WgpuError::LengthMismatch {
+                expected: PAIR_HASH_NONE as usize - 1,
+                got: n,
+            });
+        }
+        let count = pair_substeps(params, pairs);
+        if substeps.len() != count as usize {
+            return Err(WgpuError::Substeps {
+                expected: count,
+                got: substeps.len(),
+            });
+        }
+        let march = StepParams {
+            gravity: [0.0; 3],
+            dt: params.dt / count as f32,
+            ..*params
+        };
+        march.validate()?;
+        let tables = substeps
+            .iter()
+            .enumerate()
+            .map(|(k, sub)| {
+                self.scene_tables(sub.instances, sub.broad, params, hits, k as u32, count)
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        if n > 0 {
+            let scope = ErrorScope::push(&self.device);
+            let words = tables.iter().map(|(w, _)| w.len()).max().unwrap_or(0);
+            self.prepare_scene(hits, words)?;
+            self.pair_kernel()?;
+            self.pair_buffers(n)?;
+            self.pair_chunk_groups();
+            self.bind_scene_supports();
+            self.write_pair_constants(params, pairs, &march);
+            let kernel = self.scene.kernel.as_ref().expect("built above");
+            let groups: Vec<&wgpu::BindGroup> = self
+                .chunks
+                .iter()
+                .filter_map(|c| c.scene.as_ref()?.support_group.as_ref().map(|(_, g)| g))
+                .collect();
+            for (words, scene_params) in &tables {
+                self.write_scene_tables(words, scene_params);
+                let mut encoder = self.device.create_command_encoder(&Default::default());
+                {
+                    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                        label: Some("octoproxy scene pair substep"),
+                        timestamp_writes: None,
+                    });
+                    self.encode_pair_substep(
+                        &mut pass,
+                        pairs,
+                        Some((&kernel.support, &groups)),
+                        |pass| self.record_scene_step(pass),
+                    );
+                }
+                self.queue.submit([encoder.finish()]);
+            }
+            scope.pop().map_err(WgpuError::Gpu)?;
+        }
+        self.pair_steps_done(count);
+        self.scene.steps = self.scene.steps.wrapping_add(1);
+        self.check_health()
+    }
+
+    /// Each chunk's bind group for `scene_support_kernel`, made when missing or when the
+    /// pass's supports buffer changed.
+    fn bind_scene_supports(&mut self) {
+        let (Some(kernel), Some(proxies), Some(tables)) =
+            (&self.scene.kernel, &self.scene.proxies, &self.scene.tables)
+        else {
+            return;
+        };
+        let Some(given) = self.pair_given_supports() else {
+            return;
+        };
+        for chunk in &mut self.chunks {
+            let Some(scene) = &mut chunk.scene else {
+                continue;
+            };
+            if scene
+                .support_group
+                .as_ref()
+                .is_some_and(|(buffer, _)| *buffer == given)
+            {
+                continue;
+            }
+            let particles = wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                buffer: &chunk.buffer,
+                offset: chunk.offset,
+                size: NonZeroU64::new(chunk.count as u64 * PARTICLE_BYTES),
+            });
+            let entry = |binding, resource| wgpu::BindGroupEntry { binding, resource };
+            let group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("octoproxy scene supports"),
+                layout: &kernel.support.get_bind_group_layout(0),
+                entries: &[
+                    entry(0, proxies.as_entire_binding()),
+                    entry(1, particles),
+                    entry(3, chunk.params.as_entire_binding()),
+                    entry(4, scene.hints.as_entire_binding()),
+                    entry(5, tables.as_entire_binding()),
+                    entry(6, kernel.params.as_entire_binding()),
+                    entry(8, scene.slots.as_entire_binding()),
+                    entry(10, given.as_entire_binding()),
+                ],
+            });
+            scene.support_group = Some((given.clone(), group));
+        }
     }
 
     /// The output buffer's counts: crushed, sides lost, events stored, events lost.

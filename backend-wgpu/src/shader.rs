@@ -32,6 +32,7 @@ const PARTICLE: (&str, &str) = ("particle.wgsl", include_str!("wgsl/particle.wgs
 const QUERY: (&str, &str) = ("query.wgsl", include_str!("wgsl/query.wgsl"));
 const STEP: (&str, &str) = ("step.wgsl", include_str!("wgsl/step.wgsl"));
 const OBSERVE_NONE: (&str, &str) = ("observe_none.wgsl", include_str!("wgsl/observe_none.wgsl"));
+const SUPPORT: (&str, &str) = ("support.wgsl", include_str!("wgsl/support.wgsl"));
 
 /// The plain kernel's hand-written WGSL files in the order they are joined, each with its name.
 pub const FILES: [(&str, &str); 6] = [
@@ -45,13 +46,14 @@ pub const FILES: [(&str, &str); 6] = [
 
 /// The scene kernel's files, in the order they are joined: the plain kernel's step with the
 /// scene step around it, and an observer that records hits and events.
-pub const SCENE_FILES: [(&str, &str); 8] = [
+pub const SCENE_FILES: [(&str, &str); 9] = [
     FORMAT,
     PARTICLE,
     QUERY,
     ("pose.wgsl", include_str!("wgsl/pose.wgsl")),
     ("observe.wgsl", include_str!("wgsl/observe.wgsl")),
     STEP,
+    SUPPORT,
     ("scene.wgsl", include_str!("wgsl/scene.wgsl")),
     ("scene_kernel.wgsl", include_str!("wgsl/scene_kernel.wgsl")),
 ];
@@ -60,12 +62,13 @@ pub const SCENE_FILES: [(&str, &str); 8] = [
 /// (a grain's support is the surface leaf of its hint, and the scene's response to it is
 /// `respond`), the pass's mirror of core's `pairs` module, and its entry points. The march
 /// that follows the pass is the plain kernel's.
-pub const PAIR_FILES: [(&str, &str); 7] = [
+pub const PAIR_FILES: [(&str, &str); 8] = [
     FORMAT,
     PARTICLE,
     QUERY,
     OBSERVE_NONE,
     STEP,
+    SUPPORT,
     ("pairs.wgsl", include_str!("wgsl/pairs.wgsl")),
     ("pairs_kernel.wgsl", include_str!("wgsl/pairs_kernel.wgsl")),
 ];
@@ -162,6 +165,7 @@ pub fn shared_constants() -> Vec<(&'static str, SharedValue)> {
         ("HINT_RECORD_MASK", U32(LeafHint::RECORD_MASK)),
         ("WORKGROUP_SIZE", U32(WORKGROUP_SIZE)),
         ("NO_INSTANCE", U32(sc::NO_INSTANCE)),
+        ("INSTANCE_LIVE", U32(sc::INSTANCE_LIVE)),
         (
             "INSTANCE_WORDS",
             U32((core::mem::size_of::<Instance>() / 4) as u32),

@@ -49,7 +49,7 @@ type ModuleFiles = (
 /// The three modules, each with its files and entry points.
 const MODULES: [ModuleFiles; 3] = [
     (&FILES, &["step_kernel", "integrate_kernel"]),
-    (&SCENE_FILES, &["scene_kernel"]),
+    (&SCENE_FILES, &["scene_kernel", "scene_support_kernel"]),
     (
         &PAIR_FILES,
         &[
@@ -63,6 +63,7 @@ const MODULES: [ModuleFiles; 3] = [
             "pair_rank_kernel",
             "pair_gather_kernel",
             "pair_start_kernel",
+            "pair_start_given_kernel",
             "pair_iterate_kernel",
             "pair_regather_kernel",
             "pair_scatter_kernel",
@@ -333,6 +334,10 @@ fn scene_layouts_match_core() {
                 ("event_capacity", offset_of!(SceneParams, event_capacity)),
                 ("step", offset_of!(SceneParams, step)),
                 ("use_lut", offset_of!(SceneParams, use_lut)),
+                ("substep", offset_of!(SceneParams, substep)),
+                ("substeps", offset_of!(SceneParams, substeps)),
+                ("_pad0", offset_of!(SceneParams, _pad0)),
+                ("_pad1", offset_of!(SceneParams, _pad1)),
             ]),
             size_of::<SceneParams>(),
         ),
@@ -647,6 +652,9 @@ const TWINS: &[(&str, &str, Twin)] = &[
     ("pose.wgsl", "load_pose", NoTwin("a Pose from the scene buffer's words; Rust reads the Pod slice")),
     ("pose.wgsl", "load_instance", NoTwin("an Instance from the scene buffer's words; Rust reads the Pod slice")),
     ("pose.wgsl", "load_broad_node", NoTwin("a BroadNode from the scene buffer's words; Rust reads the Pod slice")),
+    ("pose.wgsl", "instance_count", NoTwin("the instances in the scene buffer's words; Rust has the slice's length")),
+    ("pose.wgsl", "instance_is_active", Rust("scene.rs", "Instance::is_active")),
+    ("pose.wgsl", "hit_in_whole_step", Rust("scene.rs", "Hit::in_whole_step")),
     ("pose.wgsl", "plus_zero", Rust("scene.rs", "plus_zero")),
     ("pose.wgsl", "max_of", Rust("scene.rs", "max_of")),
     ("pose.wgsl", "min_of", Rust("scene.rs", "min_of")),
@@ -700,13 +708,16 @@ const TWINS: &[(&str, &str, Twin)] = &[
     // scene_kernel.wgsl
     ("scene_kernel.wgsl", "particle_index", NoTwin("a particle's index from the dispatch grid; the CPU backend iterates")),
     ("scene_kernel.wgsl", "scene_kernel", NoTwin("entry point: one scene step of one particle; CpuBackend's loop over particles (step_one)")),
+    ("scene_kernel.wgsl", "scene_support_kernel", NoTwin("entry point: pair_support_scene of one particle, for pair_start_given_kernel; CpuBackend calls pair_start_scene")),
     // pairs.wgsl
     ("pairs.wgsl", "pair_cell_edge", Rust("pairs.rs", "pair_cell_edge")),
     ("pairs.wgsl", "pair_is_fast", Rust("pairs.rs", "pair_is_fast")),
     ("pairs.wgsl", "pair_prepare", Rust("pairs.rs", "pair_prepare")),
     ("pairs.wgsl", "pair_cell", Rust("pairs.rs", "pair_cell")),
-    ("pairs.wgsl", "pair_support", Rust("pairs.rs", "pair_support")),
+    ("support.wgsl", "pair_support", Rust("pairs.rs", "pair_support")),
+    ("scene.wgsl", "pair_support_scene", Rust("pairs.rs", "pair_support_scene")),
     ("pairs.wgsl", "pair_start", Rust("pairs.rs", "pair_start")),
+    ("pairs.wgsl", "pair_start_with", Rust("pairs.rs", "pair_start_with")),
     ("pairs.wgsl", "pair_hash", Rust("pairs.rs", "pair_hash")),
     ("pairs.wgsl", "pair_range_marks", Rust("pairs.rs", "pair_range_marks")),
     ("pairs.wgsl", "pair_target", Rust("pairs.rs", "pair_target")),
@@ -728,6 +739,7 @@ const TWINS: &[(&str, &str, Twin)] = &[
     ("pairs_kernel.wgsl", "pair_sort_block_kernel", NoTwin("entry point: the bitonic sort's stages within a block, in workgroup memory (the CPU's par_sort_unstable)")),
     ("pairs_kernel.wgsl", "pair_rank_kernel", NoTwin("entry point: collide_pairs' range marks and valid count, and each particle's place (the CPU backend's rank)")),
     ("pairs_kernel.wgsl", "pair_gather_kernel", NoTwin("entry point: collide_pairs' bodies in sorted order")),
+    ("pairs_kernel.wgsl", "pair_start_given_kernel", NoTwin("entry point: pair_start_scene's pair_start_with in sorted order, with the supports scene_support_kernel found")),
     ("pairs_kernel.wgsl", "pair_start_kernel", NoTwin("entry point: collide_pairs' pair_start in sorted order, from each particle and its hint")),
     ("pairs_kernel.wgsl", "pair_iterate_kernel", NoTwin("entry point: one Jacobi iteration, collide_pairs' loop body over k")),
     ("pairs_kernel.wgsl", "pair_scatter_kernel", NoTwin("entry point: collide_pairs' (and debias_pairs') velocities back to the valid particles")),
@@ -743,6 +755,7 @@ const TWINS: &[(&str, &str, Twin)] = &[
 /// the twins above, every function of `step.rs` and `query.rs` has a row.
 const HOST_ONLY: &[(&str, &str, &str)] = &[
     ("step.rs", "fmt", "ParamError's Display: errors are the host's"),
+    ("pairs.rs", "pair_start_scene", "pair_start_with of pair_support_scene: on the GPU two kernels, scene_support_kernel and pair_start_given_kernel, since the pass's module holds no scene"),
     ("step.rs", "check_radius", "the host checks the particles' radius against the proxy's before stepping"),
     ("scene.rs", "check_radius", "SceneView::check_radius: the host checks every instance's radius before stepping"),
     ("query.rs", "surface_box", "ProxyView::surface_box: the host's scene check (how instances' shells overlap)"),
@@ -767,7 +780,6 @@ const HOST_ONLY: &[(&str, &str, &str)] = &[
     ("scene.rs", "fmt", "SceneError's Display and SceneView's Debug: the host's"),
     ("scene.rs", "half_turn", "the host computes an instance's half turn once (Instance::new); the step reads it"),
     ("scene.rs", "is_valid", "Pose::is_valid: SceneView::new's check, on the host"),
-    ("scene.rs", "is_active", "the broad phase holds only active instances; the host builds it"),
     ("scene.rs", "swept_box", "the host builds the broad phase's boxes"),
     ("scene.rs", "swept_box_of", "the host builds the broad phase's boxes"),
     ("scene.rs", "aabb", "BroadNode's box, for the host's validation"),

@@ -27,6 +27,16 @@ pub struct EventCount {
     pub lost: u64,
 }
 
+/// The scene in one substep of [`Backend::step_scene_pairs`]: its instances, each moving
+/// over the substep, and their broad phase.
+#[derive(Clone, Copy, Debug)]
+pub struct SceneSubstep<'a> {
+    /// The instances, posed at the substep's start and end.
+    pub instances: &'a [Instance],
+    /// Their broad phase (validated by the backend, with `crate::SceneView::new`).
+    pub broad: &'a [BroadNode],
+}
+
 /// A place that steps particles against a proxy or a scene: the CPU (rayon) or a GPU (wgpu).
 ///
 /// **API boundary.** Particles go in and come out in the same order; any reordering a
@@ -103,6 +113,25 @@ pub trait Backend {
         instances: &[Instance],
         broad: &[BroadNode],
         params: &StepParams,
+        hits: bool,
+    ) -> Result<(), Self::Error>;
+
+    /// One scene step with the particle–particle pass ([`crate::pairs`]): `S =`
+    /// [`crate::pair_substeps`] substeps, each the pass (changing velocities only; a grain's
+    /// support is the static instance its scene hint holds, [`crate::pairs::pair_support_scene`]),
+    /// then every particle marched through the scene over the substep with no gravity (the
+    /// pass integrated it), then the debiasing iterations. `substeps[k]` is the scene in
+    /// substep `k`: each instance moving from its pose at `k / S` of the step to its pose at
+    /// `(k + 1) / S` (`Instance::pose_at` of the step's instance; a static one as it is);
+    /// there must be `S` of them. Needs `params.radius > 0`, every instance's proxy baked for
+    /// it at its scale. With `hits`, each particle keeps its last collision of any substep,
+    /// its `t` the fraction of the whole step; events carry the step's number, their `t` too
+    /// of the whole step. May return before the work is done, as [`Backend::step`].
+    fn step_scene_pairs(
+        &mut self,
+        substeps: &[SceneSubstep<'_>],
+        params: &StepParams,
+        pairs: &PairParams,
         hits: bool,
     ) -> Result<(), Self::Error>;
 

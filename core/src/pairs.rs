@@ -87,6 +87,7 @@ use glam::Vec3;
 use crate::math;
 use crate::particle::{Particle, FLAG_BLOCKED, SIDE_BACK, SIDE_MASK};
 use crate::query::LeafKind;
+use crate::scene::{SceneHint, SceneSides, SceneSlots, SceneView};
 use crate::step::{respond, LeafHint, StepParams};
 use crate::view::ProxyView;
 
@@ -475,6 +476,59 @@ pub fn pair_support(view: &ProxyView<'_>, p: &Particle, hint: LeafHint) -> [f32;
     }
 }
 
+/// [`pair_support`] in a scene: the support of the instance whose leaf the grain's scene
+/// hint holds (the one static instance the grain's last march was near, on the side the
+/// grain keeps for it), found in that instance's frame and its normal turned to the world;
+/// zeros when the hint names no instance, or one that is inactive or moves in this substep,
+/// or the grain keeps no side for it. A grain near a moving instance has no support from it:
+/// the march alone keeps it out, as it keeps every grain out of every instance.
+#[inline]
+pub fn pair_support_scene(
+    scene: &SceneView<'_>,
+    p: &Particle,
+    hint: &SceneHint,
+    slots: &SceneSlots,
+) -> [f32; 4] {
+    let c = hint.hint_instance;
+    let Some(inst) = scene.instances().get(c as usize) else {
+        return [0.0; 4];
+    };
+    if !inst.is_active() || !inst.is_static() {
+        return [0.0; 4];
+    }
+    let Some(view) = scene.proxies().get(inst.proxy as usize) else {
+        return [0.0; 4];
+    };
+    let Some(side) = SceneSides::join(hint, slots).side_of(c) else {
+        return [0.0; 4];
+    };
+    let local = Particle {
+        position: inst.start.to_local(Vec3::from_array(p.position)).to_array(),
+        side,
+        ..*p
+    };
+    let sup = pair_support(view, &local, hint.hint);
+    if sup[3] == 0.0 {
+        return sup;
+    }
+    let n = inst
+        .start
+        .normal_to_world(Vec3::new(sup[0], sup[1], sup[2]));
+    [n.x, n.y, n.z, sup[3]]
+}
+
+/// [`pair_start`] in a scene: the support from [`pair_support_scene`].
+#[inline]
+pub fn pair_start_scene(
+    scene: &SceneView<'_>,
+    p: &Particle,
+    hint: &SceneHint,
+    slots: &SceneSlots,
+    s: &PairStep,
+) -> (PairVelocity, [f32; 4]) {
+    pair_start_with(p, pair_support_scene(scene, p, hint, slots), s)
+}
+
 /// What a valid grain enters the iterations with: its velocity after gravity
 /// ([`pair_prepare`]; zero for one left out), already kept out of its support with the
 /// scene's friction as [`pair_velocity`] does after each iteration, and the support
@@ -486,8 +540,14 @@ pub fn pair_start(
     hint: LeafHint,
     s: &PairStep,
 ) -> (PairVelocity, [f32; 4]) {
+    pair_start_with(p, pair_support(view, p, hint), s)
+}
+
+/// What a valid grain with support `sup` enters the iterations with ([`pair_start`], for a
+/// support found either way).
+#[inline]
+pub fn pair_start_with(p: &Particle, sup: [f32; 4], s: &PairStep) -> (PairVelocity, [f32; 4]) {
     let (v, _) = pair_prepare(p, s).unwrap_or((Vec3::ZERO, 0.0));
-    let sup = pair_support(view, p, hint);
     let v = if sup[3] != 0.0 {
         respond(v, Vec3::new(sup[0], sup[1], sup[2]), 0.0, s.scene_friction)
     } else {

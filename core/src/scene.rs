@@ -1122,6 +1122,19 @@ impl Hit {
         t: 0.0,
         speed: 0.0,
     };
+
+    /// This hit of substep `substep` of `substeps` with its `t` a fraction of the whole step,
+    /// `(substep + t) / substeps` (a step of one substep, or no hit, as it is).
+    #[inline]
+    pub fn in_whole_step(self, substep: u32, substeps: u32) -> Hit {
+        if substeps <= 1 || self.instance < 0 {
+            return self;
+        }
+        Hit {
+            t: (substep as f32 + self.t) / substeps as f32,
+            ..self
+        }
+    }
 }
 
 impl Default for Hit {

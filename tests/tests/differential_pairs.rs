@@ -444,3 +444,216 @@ fn both_backends_refuse_the_same_parameters() {
         cpu.take_pair_report().unwrap()
     );
 }
+
+/// The pass in a scene (`Backend::step_scene_pairs`, through `Scene::step_pairs`): the pile's
+/// box at twice its size, turned 10° about z, and a small cube sweeping through the pile and
+/// turning, in several chunks. Particles, sides and hints, hit records, events (as sets) and
+/// the reports are compared after every step: each substep's supports come from the static
+/// box in its frame (`pair_support_scene`), and the march is the scene step over the substep.
+#[test]
+fn a_pile_in_a_scene_with_a_moving_paddle_on_both_backends() {
+    use octoproxy_core::{HitEvent, Pose, SceneSides};
+    use octoproxy_cpu::Scene;
+    let Some(mut gpu) = gpu() else {
+        return;
+    };
+    let exact = is_lavapipe(&gpu);
+    gpu.set_chunk_particles(256);
+    let r = 0.1;
+    let tray = pile_box();
+    let paddle = bake_for(&[scenes::cube([-0.15; 3], [0.15; 3])], 6, r);
+    let turn = |degrees: f32, axis: [f32; 3]| {
+        let (s, c) = (degrees.to_radians() * 0.5).sin_cos();
+        [axis[0] * s, axis[1] * s, axis[2] * s, c]
+    };
+    let tray_pose = Pose {
+        translation: [0.1, 0.0, -0.05],
+        scale: 2.0,
+        rotation: turn(10.0, [0.0, 0.0, 1.0]),
+    };
+    let paddle_at = |k: u32| Pose {
+        translation: [-0.7 + 0.04 * k as f32, 0.5, 0.0],
+        scale: 1.0,
+        rotation: turn(6.0 * k as f32, [0.0, 1.0, 0.0]),
+    };
+    let mut scene = Scene::new();
+    let a = scene.add_proxy(tray.words.clone()).unwrap();
+    let b = scene.add_proxy(paddle.words.clone()).unwrap();
+    scene.add_instance(a, tray_pose).unwrap();
+    let moving = scene.add_instance(b, paddle_at(0)).unwrap();
+    let mut scenes = [scene.clone(), scene];
+    // Grains in the turned box, above the paddle's path.
+    let ps: Vec<Particle> = block([8, 8, 8], [-0.8, 1.0, -0.8], 2.1 * r, 0.5)
+        .into_iter()
+        .map(|mut p| {
+            let x = glam::Vec3::from_array(p.position);
+            p.position = tray_pose.to_world(x / 2.0).to_array();
+            p
+        })
+        .collect();
+    let n = ps.len();
+    let mut cpu = CpuBackend::new();
+    let capacity = 1 << 14;
+    for b in [&mut cpu as &mut dyn SceneStepper, &mut gpu] {
+        b.start(&ps, capacity);
+    }
+    assert!(gpu.chunk_count() > 1);
+    let params = StepParams {
+        dt: DT,
+        radius: r,
+        restitution: 0.2,
+        friction: 0.5,
+        ..StepParams::default()
+    };
+    let pairs = PairParams {
+        friction: 0.6,
+        ..PairParams::default()
+    };
+    let none = HitEvent {
+        step: 0,
+        particle: 0,
+        hit: octoproxy_core::Hit::NONE,
+    };
+    let (mut hits_seen, mut events_seen) = (0usize, 0usize);
+    let steps = 30u32;
+    for k in 1..=steps {
+        for s in &mut scenes {
+            s.move_to(moving, paddle_at(k)).unwrap();
+        }
+        scenes[0]
+            .step_pairs(&mut cpu, &params, &pairs, true)
+            .unwrap();
+        scenes[1]
+            .step_pairs(&mut gpu, &params, &pairs, true)
+            .unwrap();
+        let mut out = [
+            (
+                vec![Particle::default(); n],
+                vec![SceneSides::EMPTY; n],
+                vec![octoproxy_core::Hit::NONE; n],
+                vec![none; capacity],
+            ),
+            (
+                vec![Particle::default(); n],
+                vec![SceneSides::EMPTY; n],
+                vec![octoproxy_core::Hit::NONE; n],
+                vec![none; capacity],
+            ),
+        ];
+        let mut counts = Vec::new();
+        for (b, o) in [&mut cpu as &mut dyn SceneStepper, &mut gpu]
+            .into_iter()
+            .zip(&mut out)
+        {
+            counts.push(b.read(&mut o.0, &mut o.1, &mut o.2, &mut o.3));
+        }
+        let [(pa, sa, ha, ea), (pb, sb, hb, eb)] = &mut out;
+        // Every grain in the box and out of the paddle, at the radius less a leaf (each
+        // proxy's own, exactly: a box's distance is its faces').
+        for p in pa
+            .iter()
+            .filter(|p| p.flags & octoproxy_core::scene::FLAG_CRUSHED == 0)
+        {
+            let x = glam::Vec3::from_array(p.position);
+            let l = tray_pose.to_local(x);
+            let m = 0.05 - 3f32.sqrt() * tray.leaf;
+            assert!(
+                l.x.abs() <= 0.6 - m && l.z.abs() <= 0.6 - m && l.y >= m && l.y <= 3.0 - m,
+                "step {k}: a grain out of the box at {l} (local)"
+            );
+            let q = paddle_at(k).to_local(x);
+            let m = r - 3f32.sqrt() * paddle.leaf;
+            assert!(
+                q.abs().max_element() >= 0.15 + m * 0.5,
+                "step {k}: a grain in the paddle at {q} (local)"
+            );
+        }
+        hits_seen += ha.iter().filter(|h| h.instance >= 0).count();
+        events_seen += counts[0].stored;
+        assert!(
+            ha.iter()
+                .all(|h| h.instance < 0 || (0.0..=1.0).contains(&h.t)),
+            "a hit's t is a fraction of the whole step"
+        );
+        let (count, first) = differing(pa, pb);
+        if let Some(i) = first {
+            eprintln!(
+                "scene pile: {count} of {n} particles differ after step {k}; the first, {i}:\n  cpu {:?}\n  gpu {:?}",
+                pa[i], pb[i]
+            );
+            assert!(!exact, "the GPU must give the CPU's bits");
+            continue;
+        }
+        if exact {
+            assert!(sa == sb, "step {k}: the sides and hints differ");
+            assert!(
+                bytemuck::cast_slice::<_, u8>(ha) == bytemuck::cast_slice::<_, u8>(hb),
+                "step {k}: the hit records differ"
+            );
+            assert_eq!(counts[0], counts[1], "step {k}: event counts");
+            let key = |e: &HitEvent| {
+                (
+                    e.particle,
+                    e.hit.t.to_bits(),
+                    e.hit.position.map(f32::to_bits),
+                )
+            };
+            let (ea, eb) = (&mut ea[..counts[0].stored], &mut eb[..counts[1].stored]);
+            ea.sort_by_key(key);
+            eb.sort_by_key(key);
+            assert!(
+                bytemuck::cast_slice::<_, u8>(ea) == bytemuck::cast_slice::<_, u8>(eb),
+                "step {k}: the events differ"
+            );
+        }
+    }
+    let (cr, gr) = (
+        cpu.take_pair_report().unwrap(),
+        gpu.take_pair_report().unwrap(),
+    );
+    let (cs, gs) = (
+        cpu.take_scene_report().unwrap(),
+        gpu.take_scene_report().unwrap(),
+    );
+    eprintln!("scene pile: {n} grains, {steps} steps; {cr:?}; {cs:?}; {hits_seen} hit records, {events_seen} events");
+    assert!(cr.substeps > cr.steps && cr.steps == steps as u64, "{cr:?}");
+    assert!(hits_seen > 0 && events_seen > 0);
+    if exact {
+        assert_eq!(gr, cr);
+        assert_eq!(gs, cs);
+    } else {
+        assert_eq!((gr.steps, gr.substeps), (cr.steps, cr.substeps));
+    }
+}
+
+/// What both backends do the same way around a scene step.
+trait SceneStepper {
+    fn start(&mut self, particles: &[Particle], capacity: usize);
+    fn read(
+        &mut self,
+        particles: &mut [Particle],
+        sides: &mut [octoproxy_core::SceneSides],
+        hits: &mut [octoproxy_core::Hit],
+        events: &mut [octoproxy_core::HitEvent],
+    ) -> octoproxy_core::EventCount;
+}
+
+impl<B: Backend> SceneStepper for B {
+    fn start(&mut self, particles: &[Particle], capacity: usize) {
+        self.upload_particles(particles).unwrap();
+        self.set_event_capacity(capacity).unwrap();
+    }
+
+    fn read(
+        &mut self,
+        particles: &mut [Particle],
+        sides: &mut [octoproxy_core::SceneSides],
+        hits: &mut [octoproxy_core::Hit],
+        events: &mut [octoproxy_core::HitEvent],
+    ) -> octoproxy_core::EventCount {
+        self.download_particles(particles).unwrap();
+        self.download_scene_sides(sides).unwrap();
+        self.download_hits(hits).unwrap();
+        self.take_events(events).unwrap()
+    }
+}

@@ -72,7 +72,8 @@ fn push_event(hit: Hit) {
     }
     let k = atomicAdd(&scene_out.stored, 1u);
     if k < scene_params.event_capacity {
-        scene_out.events[k] = HitEvent(scene_params.step, event_particle, hit);
+        let whole = hit_in_whole_step(hit, scene_params.substep, scene_params.substeps);
+        scene_out.events[k] = HitEvent(scene_params.step, event_particle, whole);
     } else {
         atomicSub(&scene_out.stored, 1u);
         count_lost_event();

@@ -9,7 +9,9 @@
 //                        passes over longer distances one dispatch each
 //   pair_rank_kernel     each particle's place in the sorted order, the ranges, the valid count
 //   pair_gather_kernel   per chunk: the bodies in sorted order
-//   pair_start_kernel    per chunk: the velocities and supports in sorted order (`pair_start`)
+//   pair_start_kernel    per chunk: the velocities and supports in sorted order (`pair_start`;
+//                        in a scene `pair_start_given_kernel`, the supports found by the scene
+//                        module's `scene_support_kernel`)
 //   pair_iterate_kernel  one Jacobi iteration (ping-pong between two velocity buffers)
 //   pair_scatter_kernel  per chunk: the valid particles' velocities back
 //
@@ -312,6 +314,30 @@ fn pair_start_kernel(
     }
     load_header(0u, false);
     let start = pair_start(particles[i], pair_hints[i], pair_state.step);
+    pair_vel_next[k] = start.v;
+    pair_supports[k] = start.support;
+}
+
+// Each grain's support, found by the scene module's `scene_support_kernel` in a scene, by its
+// index in upload order.
+@group(0) @binding(15) var<storage, read> pair_given_supports: array<vec4<f32>>;
+
+// Per chunk, in a scene: as `pair_start_kernel`, with the supports given.
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn pair_start_given_kernel(
+    @builtin(workgroup_id) wg: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) local: u32,
+) {
+    let i = particle_index(wg, groups, local);
+    if i >= chunk.count {
+        return;
+    }
+    let k = pair_rank[chunk.first + i];
+    if k >= pair_state.valid {
+        return;
+    }
+    let start = pair_start_with(particles[i], pair_given_supports[chunk.first + i], pair_state.step);
     pair_vel_next[k] = start.v;
     pair_supports[k] = start.support;
 }

@@ -56,6 +56,10 @@ struct SceneParams {
     event_capacity: u32,
     step: u32,
     use_lut: u32,
+    substep: u32,
+    substeps: u32,
+    _pad0: u32,
+    _pad1: u32,
 }
 
 @group(0) @binding(5) var<storage, read> scene: array<u32>;
@@ -83,6 +87,11 @@ fn load_pose(w: u32) -> Pose {
 fn load_instance(c: u32) -> Instance {
     let w = scene_params.instances_at + INSTANCE_WORDS * c;
     return Instance(load_pose(w), load_pose(w + 8u), scene[w + 16u], scene[w + 17u], scene[w + 18u], bitcast<f32>(scene[w + 19u]));
+}
+
+// The instances in the tables: they run from `instances_at` to `nodes_at`.
+fn instance_count() -> u32 {
+    return (scene_params.nodes_at - scene_params.instances_at) / INSTANCE_WORDS;
 }
 
 fn load_broad_node(i: u32) -> BroadNode {
@@ -199,6 +208,11 @@ fn identity_pose() -> Pose {
     return Pose(vec3<f32>(0.0), 1.0, vec4<f32>(0.0, 0.0, 0.0, 1.0));
 }
 
+// core's `Instance::is_active`: live, and not hidden by a scale of 0 at either end.
+fn instance_is_active(inst: Instance) -> bool {
+    return (inst.flags & INSTANCE_LIVE) != 0u && inst.start.scale > 0.0 && inst.end.scale > 0.0;
+}
+
 fn instance_is_static(inst: Instance) -> bool {
     return same_pose(inst.start, inst.end);
 }
@@ -271,6 +285,17 @@ fn hit_frame_hit(f: HitFrame, x: vec3<f32>, n: vec3<f32>, before: vec3<f32>, rem
     let w = pose_to_world(pose, x);
     let m = pose_normal_to_world(pose, n);
     return Hit(i32(f.c), array<f32, 3>(w.x, w.y, w.z), array<f32, 3>(m.x, m.y, m.z), u, max_of(-dot3(before, n) * pose.scale, 0.0));
+}
+
+// core's `Hit::in_whole_step`: a hit of substep `substep` of `substeps`, its `t` a fraction of
+// the whole step.
+fn hit_in_whole_step(h: Hit, substep: u32, substeps: u32) -> Hit {
+    if substeps <= 1u || h.instance < 0 {
+        return h;
+    }
+    var out = h;
+    out.t = (f32(substep) + h.t) / f32(substeps);
+    return out;
 }
 
 fn no_hit() -> Hit {

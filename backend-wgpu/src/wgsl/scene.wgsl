@@ -109,6 +109,32 @@ fn first_side(slots: array<u32, SIDE_SLOTS>, otherwise: u32) -> u32 {
     return otherwise;
 }
 
+// core's `pair_support_scene`: the support of the static instance the grain's scene hint
+// holds, in its frame, the normal turned to the world.
+fn pair_support_scene(p: Particle, hint: SceneHint, slots: SceneSlots) -> vec4<f32> {
+    let c = hint.hint_instance;
+    if c >= instance_count() {
+        return vec4<f32>(0.0);
+    }
+    let inst = load_instance(c);
+    if !instance_is_active(inst) || !instance_is_static(inst) {
+        return vec4<f32>(0.0);
+    }
+    let side = slot_side(scene_sides_join(hint, slots).slots, c);
+    if !side.some {
+        return vec4<f32>(0.0);
+    }
+    use_proxy(inst.proxy);
+    var local = p;
+    local.position = pose_to_local(inst.start, p.position);
+    local.side = side.value;
+    let sup = pair_support(local, hint.hint);
+    if sup.w == 0.0 {
+        return sup;
+    }
+    return vec4<f32>(pose_normal_to_world(inst.start, sup.xyz), sup.w);
+}
+
 // core's `BroadWalk`: a walk of the broad phase for the instances whose swept boxes meet a box.
 struct BroadWalk {
     stack: array<u32, BROAD_STACK>,

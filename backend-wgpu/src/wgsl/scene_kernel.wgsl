@@ -1,5 +1,6 @@
-// The scene kernel's entry point: one invocation per particle and one scene step per dispatch,
-// as kernel.wgsl's. Bindings 0 (proxy), 5 (scene), 6 (scene_params) and 7 (scene_out) are
+// The scene kernel's entry points: one invocation per particle and one scene step per
+// dispatch, as kernel.wgsl's (`scene_kernel`); and each grain's support for the
+// particle-particle pass in a scene (`scene_support_kernel`). Bindings 0 (proxy), 5 (scene), 6 (scene_params) and 7 (scene_out) are
 // declared with what reads them.
 
 // Per-chunk settings (the Rust twin is `ChunkParams`): the particles in the chunk and the
@@ -49,8 +50,9 @@ fn scene_kernel(
     }
     particles[i] = p;
     scene_hints[i] = hint;
-    if scene_params.hits != 0u {
-        hits[i] = hit;
+    // A step of several substeps keeps each particle's last hit of any of them.
+    if scene_params.hits != 0u && (hit.instance >= 0 || scene_params.substep == 0u) {
+        hits[i] = hit_in_whole_step(hit, scene_params.substep, scene_params.substeps);
     }
     if (p.flags & FLAG_CRUSHED) != 0u {
         count_crushed();
@@ -58,4 +60,21 @@ fn scene_kernel(
     if (p.flags & FLAG_SIDES_LOST) != 0u {
         count_sides_lost();
     }
+}
+
+// Each grain's support on the scene for the particle-particle pass (core's
+// `pair_support_scene`), by its index in upload order, for the pass's `pair_start_given_kernel`.
+@group(0) @binding(10) var<storage, read_write> scene_supports: array<vec4<f32>>;
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn scene_support_kernel(
+    @builtin(workgroup_id) wg: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) local: u32,
+) {
+    let i = particle_index(wg, groups, local);
+    if i >= chunk.count {
+        return;
+    }
+    scene_supports[chunk.first + i] = pair_support_scene(particles[i], scene_hints[i], scene_slots[i]);
 }

@@ -138,6 +138,31 @@ impl Stepper {
         }
     }
 
+    /// One step through `scene` with the particle-particle pass (see `Scene::step_pairs`).
+    pub fn step_scene_pairs(
+        &mut self,
+        scene: &mut Scene,
+        params: &StepParams,
+        pairs: &octoproxy_core::PairParams,
+        hits: bool,
+    ) -> Result<()> {
+        fn flat<E: std::error::Error + Send + Sync + 'static>(
+            e: SceneStepError<E>,
+        ) -> anyhow::Error {
+            match e {
+                SceneStepError::Scene(s) => anyhow::Error::new(s),
+                SceneStepError::Backend(b) => anyhow::Error::new(b),
+                other => anyhow::anyhow!("{other}"),
+            }
+        }
+        match self {
+            Stepper::Cpu(b) => scene.step_pairs(b, params, pairs, hits).map_err(flat),
+            Stepper::Wgpu(b) => scene
+                .step_pairs(b.as_mut(), params, pairs, hits)
+                .map_err(flat),
+        }
+    }
+
     pub fn upload_scene_sides(&mut self, sides: &[SceneSides]) -> Result<()> {
         both!(self, b => b.upload_scene_sides(sides))
     }

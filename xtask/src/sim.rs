@@ -235,9 +235,6 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
         bail!("--particle-* options go with --collide-particles");
     }
     if o.scene.is_some() || o.hits || o.events.is_some() {
-        if o.pairs.collide {
-            bail!("--collide-particles with --scene, --hits or --events is not supported yet (the pass runs with the plain step): collide particles with --mesh or --proxy");
-        }
         return run_scene(o);
     }
     if o.start_time.is_some() {
@@ -367,19 +364,29 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
         count(FLAG_BLOCKED)
     );
     if let Some(pairs) = &pairs {
-        let report = backend.take_pair_report()?;
-        eprintln!(
-            "particle pass: {} substeps per step, {} iterations each; {} particle-iterations stopped at the neighbour cap, {} particle-substeps faster than a radius per substep (they may pass through other particles, never the scene: raise --particle-substeps)",
-            octoproxy_core::pair_substeps(&params, pairs),
-            pairs.iterations,
-            report.capped,
-            report.fast
-        );
+        report_pass(&mut backend, &params, pairs)?;
     }
     if let Some(dir) = &o.frames {
         eprintln!("frames: {frame} in {}", dir.display());
     }
     println!("wrote {}", out.display());
+    Ok(())
+}
+
+/// Says what the particle-particle pass did.
+fn report_pass(
+    backend: &mut crate::backends::Stepper,
+    params: &StepParams,
+    pairs: &octoproxy_core::PairParams,
+) -> Result<()> {
+    let report = backend.take_pair_report()?;
+    eprintln!(
+        "particle pass: {} substeps per step, {} iterations each; {} particle-iterations stopped at the neighbour cap, {} particle-substeps faster than a radius per substep (they may pass through other particles, never the scene: raise --particle-substeps)",
+        octoproxy_core::pair_substeps(params, pairs),
+        pairs.iterations,
+        report.capped,
+        report.fast
+    );
     Ok(())
 }
 
@@ -626,6 +633,7 @@ fn run_scene(o: Opts) -> Result<()> {
             (inst, offset)
         }
     };
+    let pairs = o.pairs.params(&params)?;
     let start = o.start_time.unwrap_or(0.0);
     inst.hold_at(start)?;
     let duration = inst.duration();
@@ -777,7 +785,10 @@ fn run_scene(o: Opts) -> Result<()> {
     for k in 1..=steps {
         let t = Instant::now();
         inst.pose_at(start + k as f64 * params.dt as f64)?;
-        backend.step_scene(&mut inst.scene, &params, o.hits)?;
+        match &pairs {
+            Some(pairs) => backend.step_scene_pairs(&mut inst.scene, &params, pairs, o.hits)?,
+            None => backend.step_scene(&mut inst.scene, &params, o.hits)?,
+        }
         if o.events.is_some() {
             let count = backend.take_events(&mut event_buf)?;
             events.extend_from_slice(&event_buf[..count.stored]);
@@ -829,6 +840,9 @@ fn run_scene(o: Opts) -> Result<()> {
     if o.hits {
         let hit = hits.iter().filter(|h| h.instance >= 0).count();
         eprintln!("hits: {hit} of {n} particles collided in the last step");
+    }
+    if let Some(pairs) = &pairs {
+        report_pass(&mut backend, &params, pairs)?;
     }
     if let Some(path) = &o.events {
         eprintln!(

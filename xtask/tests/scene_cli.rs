@@ -252,6 +252,31 @@ fn a_scene_baked_for_a_radius_bakes_once_per_world_scale_and_steps_at_that_radiu
         read_particles(&d.join("out.ply")).unwrap().particles.len(),
         1500
     );
+    // Grains that collide with each other, in the animated scene, with hit records.
+    let text = ok(&octoproxy(
+        &[
+            "sim",
+            "--scene",
+            "r.octoscene",
+            "--emit",
+            "400",
+            "--emit-box",
+            "-1,1.5,-1,1,3,1",
+            "--collide-particles",
+            "--hits",
+            "--steps",
+            "20",
+            "--backend",
+            "cpu",
+            "-o",
+            "grains.ply",
+        ],
+        d,
+    ));
+    assert!(text.contains("particle pass: "), "{text}");
+    let grains = read_particles(&d.join("grains.ply")).unwrap();
+    assert_eq!(grains.particles.len(), 400);
+    column(&grains, "hit_instance");
     // The check: paths against each instance's offset surface, ends against its mesh.
     let text = ok(&octoproxy(
         &["check", "--scene", "r.octoscene", "--emit", "1500"],

@@ -50,7 +50,7 @@ particles:
                     vertices (inside a closed scene). Sides and cages from the mesh
   --seed K          (default 1)
 
-particles that collide with each other (needs --radius; with --mesh or a built-in --scene):
+particles that collide with each other (needs a radius: --radius, or a scene file baked for one):
 {}
 
 stepping:
@@ -127,7 +127,6 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     let radius = build.radius()?;
     let radius_flag = build.radius;
     params.radius = radius;
-    let pairs = pair_flags.params(&params)?;
     if particles_file.is_some() && (emit.is_some() || starts.is_some()) {
         bail!("give either --particles or --emit (with --starts), not both");
     }
@@ -153,14 +152,21 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
             } else {
                 Some(build.params()?)
             };
-            if pairs.is_some() {
-                bail!("check --scene FILE --collide-particles is not supported yet: check the pass with --mesh or a built-in --scene NAME");
-            }
             let scene = Instanced::from_file(&path, build.as_ref(), radius_flag)?;
             params.radius = scene.radius();
-            return check_scene(scene, particles_file.as_deref(), emit, seed, steps, &params);
+            let pairs = pair_flags.params(&params)?;
+            return check_scene(
+                scene,
+                particles_file.as_deref(),
+                emit,
+                seed,
+                steps,
+                &params,
+                pairs.as_ref(),
+            );
         }
     }
+    let pairs = pair_flags.params(&params)?;
     let mesh_list = match (meshes.is_empty(), &builtin_name) {
         (true, None) => bail!("check needs a scene: --mesh MESH or --scene NAME"),
         (false, Some(_)) => bail!("give either --mesh or --scene, not both"),
@@ -301,6 +307,7 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
 /// `check --scene FILE`: particles stepped through a scene of moving instances on the CPU,
 /// every piece of every path checked against each instance's own mesh in its frame at the
 /// pose of each moment (`octoproxy_cpu::harness::scene`).
+#[allow(clippy::too_many_arguments)]
 fn check_scene(
     mut inst: Instanced,
     particles_file: Option<&std::path::Path>,
@@ -308,6 +315,7 @@ fn check_scene(
     seed: u64,
     steps_given: u32,
     params: &StepParams,
+    pairs: Option<&octoproxy_core::PairParams>,
 ) -> Result<()> {
     use glam::Vec3;
     use octoproxy_core::{Backend, ProxyView, SceneSides};
@@ -403,6 +411,13 @@ fn check_scene(
             ""
         }
     );
+    if let Some(pairs) = pairs {
+        eprintln!(
+            "the particle pass: on ({} substeps per step, {} iterations each); with it every step's end is checked, not the path between",
+            octoproxy_core::pair_substeps(params, pairs),
+            pairs.iterations
+        );
+    }
     let mut too_near = 0usize;
     let mut nearest = f64::INFINITY;
     let Some(sides_by_proxy): Option<Vec<Sides>> = inst.sides().into_iter().collect() else {
@@ -422,28 +437,37 @@ fn check_scene(
         inst.pose_at(k as f64 * params.dt as f64)?;
         inst.scene.prepare()?;
         inst.scene.upload_proxies(&mut cpu)?;
-        let mut sides = vec![SceneSides::EMPTY; before.len()];
-        cpu.download_scene_sides(&mut sides)?;
-        cpu.step_scene(
-            inst.scene.instances(),
-            inst.scene.broad_phase(),
-            params,
-            false,
-        )?;
+        let instances = inst.scene.instances().to_vec();
         let mut after = vec![octoproxy_core::Particle::default(); before.len()];
-        cpu.download_particles(&mut after)?;
-        let (pieces, bad) = inst
-            .scene
-            .with_view(|view| traced_pieces(view, &before, &sides, &after, params))?;
-        differ += bad.len();
-        tally.add(&check.step(inst.scene.instances(), &before, &after, Some(&pieces)));
+        let pieces = match pairs {
+            Some(pairs) => {
+                // The pass's substeps are not replayed: every step's end is checked.
+                inst.scene
+                    .step_pairs(&mut cpu, params, pairs, false)
+                    .map_err(|e| anyhow::anyhow!("{e}"))?;
+                cpu.download_particles(&mut after)?;
+                vec![Vec::new(); before.len()]
+            }
+            None => {
+                let mut sides = vec![SceneSides::EMPTY; before.len()];
+                cpu.download_scene_sides(&mut sides)?;
+                cpu.step_scene(&instances, inst.scene.broad_phase(), params, false)?;
+                cpu.download_particles(&mut after)?;
+                let (pieces, bad) = inst
+                    .scene
+                    .with_view(|view| traced_pieces(view, &before, &sides, &after, params))?;
+                differ += bad.len();
+                pieces
+            }
+        };
+        tally.add(&check.step(&instances, &before, &after, Some(&pieces)));
         if let Some((truths, diagonals)) = &near {
             let r = params.radius as f64;
             for p in after
                 .iter()
                 .filter(|p| p.flags & octoproxy_core::scene::FLAG_CRUSHED == 0)
             {
-                for i in inst.scene.instances().iter().filter(|i| i.is_active()) {
+                for i in instances.iter().filter(|i| i.is_active()) {
                     let k = i.proxy as usize;
                     let l = i.end.to_local(Vec3::from_array(p.position)).to_array();
                     let s = i.end.scale as f64;

@@ -287,6 +287,19 @@ fn a_scene_baked_for_a_radius_bakes_once_per_world_scale_and_steps_at_that_radiu
         text.contains("0 nearer than the radius less a leaf diagonal"),
         "{text}"
     );
+    let text = ok(&octoproxy(
+        &[
+            "check",
+            "--scene",
+            "r.octoscene",
+            "--emit",
+            "1000",
+            "--collide-particles",
+        ],
+        d,
+    ));
+    assert!(text.contains("the particle pass: on"), "{text}");
+    assert!(text.contains("penetrations: 0"), "{text}");
     // Another radius against the baked one names the file.
     assert_one_line_error(
         &octoproxy(

@@ -505,6 +505,21 @@ impl CpuBackend {
         }
     }
 
+    /// What every step with the pass checks first: the parameters, and fewer particles than
+    /// the pass's keys can number.
+    fn check_pass(&self, params: &StepParams, pairs: &PairParams) -> Result<(), CpuError> {
+        params.validate()?;
+        pairs.validate(params)?;
+        let n = self.particles.len();
+        if n >= PAIR_HASH_NONE as usize {
+            return Err(CpuError::LengthMismatch {
+                expected: PAIR_HASH_NONE as usize - 1,
+                got: n,
+            });
+        }
+        Ok(())
+    }
+
     /// The substeps of [`Backend::step_scene_pairs`], its checks done, against the scene's
     /// proxies (taken out of `self` for the call).
     fn scene_pair_substeps(
@@ -735,15 +750,8 @@ impl Backend for CpuBackend {
         pairs: &PairParams,
         steps: u32,
     ) -> Result<(), CpuError> {
-        params.validate()?;
-        pairs.validate(params)?;
+        self.check_pass(params, pairs)?;
         let n = self.particles.len();
-        if n >= PAIR_HASH_NONE as usize {
-            return Err(CpuError::LengthMismatch {
-                expected: PAIR_HASH_NONE as usize - 1,
-                got: n,
-            });
-        }
         let Self {
             proxy,
             particles,
@@ -807,15 +815,7 @@ impl Backend for CpuBackend {
         pairs: &PairParams,
         hits: bool,
     ) -> Result<(), CpuError> {
-        params.validate()?;
-        pairs.validate(params)?;
-        let n = self.particles.len();
-        if n >= PAIR_HASH_NONE as usize {
-            return Err(CpuError::LengthMismatch {
-                expected: PAIR_HASH_NONE as usize - 1,
-                got: n,
-            });
-        }
+        self.check_pass(params, pairs)?;
         let count = pair_substeps(params, pairs);
         if substeps.len() != count as usize {
             return Err(CpuError::Substeps {

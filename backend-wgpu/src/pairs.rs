@@ -697,22 +697,33 @@ impl WgpuBackend {
         self.pairs.chunk_keys = keys;
     }
 
+    /// What every step with the pass checks first: the parameters, the device, and fewer
+    /// particles than the pass's keys can number.
+    pub(crate) fn check_pass(
+        &self,
+        params: &StepParams,
+        pairs: &PairParams,
+    ) -> Result<(), WgpuError> {
+        params.validate()?;
+        pairs.validate(params)?;
+        self.check_health()?;
+        if self.count >= PAIR_HASH_NONE as usize {
+            return Err(WgpuError::LengthMismatch {
+                expected: PAIR_HASH_NONE as usize - 1,
+                got: self.count,
+            });
+        }
+        Ok(())
+    }
+
     pub(crate) fn step_pairs_gpu(
         &mut self,
         params: &StepParams,
         pairs: &PairParams,
         steps: u32,
     ) -> Result<(), WgpuError> {
-        params.validate()?;
-        pairs.validate(params)?;
-        self.check_health()?;
+        self.check_pass(params, pairs)?;
         let n = self.count;
-        if n >= PAIR_HASH_NONE as usize {
-            return Err(WgpuError::LengthMismatch {
-                expected: PAIR_HASH_NONE as usize - 1,
-                got: n,
-            });
-        }
         let Some((_, baked)) = self.proxy() else {
             return Err(WgpuError::NoProxy);
         };

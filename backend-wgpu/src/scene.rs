@@ -11,7 +11,6 @@
 use std::num::NonZeroU64;
 
 use bytemuck::{Pod, Zeroable};
-use octoproxy_core::pairs::PAIR_HASH_NONE;
 use octoproxy_core::scene::NO_INSTANCE;
 use octoproxy_core::{
     pair_substeps, BroadNode, EventCount, Hit, HitEvent, Instance, OwnedProxy, PairParams,
@@ -528,16 +527,8 @@ impl WgpuBackend {
         pairs: &PairParams,
         hits: bool,
     ) -> Result<(), WgpuError> {
-        params.validate()?;
-        pairs.validate(params)?;
-        self.check_health()?;
+        self.check_pass(params, pairs)?;
         let n = self.count;
-        if n >= PAIR_HASH_NONE as usize {
-            return Err(WgpuError::LengthMismatch {
-                expected: PAIR_HASH_NONE as usize - 1,
-                got: n,
-            });
-        }
         let count = pair_substeps(params, pairs);
         if substeps.len() != count as usize {
             return Err(WgpuError::Substeps {

@@ -123,15 +123,6 @@ impl Stepper {
 
     /// One step through `scene` (see `Scene::step`), with hit records when `hits`.
     pub fn step_scene(&mut self, scene: &mut Scene, params: &StepParams, hits: bool) -> Result<()> {
-        fn flat<E: std::error::Error + Send + Sync + 'static>(
-            e: SceneStepError<E>,
-        ) -> anyhow::Error {
-            match e {
-                SceneStepError::Scene(s) => anyhow::Error::new(s),
-                SceneStepError::Backend(b) => anyhow::Error::new(b),
-                other => anyhow::anyhow!("{other}"),
-            }
-        }
         match self {
             Stepper::Cpu(b) => scene.step(b, params, hits).map_err(flat),
             Stepper::Wgpu(b) => scene.step(b.as_mut(), params, hits).map_err(flat),
@@ -146,15 +137,6 @@ impl Stepper {
         pairs: &octoproxy_core::PairParams,
         hits: bool,
     ) -> Result<()> {
-        fn flat<E: std::error::Error + Send + Sync + 'static>(
-            e: SceneStepError<E>,
-        ) -> anyhow::Error {
-            match e {
-                SceneStepError::Scene(s) => anyhow::Error::new(s),
-                SceneStepError::Backend(b) => anyhow::Error::new(b),
-                other => anyhow::anyhow!("{other}"),
-            }
-        }
         match self {
             Stepper::Cpu(b) => scene.step_pairs(b, params, pairs, hits).map_err(flat),
             Stepper::Wgpu(b) => scene
@@ -185,5 +167,14 @@ impl Stepper {
 
     pub fn take_scene_report(&mut self) -> Result<SceneStepReport> {
         both!(self, b => b.take_scene_report())
+    }
+}
+
+/// A scene step's error as one error: the scene's or the backend's own, or the message.
+fn flat<E: std::error::Error + Send + Sync + 'static>(e: SceneStepError<E>) -> anyhow::Error {
+    match e {
+        SceneStepError::Scene(s) => anyhow::Error::new(s),
+        SceneStepError::Backend(b) => anyhow::Error::new(b),
+        other => anyhow::anyhow!("{other}"),
     }
 }

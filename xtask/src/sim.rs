@@ -560,7 +560,9 @@ fn instanced_from(path: &Path, build: &BuildFlags) -> Result<Instanced> {
                     path.display()
                 );
             }
-            Instanced::from_file(path, None, build.radius)
+            // A radius given must be a valid one before it is compared with the file's.
+            let radius = build.radius.map(|_| build.radius()).transpose()?;
+            Instanced::from_file(path, None, radius)
         }
         _ => Instanced::from_file(path, Some(&build.params()?), Some(build.radius()?)),
     }

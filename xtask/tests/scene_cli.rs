@@ -318,6 +318,23 @@ fn a_scene_baked_for_a_radius_bakes_once_per_world_scale_and_steps_at_that_radiu
         ),
         "r.octoscene: baked for particles of radius 0.12, but --radius is 0.2",
     );
+    assert_one_line_error(
+        &octoproxy(
+            &[
+                "sim",
+                "--scene",
+                "r.octoscene",
+                "--radius",
+                "-1",
+                "--emit",
+                "10",
+                "-o",
+                "x.ply",
+            ],
+            d,
+        ),
+        "--radius must be a finite number >= 0, got -1",
+    );
 }
 
 #[test]

@@ -806,13 +806,14 @@ fn a_radius_bakes_steps_and_checks() {
         );
         assert_one_line_error(&out, "radius");
     }
+    // A scene with a radius reads its file first (scenes baked for a radius: scene_cli.rs).
     let out = octoproxy(
         &[
             "sim", "--scene", "x.gltf", "--radius", "0.1", "--emit", "5", "-o", "e.ply",
         ],
         &dir,
     );
-    assert_one_line_error(&out, "not supported yet");
+    assert_one_line_error(&out, "x.gltf: cannot read the file");
 }
 
 #[test]
@@ -868,15 +869,35 @@ fn particles_collide_with_each_other_and_bad_pass_options_are_errors() {
             vec!["--collide-particles", "--particle-substeps", "0"],
             "--particle-substeps must be at least 1",
         ),
-        (
-            vec!["--collide-particles", "--hits"],
-            "--collide-particles with --scene, --hits or --events is not supported yet",
-        ),
     ] {
         let mut all = vec!["sim", "--proxy", "r.octp", "--emit", "10", "-o", "b.ply"];
         all.extend(args);
         assert_one_line_error(&octoproxy(&all, &dir), error);
     }
+    // With hit records the pass runs through the scene API: a proxy is a scene of one.
+    let out = octoproxy(
+        &[
+            "sim",
+            "--proxy",
+            "r.octp",
+            "--emit",
+            "10",
+            "--collide-particles",
+            "--hits",
+            "-o",
+            "h.ply",
+        ],
+        &dir,
+    );
+    let text = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(out.status.success(), "{text}");
+    assert!(text.contains("particle pass: "), "{text}");
+    let hits = octoproxy_cpu::io::read_particles(&dir.join("h.ply")).unwrap();
+    assert!(hits
+        .extra
+        .properties
+        .iter()
+        .any(|(name, _)| name == "hit_instance"));
     // No radius: points cannot collide with each other.
     let out = octoproxy(
         &[

@@ -351,6 +351,27 @@ fn a_gltf_scene_baked_for_a_radius_keeps_centres_at_the_radius_from_every_scaled
             GroundTruth::new(&m.positions, &m.triangles)
         })
         .collect();
+    // Every instance at its pose at time `t`, the scene checked.
+    let pose_at = |scene: &mut Scene, t: f64| {
+        for (i, pose) in baked.poses_at(t).unwrap().into_iter().enumerate() {
+            scene.move_to(i as u32, pose).unwrap();
+        }
+        scene.prepare().unwrap();
+    };
+    // A centre's exact distance from an instance's mesh in world units (at its end pose),
+    // the least the guarantee allows (the radius less a leaf diagonal, in world units), and
+    // whether it is inside the mesh.
+    let world_distance = |inst: &octoproxy_core::Instance, p: &Particle| {
+        let k = inst.proxy as usize;
+        let l = inst.end.to_local(Vec3::from_array(p.position)).to_array();
+        let s = inst.end.scale as f64;
+        let diagonal = 3f64.sqrt() * views[k].finest_leaf_size() as f64 * s;
+        (
+            truths[k].distance(l) * s,
+            radius as f64 - diagonal,
+            truths[k].is_inside(l),
+        )
+    };
 
     // Starts in the scene's box, with sides from the offset surfaces.
     let (lo, hi) = (Vec3::new(-5.0, -1.5, -3.5), Vec3::new(6.0, 3.5, 3.5));
@@ -409,15 +430,7 @@ fn a_gltf_scene_baked_for_a_radius_keeps_centres_at_the_radius_from_every_scaled
     let (mut nearest, mut too_near, mut crushed, mut penetrations) = (f64::INFINITY, 0, 0, 0);
     let steps = (baked.duration() / dt as f64).ceil() as u32;
     for k in 1..=steps {
-        for (i, pose) in baked
-            .poses_at(k as f64 * dt as f64)
-            .unwrap()
-            .into_iter()
-            .enumerate()
-        {
-            scene.move_to(i as u32, pose).unwrap();
-        }
-        scene.prepare().unwrap();
+        pose_at(&mut scene, k as f64 * dt as f64);
         let instances = scene.instances().to_vec();
         let sides = cpu.scene_sides();
         scene.step(&mut cpu, &step, false).unwrap();
@@ -439,14 +452,9 @@ fn a_gltf_scene_baked_for_a_radius_keeps_centres_at_the_radius_from_every_scaled
             .filter(|p| p.flags & octoproxy_core::scene::FLAG_CRUSHED == 0)
         {
             for inst in instances.iter().filter(|i| i.is_active()) {
-                let k = inst.proxy as usize;
-                let l = inst.end.to_local(Vec3::from_array(p.position)).to_array();
-                let d = truths[k].distance(l) * inst.end.scale as f64;
-                let diagonal = 3f64.sqrt() * (views[k].finest_leaf_size() * inst.end.scale) as f64;
+                let (d, bound, _) = world_distance(inst, p);
                 nearest = nearest.min(d);
-                if d < radius as f64 - diagonal {
-                    too_near += 1;
-                }
+                too_near += (d < bound) as usize;
             }
         }
         before = after;
@@ -488,15 +496,7 @@ fn a_gltf_scene_baked_for_a_radius_keeps_centres_at_the_radius_from_every_scaled
     let pairs = octoproxy_core::PairParams::default();
     let (mut nearest, mut too_near, mut inside, mut crushed) = (f64::INFINITY, 0, 0, 0);
     for k in 1..=steps {
-        for (i, pose) in baked
-            .poses_at(k as f64 * dt as f64)
-            .unwrap()
-            .into_iter()
-            .enumerate()
-        {
-            scene.move_to(i as u32, pose).unwrap();
-        }
-        scene.prepare().unwrap();
+        pose_at(&mut scene, k as f64 * dt as f64);
         let instances = scene.instances().to_vec();
         scene.step_pairs(&mut cpu, &step, &pairs, false).unwrap();
         for p in cpu.particles() {
@@ -505,13 +505,10 @@ fn a_gltf_scene_baked_for_a_radius_keeps_centres_at_the_radius_from_every_scaled
                 continue;
             }
             for inst in instances.iter().filter(|i| i.is_active()) {
-                let k = inst.proxy as usize;
-                let l = inst.end.to_local(Vec3::from_array(p.position)).to_array();
-                let d = truths[k].distance(l) * inst.end.scale as f64;
-                let diagonal = 3f64.sqrt() * (views[k].finest_leaf_size() * inst.end.scale) as f64;
+                let (d, bound, is_inside) = world_distance(inst, p);
                 nearest = nearest.min(d);
-                too_near += (d < radius as f64 - diagonal) as usize;
-                inside += truths[k].is_inside(l) as usize;
+                too_near += (d < bound) as usize;
+                inside += is_inside as usize;
             }
         }
     }

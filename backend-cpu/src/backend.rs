@@ -14,8 +14,22 @@ use octoproxy_core::pairs::{
     pair_candidates, pair_cell, pair_geometry, pair_hash, pair_is_fast, pair_prepare, pair_start,
     pair_start_scene, pair_table_size, pair_velocity_listed, PAIR_HASH_NONE,
 };
-use octoproxy_core::{pair_substeps, PairBody, PairParams, PairReport, PairStep, PairVelocity};
+use octoproxy_core::{
+    pair_probe_speed, pair_substep_range, pair_substeps_for, PairBody, PairParams, PairReport,
+    PairStep, PairVelocity,
+};
+
 use rayon::prelude::*;
+
+/// The largest [`pair_probe_speed`] of `particles` (0 for none): what
+/// [`pair_substeps_for`] takes.
+fn probe_speed(particles: &[Particle]) -> f32 {
+    particles
+        .par_iter()
+        .with_min_len(4096)
+        .map(pair_probe_speed)
+        .reduce(|| 0.0, f32::max)
+}
 
 /// What the CPU backend can report.
 #[derive(Debug, thiserror::Error)]
@@ -47,15 +61,18 @@ pub enum CpuError {
     /// The particle–particle pass's parameters are out of range.
     #[error("invalid particle collision parameters: {0}")]
     Pairs(#[from] octoproxy_core::PairParamError),
-    /// A slice of the wrong length.
-    /// A scene step with the pass given another number of substeps than it takes.
-    #[error("the pass takes {expected} substeps for these parameters, but the scene was posed for {got}")]
+    /// A scene step with the pass given a number of substeps it does not take.
+    #[error("the scene was posed for {got} substeps of the pass; a step with these parameters takes {min} to {max}")]
     Substeps {
-        /// [`octoproxy_core::pair_substeps`].
-        expected: u32,
+        /// The fewest: the caller's `PairParams::substeps` when set, else gravity's
+        /// (`octoproxy_core::pair_substeps`).
+        min: u32,
+        /// The most: the caller's count when set, else `MAX_PAIR_SUBSTEPS`.
+        max: u32,
         /// Substeps given.
         got: usize,
     },
+    /// A slice of the wrong length.
     #[error("expected room for {expected} particles, got {got}")]
     LengthMismatch {
         /// Particles held (or the event capacity).
@@ -767,16 +784,17 @@ impl Backend for CpuBackend {
         let view = proxy.view();
         octoproxy_core::check_radius(view.header().radius, params.radius)?;
         let view = if *use_lut { view } else { view.without_lut() };
-        let substeps = pair_substeps(params, pairs);
-        let h = params.dt / substeps as f32;
-        // Gravity is integrated by the pass; the march moves each particle with what it left.
-        let march = StepParams {
-            gravity: [0.0; 3],
-            dt: h,
-            ..*params
-        };
-        march.validate()?;
         for _ in 0..steps {
+            let substeps = pair_substeps_for(params, pairs, probe_speed(particles));
+            let h = params.dt / substeps as f32;
+            // Gravity is integrated by the pass; the march moves each particle with what it
+            // left.
+            let march = StepParams {
+                gravity: [0.0; 3],
+                dt: h,
+                ..*params
+            };
+            march.validate()?;
             for _ in 0..substeps {
                 let started = std::time::Instant::now();
                 let s0 = PairStep::new(params, pairs, h, n, 0.0);
@@ -816,14 +834,15 @@ impl Backend for CpuBackend {
         hits: bool,
     ) -> Result<(), CpuError> {
         self.check_pass(params, pairs)?;
-        let count = pair_substeps(params, pairs);
-        if substeps.len() != count as usize {
+        let (min, max) = pair_substep_range(params, pairs);
+        if !(min as usize..=max as usize).contains(&substeps.len()) {
             return Err(CpuError::Substeps {
-                expected: count,
+                min,
+                max,
                 got: substeps.len(),
             });
         }
-        let h = params.dt / count as f32;
+        let h = params.dt / substeps.len() as f32;
         let march = StepParams {
             gravity: [0.0; 3],
             dt: h,
@@ -837,6 +856,19 @@ impl Backend for CpuBackend {
         self.pair_report.steps += 1;
         self.scene_steps = self.scene_steps.wrapping_add(1);
         Ok(())
+    }
+
+    fn pair_substeps_now(
+        &mut self,
+        params: &StepParams,
+        pairs: &PairParams,
+    ) -> Result<u32, CpuError> {
+        self.check_pass(params, pairs)?;
+        Ok(pair_substeps_for(
+            params,
+            pairs,
+            probe_speed(&self.particles),
+        ))
     }
 
     fn take_pair_report(&mut self) -> Result<PairReport, CpuError> {

@@ -21,9 +21,9 @@ use crate::emit::{emit_surface_for, Rng, SurfaceSampler};
 use glam::Vec3;
 use octoproxy_core::pairs::{pair_max_speed, pair_table_size};
 use octoproxy_core::{
-    collide_pairs, debias_pairs, initial_side, pair_substeps, step_particle_traced, LeafHint,
-    PairBody, PairParams, PairScratch, PairStep, PairVelocity, Particle, ProxyView, StepParams,
-    FLAG_BLOCKED, FLAG_BOUND_HIT, FLAG_INVALID, MAX_DEPTH,
+    collide_pairs, debias_pairs, initial_side, pair_probe_speed, pair_substeps_for,
+    step_particle_traced, LeafHint, PairBody, PairParams, PairScratch, PairStep, PairVelocity,
+    Particle, ProxyView, StepParams, FLAG_BLOCKED, FLAG_BOUND_HIT, FLAG_INVALID, MAX_DEPTH,
 };
 use rayon::prelude::*;
 
@@ -405,7 +405,7 @@ pub fn run_check_radius(
 }
 
 /// [`run_check_radius`] with the particle–particle pass on: every step is
-/// [`octoproxy_core::pair_substeps`] substeps of the pass over all the particles (core's
+/// [`octoproxy_core::pair_substeps_for`] substeps of the pass over all the particles (core's
 /// one-thread [`collide_pairs`], with gravity) and then each particle's march, traced and
 /// checked piece by piece as [`run_check_radius`] checks it. The pass runs without supports
 /// (no leaf hints): it may push grains towards the scene freely, and the march alone keeps
@@ -659,7 +659,14 @@ fn check_paths(
         let (substeps, march) = match pairs {
             None => (1, params),
             Some(pairs) => {
-                let substeps = pair_substeps(&params, pairs);
+                // The particles it still steps set the substeps, as a backend's would.
+                let v_max = particles
+                    .iter()
+                    .zip(&states)
+                    .filter(|(_, s)| !(s.bad || s.non_finite))
+                    .map(|(p, _)| pair_probe_speed(p))
+                    .fold(0.0, f32::max);
+                let substeps = pair_substeps_for(&params, pairs, v_max);
                 let h = params.dt / substeps as f32;
                 let march = StepParams {
                     gravity: [0.0; 3],

@@ -56,8 +56,7 @@ use octoproxy_core::scene::{
     MAX_INSTANCES, SIDE_SLOTS,
 };
 use octoproxy_core::{
-    pair_substeps, Aabb, Backend, FormatError, OwnedProxy, PairParams, ProxyView, SceneSubstep,
-    StepParams,
+    Aabb, Backend, FormatError, OwnedProxy, PairParams, ProxyView, SceneSubstep, StepParams,
 };
 
 use crate::bake::offset::{OffsetSurface, PlaceCounts};
@@ -245,9 +244,11 @@ impl Scene {
 
     /// One step of `backend`'s particles through the scene with the particle–particle pass
     /// ([`Backend::step_scene_pairs`]): the step's motion of every moving instance cut into
-    /// the pass's substeps (its poses at `k / S` and `(k + 1) / S` of the step,
-    /// `Instance::pose_at`), each substep's broad phase built and checked, then the step, then
-    /// every instance held at its end pose, as [`Scene::step`] does.
+    /// the pass's substeps (`S` from [`Backend::pair_substeps_now`], which follows the
+    /// fastest particle; each instance posed at `k / S` and `(k + 1) / S` of the step,
+    /// `Instance::pose_at`), each substep's broad phase built and checked (a scene where
+    /// nothing moves is the same in every substep, built once), then the step, then every
+    /// instance held at its end pose, as [`Scene::step`] does.
     pub fn step_pairs<B: Backend>(
         &mut self,
         backend: &mut B,
@@ -264,11 +265,16 @@ impl Scene {
         self.prepare()?;
         self.upload_proxies(backend)
             .map_err(SceneStepError::Backend)?;
-        let count = pair_substeps(params, pairs);
-        let whole = self.instances.clone();
-        let mut substeps: Vec<(Vec<Instance>, Vec<BroadNode>)> = Vec::with_capacity(count as usize);
+        let count = backend
+            .pair_substeps_now(params, pairs)
+            .map_err(SceneStepError::Backend)?;
+        let moving = self.instances.iter().any(|i| !i.is_static());
+        // A scene where nothing moves is the same scene in every substep.
+        let cut = if moving { count } else { 0 };
+        let (whole, whole_nodes) = (self.instances.clone(), self.nodes.clone());
+        let mut substeps: Vec<(Vec<Instance>, Vec<BroadNode>)> = Vec::with_capacity(cut as usize);
         let mut result = Ok(());
-        for k in 0..count {
+        for k in 0..cut {
             let (u0, u1) = (k as f32 / count as f32, (k + 1) as f32 / count as f32);
             for (i, w) in self.instances.iter_mut().zip(&whole) {
                 if !w.is_static() {
@@ -285,15 +291,24 @@ impl Scene {
             }
             substeps.push((self.instances.clone(), self.nodes.clone()));
         }
-        // The whole step again, whatever happened.
-        self.instances = whole;
-        self.dirty = true;
-        self.prepare()?;
+        // The whole step again, whatever happened: as it was built before the cuts.
+        if moving {
+            (self.instances, self.nodes) = (whole, whole_nodes);
+            self.dirty = false;
+        }
         result?;
-        let views: Vec<SceneSubstep<'_>> = substeps
-            .iter()
-            .map(|(instances, broad)| SceneSubstep { instances, broad })
-            .collect();
+        let views: Vec<SceneSubstep<'_>> = if moving {
+            substeps
+                .iter()
+                .map(|(instances, broad)| SceneSubstep { instances, broad })
+                .collect()
+        } else {
+            let still = SceneSubstep {
+                instances: &self.instances,
+                broad: &self.nodes,
+            };
+            vec![still; count as usize]
+        };
         backend
             .step_scene_pairs(&views, params, pairs, hits)
             .map_err(SceneStepError::Backend)?;

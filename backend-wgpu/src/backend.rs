@@ -93,11 +93,14 @@ pub enum WgpuError {
     /// The particles' radius is not the one the proxy was baked for.
     #[error("{0}")]
     Radius(#[from] octoproxy_core::RadiusMismatch),
-    /// A scene step with the pass given another number of substeps than it takes.
-    #[error("the pass takes {expected} substeps for these parameters, but the scene was posed for {got}")]
+    /// A scene step with the pass given a number of substeps it does not take.
+    #[error("the scene was posed for {got} substeps of the pass; a step with these parameters takes {min} to {max}")]
     Substeps {
-        /// `octoproxy_core::pair_substeps`.
-        expected: u32,
+        /// The fewest: the caller's `PairParams::substeps` when set, else gravity's
+        /// (`octoproxy_core::pair_substeps`).
+        min: u32,
+        /// The most: the caller's count when set, else `MAX_PAIR_SUBSTEPS`.
+        max: u32,
         /// Substeps given.
         got: usize,
     },
@@ -1014,6 +1017,14 @@ impl Backend for WgpuBackend {
         hits: bool,
     ) -> Result<(), WgpuError> {
         self.step_scene_pairs_gpu(substeps, params, pairs, hits)
+    }
+
+    fn pair_substeps_now(
+        &mut self,
+        params: &StepParams,
+        pairs: &octoproxy_core::PairParams,
+    ) -> Result<u32, WgpuError> {
+        self.pair_substeps_gpu(params, pairs)
     }
 
     fn take_pair_report(&mut self) -> Result<octoproxy_core::PairReport, WgpuError> {

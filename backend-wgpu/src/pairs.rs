@@ -37,7 +37,7 @@
 
 use bytemuck::{Pod, Zeroable};
 use octoproxy_core::pairs::{pair_table_size, PAIR_HASH_NONE};
-use octoproxy_core::{pair_substeps, PairParams, PairReport, PairStep, StepParams};
+use octoproxy_core::{pair_substeps_for, PairParams, PairReport, PairStep, StepParams};
 
 use crate::backend::{storage, uniform, ErrorScope, WgpuBackend, WgpuError};
 use crate::shader;
@@ -114,6 +114,8 @@ pub const PAIR_SORT_BLOCK: u32 = 512;
 pub const PAIR_STORAGE_BUFFERS: u32 = 7;
 
 const STATE_BYTES: u64 = core::mem::size_of::<PairState>() as u64;
+/// Where the largest speed's bits lie in the state buffer.
+const V_MAX_AT: u64 = core::mem::offset_of!(PairState, v_max) as u64;
 /// Where the report's counts start in the state buffer: `fast_lo`.
 const COUNTS_AT: u64 = core::mem::offset_of!(PairState, fast_lo) as u64;
 const KEY_BYTES: u64 = 8;
@@ -728,24 +730,61 @@ impl WgpuBackend {
             return Err(WgpuError::NoProxy);
         };
         octoproxy_core::check_radius(baked, params.radius)?;
-        let substeps = pair_substeps(params, pairs);
-        let h = params.dt / substeps as f32;
-        // Gravity is integrated by the pass; the march moves each particle with what it left.
-        let march = StepParams {
-            gravity: [0.0; 3],
-            dt: h,
-            ..*params
-        };
-        march.validate()?;
-        if n > 0 && steps > 0 {
-            self.pair_kernel()?;
-            self.pair_buffers(n)?;
-            self.pair_chunk_groups();
-            self.record_pairs(params, pairs, &march, steps)?;
+        for _ in 0..steps {
+            let substeps = self.pair_substeps_gpu(params, pairs)?;
+            // Gravity is integrated by the pass; the march moves each particle with what it
+            // left.
+            let march = StepParams {
+                gravity: [0.0; 3],
+                dt: params.dt / substeps as f32,
+                ..*params
+            };
+            march.validate()?;
+            if n > 0 {
+                self.record_pairs(params, pairs, &march, substeps)?;
+            }
+            self.pair_steps_done(substeps);
         }
-        self.pairs.pending.steps += steps as u64;
-        self.pairs.pending.substeps += steps as u64 * substeps as u64;
         self.check_health()
+    }
+
+    /// The substeps of the next step with the pass (`Backend::pair_substeps_now`): the
+    /// particles' largest speed without gravity (`pair_reset_kernel` and `pair_speed_kernel`
+    /// with a zero substep, which counts nothing as fast) read back, then
+    /// `pair_substeps_for`. Waits for the work queued before it.
+    pub(crate) fn pair_substeps_gpu(
+        &mut self,
+        params: &StepParams,
+        pairs: &PairParams,
+    ) -> Result<u32, WgpuError> {
+        self.check_pass(params, pairs)?;
+        let n = self.count;
+        if n == 0 || pairs.substeps != 0 || !pairs.follow_speed {
+            return Ok(pair_substeps_for(params, pairs, 0.0));
+        }
+        self.pair_kernel()?;
+        self.pair_buffers(n)?;
+        self.pair_chunk_groups();
+        let kernel = self.pairs.kernel.as_ref().expect("built above");
+        let buffers = self.pairs.buffers.as_ref().expect("made above");
+        let scope = ErrorScope::push(&self.device);
+        self.queue
+            .write_buffer(&kernel.state, 0, bytemuck::bytes_of(&PairStep::default()));
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("octoproxy pair speed probe"),
+                timestamp_writes: None,
+            });
+            self.encode_pair_speed(&mut pass, kernel, buffers);
+        }
+        self.queue.submit([encoder.finish()]);
+        scope.pop().map_err(WgpuError::Gpu)?;
+        let bytes = self.read_back(&[(&kernel.state, V_MAX_AT, 4)])?;
+        let v_max = f32::from_bits(u32::from_le_bytes(
+            bytes[0][..4].try_into().expect("4 bytes read back"),
+        ));
+        Ok(pair_substeps_for(params, pairs, v_max))
     }
 
     /// The substep's constants for the pass (all but the cell, which the GPU computes from
@@ -770,30 +809,50 @@ impl WgpuBackend {
         self.write_step_params(march);
     }
 
+    /// One step of `substeps` substeps of the pass, `march` each substep's march, in one
+    /// submission.
     fn record_pairs(
-        &self,
+        &mut self,
         params: &StepParams,
         pairs: &PairParams,
         march: &StepParams,
-        steps: u32,
+        substeps: u32,
     ) -> Result<(), WgpuError> {
-        let substeps = pair_substeps(params, pairs);
+        self.pair_kernel()?;
+        self.pair_buffers(self.count)?;
+        self.pair_chunk_groups();
         let scope = ErrorScope::push(&self.device);
         self.write_pair_constants(params, pairs, march);
-        for _ in 0..steps {
-            let mut encoder = self.device.create_command_encoder(&Default::default());
-            for _ in 0..substeps {
-                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                    label: Some("octoproxy pair substep"),
-                    timestamp_writes: None,
-                });
-                self.encode_pair_substep(&mut pass, pairs, None, |pass| {
-                    self.record_step(pass, false)
-                });
-            }
-            self.queue.submit([encoder.finish()]);
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        for _ in 0..substeps {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("octoproxy pair substep"),
+                timestamp_writes: None,
+            });
+            self.encode_pair_substep(&mut pass, pairs, None, |pass| self.record_step(pass, false));
         }
+        self.queue.submit([encoder.finish()]);
         scope.pop().map_err(WgpuError::Gpu)
+    }
+
+    /// The largest speed (`pair_reset_kernel`, then `pair_speed_kernel` per chunk) with the
+    /// state's substep as it is.
+    fn encode_pair_speed(
+        &self,
+        pass: &mut wgpu::ComputePass<'_>,
+        kernel: &PairKernel,
+        buffers: &PairBuffers,
+    ) {
+        pass.set_pipeline(&kernel.reset);
+        pass.set_bind_group(0, &buffers.reset_group, &[]);
+        let (x, y) = self.dispatch_size(buffers.table);
+        pass.dispatch_workgroups(x, y, 1);
+        pass.set_pipeline(&kernel.speed);
+        for c in &self.pairs.chunk_groups {
+            pass.set_bind_group(0, &c.speed, &[]);
+            let (x, y) = self.dispatch_size(c.count);
+            pass.dispatch_workgroups(x, y, 1);
+        }
     }
 
     /// One substep of the pass in `pass`: the stages up to the scatter, then `march` (every
@@ -815,14 +874,7 @@ impl WgpuBackend {
             let (x, y) = self.dispatch_size(count);
             pass.dispatch_workgroups(x, y, 1);
         };
-        pass.set_pipeline(&kernel.reset);
-        pass.set_bind_group(0, &buffers.reset_group, &[]);
-        dispatch(pass, buffers.table);
-        pass.set_pipeline(&kernel.speed);
-        for c in chunks {
-            pass.set_bind_group(0, &c.speed, &[]);
-            dispatch(pass, c.count);
-        }
+        self.encode_pair_speed(pass, kernel, buffers);
         pass.set_pipeline(&kernel.step);
         pass.set_bind_group(0, &buffers.step_group, &[]);
         pass.dispatch_workgroups(1, 1, 1);

@@ -13,7 +13,7 @@ use std::num::NonZeroU64;
 use bytemuck::{Pod, Zeroable};
 use octoproxy_core::scene::NO_INSTANCE;
 use octoproxy_core::{
-    pair_substeps, BroadNode, EventCount, Hit, HitEvent, Instance, OwnedProxy, PairParams,
+    pair_substep_range, BroadNode, EventCount, Hit, HitEvent, Instance, OwnedProxy, PairParams,
     ProxyView, SceneHint, SceneSides, SceneSlots, SceneStepReport, SceneSubstep, SceneView,
     StepParams,
 };
@@ -529,13 +529,15 @@ impl WgpuBackend {
     ) -> Result<(), WgpuError> {
         self.check_pass(params, pairs)?;
         let n = self.count;
-        let count = pair_substeps(params, pairs);
-        if substeps.len() != count as usize {
+        let (min, max) = pair_substep_range(params, pairs);
+        if !(min as usize..=max as usize).contains(&substeps.len()) {
             return Err(WgpuError::Substeps {
-                expected: count,
+                min,
+                max,
                 got: substeps.len(),
             });
         }
+        let count = substeps.len() as u32;
         let march = StepParams {
             gravity: [0.0; 3],
             dt: params.dt / count as f32,

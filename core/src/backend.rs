@@ -75,9 +75,9 @@ pub trait Backend {
     fn step(&mut self, params: &StepParams, steps: u32) -> Result<(), Self::Error>;
 
     /// Steps every particle `steps` times with the particle–particle pass
-    /// ([`crate::pairs`]): each step is [`crate::pair_substeps`] substeps of the pass (it
-    /// changes velocities only) followed by the march of every particle against the proxy
-    /// over the substep. Needs `params.radius > 0` and a proxy baked for that radius. May
+    /// ([`crate::pairs`]): each step is [`Backend::pair_substeps_now`] substeps of the pass
+    /// (it changes velocities only), each followed by the march of every particle against
+    /// the proxy over the substep. Needs `params.radius > 0` and a proxy baked for that radius. May
     /// return before the work is done, as [`Backend::step`].
     fn step_pairs(
         &mut self,
@@ -85,6 +85,15 @@ pub trait Backend {
         pairs: &PairParams,
         steps: u32,
     ) -> Result<(), Self::Error>;
+
+    /// The substeps the next step with the pass takes: [`crate::pair_substeps_for`] of the
+    /// largest [`crate::pair_probe_speed`] of the particles held (a GPU reads it back, so this
+    /// waits for the work queued before it).
+    fn pair_substeps_now(
+        &mut self,
+        params: &StepParams,
+        pairs: &PairParams,
+    ) -> Result<u32, Self::Error>;
 
     /// What the pass did since the last call (and starts counting again).
     fn take_pair_report(&mut self) -> Result<PairReport, Self::Error>;
@@ -116,14 +125,14 @@ pub trait Backend {
         hits: bool,
     ) -> Result<(), Self::Error>;
 
-    /// One scene step with the particle–particle pass ([`crate::pairs`]): `S =`
-    /// [`crate::pair_substeps`] substeps, each the pass (changing velocities only; a grain's
+    /// One scene step with the particle–particle pass ([`crate::pairs`]): `S` substeps
+    /// ([`Backend::pair_substeps_now`] chooses it; 1 to [`crate::pairs::MAX_PAIR_SUBSTEPS`]),
+    /// each the pass (changing velocities only; a grain's
     /// support is the static instance its scene hint holds, [`crate::pairs::pair_support_scene`]),
     /// then every particle marched through the scene over the substep with no gravity (the
     /// pass integrated it), then the debiasing iterations. `substeps[k]` is the scene in
     /// substep `k`: each instance moving from its pose at `k / S` of the step to its pose at
-    /// `(k + 1) / S` (`Instance::pose_at` of the step's instance; a static one as it is);
-    /// there must be `S` of them. Needs `params.radius > 0`, every instance's proxy baked for
+    /// `(k + 1) / S` (`Instance::pose_at` of the step's instance; a static one as it is). Needs `params.radius > 0`, every instance's proxy baked for
     /// it at its scale. With `hits`, each particle keeps its last collision of any substep,
     /// its `t` the fraction of the whole step; events carry the step's number, their `t` too
     /// of the whole step. May return before the work is done, as [`Backend::step`].

@@ -1342,6 +1342,7 @@ fn crowd_with_pairs(u: &mut Unstructured<'_>, mesh: &Mesh, scene: f32) -> Result
         iterations: u.int_in_range(1u32..=8)?,
         substeps: u.int_in_range(0u32..=3)?,
         max_candidates: u.int_in_range(1u32..=64)?,
+        follow_speed: u.arbitrary()?,
     };
     let n = u.int_in_range(2usize..=160)?;
     let speed = scene * range(u, 0.0, 60.0)?;

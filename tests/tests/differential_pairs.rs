@@ -236,6 +236,54 @@ fn a_head_on_pair_on_both_backends() {
     }
 }
 
+/// Substeps that follow the fastest grain (`PairParams::follow_speed`): grains shot at each
+/// other at up to 60 m/s (the GPU reads the largest speed back each step), and two calls of
+/// several steps each, on both backends.
+#[test]
+fn substeps_that_follow_the_fastest_grain_on_both_backends() {
+    let r = 0.15;
+    let baked = tall_box();
+    let mut ps = Vec::new();
+    for (k, v) in [4.0f32, 15.0, 35.0, 60.0].into_iter().enumerate() {
+        let x = [
+            -0.18 + 0.36 * (k % 2) as f32,
+            0.0,
+            -0.18 + 0.36 * (k / 2) as f32,
+        ];
+        ps.push(Particle::new([x[0], 0.5, x[2]], [0.0, v, 0.0]));
+        ps.push(Particle::new([x[0], 3.5, x[2]], [0.0, -v, 0.0]));
+    }
+    baked.start(&mut ps);
+    let Some((report, out)) = (Run {
+        name: "following speed",
+        baked,
+        particles: ps,
+        params: StepParams {
+            gravity: [0.0; 3],
+            dt: DT,
+            radius: r,
+            ..StepParams::default()
+        },
+        pairs: PairParams {
+            follow_speed: true,
+            ..PairParams::default()
+        },
+        calls: 6,
+        steps_per_call: 3,
+        chunk_particles: None,
+        fold_width: None,
+    })
+    .compare() else {
+        return;
+    };
+    // 60 m/s is 6.7 radii a step: 7 substeps while it flies.
+    assert!(report.substeps >= 7 + 17, "{report:?}");
+    assert_eq!(report.fast, 0, "{report:?}");
+    for lane in out.chunks(2) {
+        assert!(lane[0].position[1] < lane[1].position[1], "{lane:?}");
+    }
+}
+
 #[test]
 fn a_lone_grain_lands_and_rests_on_both_backends() {
     // One particle: a table of one, nothing to sort; once it lands it rests on its support.

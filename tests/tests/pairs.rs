@@ -275,6 +275,68 @@ fn a_head_on_pair_keeps_momentum_and_energy() {
     }
 }
 
+/// Grains shot at each other along nine lanes, at 5 to 150 m/s (up to 21 radii a step at dt
+/// 1/60, without gravity, where gravity's substeps are 1): with substeps that follow the
+/// fastest grain (`PairParams::follow_speed`, `pair_substeps_for`) every pair meets in the
+/// cells and none passes through the other. With gravity's substeps alone (the default, one
+/// here) the fast lanes' grains pass through each other, counted as fast: the check sees
+/// what it checks.
+#[test]
+fn fast_grains_do_not_pass_through_each_other() {
+    let r = 0.12;
+    let baked = tall_box(r);
+    let speeds = [5.0f32, 10.0, 20.0, 35.0, 50.0, 70.0, 90.0, 120.0, 150.0];
+    let lane = |k: usize| [-0.3 + 0.3 * (k % 3) as f32, -0.3 + 0.3 * (k / 3) as f32];
+    let mut start = Vec::new();
+    for (k, &v) in speeds.iter().enumerate() {
+        let [x, z] = lane(k);
+        start.push(Particle::new([x, 0.4, z], [0.0, v, 0.0]));
+        start.push(Particle::new([x, 3.6, z], [0.0, -v, 0.0]));
+    }
+    assert_eq!(baked.start(&mut start).stuck, 0);
+    let step = StepParams {
+        gravity: [0.0; 3],
+        dt: 1.0 / 60.0,
+        radius: r,
+        ..StepParams::default()
+    };
+    // Lanes whose grains crossed (the lower one above the upper), or came within 99 % of a
+    // diameter of each other at a step's end.
+    let run = |pairs: &PairParams| {
+        let mut cpu = CpuBackend::new();
+        cpu.upload_proxy(&baked.words).unwrap();
+        cpu.upload_particles(&start).unwrap();
+        let mut ps = start.clone();
+        let (mut crossed, mut near) = (vec![false; speeds.len()], 0);
+        for _ in 0..30 {
+            cpu.step_pairs(&step, pairs, 1).unwrap();
+            cpu.download_particles(&mut ps).unwrap();
+            for (k, c) in crossed.iter_mut().enumerate() {
+                let (a, b) = (ps[2 * k].position, ps[2 * k + 1].position);
+                *c |= a[1] > b[1];
+                let d = (Vec3::from_array(a) - Vec3::from_array(b)).length();
+                near += (d < 2.0 * r * 0.99) as usize;
+            }
+        }
+        (crossed, near, cpu.take_pair_report().unwrap())
+    };
+    let (crossed, near, report) = run(&PairParams {
+        follow_speed: true,
+        ..PairParams::default()
+    });
+    assert!(crossed.iter().all(|c| !c), "lanes crossed: {crossed:?}");
+    assert_eq!(near, 0, "grains ended steps inside each other");
+    assert_eq!(report.fast, 0, "{report:?}");
+    // The fastest lane set the substeps while it flew: 150 m/s is 21 radii a step.
+    assert!(report.substeps >= 21, "{report:?}");
+    let (crossed, _, report) = run(&PairParams::default());
+    assert!(
+        crossed.iter().filter(|&&c| c).count() >= 3,
+        "with one substep the fast lanes should cross: {crossed:?}"
+    );
+    assert!(report.fast > 0, "{report:?}");
+}
+
 /// What a pour found once it came to rest.
 struct Rest {
     /// How far the pile's top came down in the last second.
@@ -589,13 +651,6 @@ fn the_parallel_pass_is_cores_serial_pass() {
     cpu.upload_proxy(&baked.words).unwrap();
     cpu.upload_particles(&ps).unwrap();
     let view = ProxyView::new(&baked.words).unwrap();
-    let substeps = octoproxy_core::pair_substeps(&step, &pairs);
-    let h = step.dt / substeps as f32;
-    let march = StepParams {
-        gravity: [0.0; 3],
-        dt: h,
-        ..step
-    };
     let n = ps.len();
     let (mut keys, mut bodies) = (
         vec![[0u32; 2]; n],
@@ -623,6 +678,18 @@ fn the_parallel_pass_is_cores_serial_pass() {
     }
     for _ in 0..40 {
         cpu.step_pairs(&step, &pairs, 1).unwrap();
+        // The step's substeps from its particles' largest speed, as the backend chooses them.
+        let v_max = ps
+            .iter()
+            .map(octoproxy_core::pair_probe_speed)
+            .fold(0.0, f32::max);
+        let substeps = octoproxy_core::pair_substeps_for(&step, &pairs, v_max);
+        let h = step.dt / substeps as f32;
+        let march = StepParams {
+            gravity: [0.0; 3],
+            dt: h,
+            ..step
+        };
         for _ in 0..substeps {
             let s0 = octoproxy_core::PairStep::new(&step, &pairs, h, n, 0.0);
             let v_max = octoproxy_core::pairs::pair_max_speed(&ps, &s0);

@@ -414,7 +414,7 @@ fn check_scene(
     if let Some(pairs) = pairs {
         eprintln!(
             "the particle pass: on ({} substeps per step, {} iterations each); with it every step's end is checked, not the path between",
-            octoproxy_core::pair_substeps(params, pairs),
+            substeps_said(params, pairs),
             pairs.iterations
         );
     }
@@ -592,7 +592,7 @@ fn check_radius(
         Some(pairs) => {
             eprintln!(
                 "the particle pass: on ({} substeps per step, {} iterations each)",
-                octoproxy_core::pair_substeps(params, pairs),
+                substeps_said(params, pairs),
                 pairs.iterations
             );
             run_check_pairs(
@@ -625,4 +625,17 @@ fn check_radius(
         bail!("{} penetrations", report.penetrations);
     }
     Ok(())
+}
+
+/// The substeps of a step with the pass, as the messages say them: the caller's, or the
+/// automatic rule's.
+fn substeps_said(params: &StepParams, pairs: &PairParams) -> String {
+    if pairs.substeps != 0 || !pairs.follow_speed {
+        octoproxy_core::pair_substeps(params, pairs).to_string()
+    } else {
+        format!(
+            "at least {} for gravity, more while a particle moves more than a radius in one",
+            octoproxy_core::pair_substeps(params, pairs)
+        )
+    }
 }

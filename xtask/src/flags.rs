@@ -76,6 +76,8 @@ pub struct PairFlags {
     pub friction: Option<f32>,
     pub iterations: Option<u32>,
     pub substeps: Option<u32>,
+    /// `--particle-substeps speed`.
+    pub follow_speed: bool,
     pub relaxation: Option<f32>,
     pub stacking: Option<f32>,
 }
@@ -86,8 +88,10 @@ pub const PAIR_HELP: &str =
   --particle-restitution E     in [0, 1] (default: --restitution)
   --particle-friction F        Coulomb coefficient >= 0 (default: --friction)
   --particle-iterations N      Jacobi iterations per substep, 1..=64 (default 8)
-  --particle-substeps N        substeps per step, 1..=256 (default: the fewest that keep
-                               gravity's closing per substep under 1 % of the radius)
+  --particle-substeps N|speed  substeps per step, 1..=256 (default: the fewest that keep
+                               gravity's closing per substep under 1 % of the radius;
+                               speed: also no particle moving more than R in one, so none
+                               passes through another)
   --particle-relaxation B      share of an overlap removed per substep, (0, 1] (default 0.4)
   --particle-stacking S        how much more of a correction the upper particle of a pair
                                takes, [0, 1] (default 1: a stack does not sink)";
@@ -100,7 +104,16 @@ impl PairFlags {
             "--particle-restitution" => self.restitution = Some(number(parser, name)?),
             "--particle-friction" => self.friction = Some(number(parser, name)?),
             "--particle-iterations" => self.iterations = Some(number(parser, name)?),
-            "--particle-substeps" => self.substeps = Some(number(parser, name)?),
+            "--particle-substeps" => {
+                let v = string(parser, name)?;
+                if v.trim() == "speed" {
+                    self.follow_speed = true;
+                } else {
+                    self.substeps = Some(v.trim().parse().map_err(|_| {
+                        anyhow::anyhow!("{name}: {v:?} is neither a number nor \"speed\"")
+                    })?);
+                }
+            }
             "--particle-relaxation" => self.relaxation = Some(number(parser, name)?),
             "--particle-stacking" => self.stacking = Some(number(parser, name)?),
             _ => return Ok(false),
@@ -114,6 +127,7 @@ impl PairFlags {
             || self.friction.is_some()
             || self.iterations.is_some()
             || self.substeps.is_some()
+            || self.follow_speed
             || self.relaxation.is_some()
             || self.stacking.is_some()
     }
@@ -141,6 +155,7 @@ impl PairFlags {
             stacking: self.stacking.unwrap_or(d.stacking),
             iterations: self.iterations.unwrap_or(d.iterations),
             substeps: self.substeps.unwrap_or(d.substeps),
+            follow_speed: self.follow_speed || d.follow_speed,
             max_candidates: d.max_candidates,
         };
         pairs.validate(step)?;

@@ -125,9 +125,10 @@ pub fn params() -> StepParams {
     }
 }
 
-/// The substeps each step takes.
-pub fn substeps() -> u32 {
-    octoproxy_core::pair_substeps(&params(), &PairParams::default())
+/// The substeps a step took on average (rounded), from the pass's report: they follow the
+/// fastest particle (`octoproxy_core::pair_substeps_for`).
+fn mean_substeps(report: &octoproxy_core::PairReport) -> u32 {
+    (report.substeps as f64 / report.steps.max(1) as f64).round() as u32
 }
 
 /// Times one case: the floor (integration only), the step with the pass on the CPU (whole and
@@ -143,8 +144,10 @@ pub fn time_case(
     let particles = case_particles(name, floor, n)?;
     let params = params();
     let pairs = PairParams::default();
-    let substeps = substeps();
-    let row = |method: String, backend: &'static str, ns: f64| Row {
+    // The floor's rows carry gravity's substeps, the fewest a step takes: a particle case's
+    // rows are those with substeps.
+    let base = octoproxy_core::pair_substeps(&params, &pairs);
+    let row = |method: String, backend: &'static str, ns: f64, substeps: u32| Row {
         scene: name.to_string(),
         triangles: floor.triangles,
         particles: n,
@@ -186,16 +189,24 @@ pub fn time_case(
             "floor".into(),
             "cpu",
             per_step(t.elapsed().as_secs_f64()),
+            base,
         ));
         c.upload_proxy(&floor.words)?;
         c.upload_particles(&particles)?;
         c.step_pairs(&params, &pairs, 1)?;
         c.take_pair_timings();
+        c.take_pair_report()?;
         let t = Instant::now();
         c.step_pairs(&params, &pairs, steps)?;
         let whole = per_step(t.elapsed().as_secs_f64());
         let parts = c.take_pair_timings();
-        rows.push(row(format!("octoproxy-cpu{METHOD}"), "cpu", whole));
+        let substeps = mean_substeps(&c.take_pair_report()?);
+        rows.push(row(
+            format!("octoproxy-cpu{METHOD}"),
+            "cpu",
+            whole,
+            substeps,
+        ));
         for (part, d) in PARTS
             .iter()
             .zip([parts.sort, parts.neighbours, parts.march])
@@ -204,6 +215,7 @@ pub fn time_case(
                 format!("octoproxy-cpu{METHOD}{part}"),
                 "cpu",
                 per_step(d.as_secs_f64()),
+                substeps,
             ));
         }
     }
@@ -221,19 +233,23 @@ pub fn time_case(
             "floor".into(),
             "wgpu",
             per_step(t.elapsed().as_secs_f64()),
+            base,
         ));
         g.upload_particles(&particles)?;
         g.step_pairs(&params, &pairs, 1)?;
         g.wait()?;
+        g.take_pair_report()?;
         let t = Instant::now();
         g.step_pairs(&params, &pairs, steps)?;
         g.wait()?;
+        let whole = per_step(t.elapsed().as_secs_f64());
+        let substeps = mean_substeps(&g.take_pair_report()?);
         rows.push(row(
             format!("octoproxy-wgpu{METHOD}"),
             "wgpu",
-            per_step(t.elapsed().as_secs_f64()),
+            whole,
+            substeps,
         ));
-        g.take_pair_report()?;
     }
     Ok(rows)
 }

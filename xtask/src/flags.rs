@@ -76,8 +76,8 @@ pub struct PairFlags {
     pub friction: Option<f32>,
     pub iterations: Option<u32>,
     pub substeps: Option<u32>,
-    /// `--particle-substeps speed`.
-    pub follow_speed: bool,
+    /// `--particle-substeps speed` (true) or `gravity` (false).
+    pub follow_speed: Option<bool>,
     pub relaxation: Option<f32>,
     pub stacking: Option<f32>,
 }
@@ -88,10 +88,11 @@ pub const PAIR_HELP: &str =
   --particle-restitution E     in [0, 1] (default: --restitution)
   --particle-friction F        Coulomb coefficient >= 0 (default: --friction)
   --particle-iterations N      Jacobi iterations per substep, 1..=64 (default 8)
-  --particle-substeps N|speed  substeps per step, 1..=256 (default: the fewest that keep
-                               gravity's closing per substep under 1 % of the radius;
-                               speed: also no particle moving more than R in one, so none
-                               passes through another)
+  --particle-substeps N|speed|gravity
+                               substeps per step, 1..=256, or chosen each step: speed (the
+                               default) keeps gravity's closing per substep under 1 % of the
+                               radius and no particle moving more than R in one (none passes
+                               through another); gravity: the first rule alone
   --particle-relaxation B      share of an overlap removed per substep, (0, 1] (default 0.4)
   --particle-stacking S        how much more of a correction the upper particle of a pair
                                takes, [0, 1] (default 1: a stack does not sink)";
@@ -106,12 +107,16 @@ impl PairFlags {
             "--particle-iterations" => self.iterations = Some(number(parser, name)?),
             "--particle-substeps" => {
                 let v = string(parser, name)?;
-                if v.trim() == "speed" {
-                    self.follow_speed = true;
-                } else {
-                    self.substeps = Some(v.trim().parse().map_err(|_| {
-                        anyhow::anyhow!("{name}: {v:?} is neither a number nor \"speed\"")
-                    })?);
+                match v.trim() {
+                    "speed" => self.follow_speed = Some(true),
+                    "gravity" => self.follow_speed = Some(false),
+                    n => {
+                        self.substeps = Some(n.parse().map_err(|_| {
+                            anyhow::anyhow!(
+                                "{name}: {v:?} is neither a number, \"speed\" nor \"gravity\""
+                            )
+                        })?)
+                    }
                 }
             }
             "--particle-relaxation" => self.relaxation = Some(number(parser, name)?),
@@ -127,7 +132,7 @@ impl PairFlags {
             || self.friction.is_some()
             || self.iterations.is_some()
             || self.substeps.is_some()
-            || self.follow_speed
+            || self.follow_speed.is_some()
             || self.relaxation.is_some()
             || self.stacking.is_some()
     }
@@ -155,7 +160,7 @@ impl PairFlags {
             stacking: self.stacking.unwrap_or(d.stacking),
             iterations: self.iterations.unwrap_or(d.iterations),
             substeps: self.substeps.unwrap_or(d.substeps),
-            follow_speed: self.follow_speed || d.follow_speed,
+            follow_speed: self.follow_speed.unwrap_or(d.follow_speed),
             max_candidates: d.max_candidates,
         };
         pairs.validate(step)?;

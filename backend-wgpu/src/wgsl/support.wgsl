@@ -26,9 +26,10 @@ fn pair_support(p: Particle, hint: vec2<u32>) -> vec4<f32> {
     let centre = (leaf.value.aabb.min + leaf.value.aabb.max) * 0.5;
     let above = (dot3(leaf.value.normal, p.position - centre) - leaf.value.plane_offset) * sign;
     let reach = (leaf.value.aabb.max.x - leaf.value.aabb.min.x) * PAIR_SUPPORT_REACH;
-    if !(above <= reach) {
+    let blocked = (p.flags & FLAG_BLOCKED) != 0u;
+    if !(above <= reach) && !blocked {
         return vec4<f32>(0.0);
     }
-    return vec4<f32>(n, select(1.0, PAIR_WEDGED, (p.flags & FLAG_BLOCKED) != 0u));
+    return vec4<f32>(n, select(1.0, PAIR_WEDGED, blocked));
 }
 

@@ -271,7 +271,12 @@ impl Scene {
         let moving = self.instances.iter().any(|i| !i.is_static());
         // A scene where nothing moves is the same scene in every substep.
         let cut = if moving { count } else { 0 };
-        let (whole, whole_nodes) = (self.instances.clone(), self.nodes.clone());
+        let whole = self.instances.clone();
+        let whole_nodes = if moving {
+            self.nodes.clone()
+        } else {
+            Vec::new()
+        };
         let mut substeps: Vec<(Vec<Instance>, Vec<BroadNode>)> = Vec::with_capacity(cut as usize);
         let mut result = Ok(());
         for k in 0..cut {

@@ -413,8 +413,8 @@ fn check_scene(
     );
     if let Some(pairs) = pairs {
         eprintln!(
-            "the particle pass: on ({} substeps per step, {} iterations each); with it every step's end is checked, not the path between",
-            substeps_said(params, pairs),
+            "the particle pass: on (substeps: {}; {} iterations each); with it every step's end is checked, not the path between",
+            crate::flags::substeps_said(params, pairs),
             pairs.iterations
         );
     }
@@ -591,8 +591,8 @@ fn check_radius(
     let report = match pairs {
         Some(pairs) => {
             eprintln!(
-                "the particle pass: on ({} substeps per step, {} iterations each)",
-                substeps_said(params, pairs),
+                "the particle pass: on (substeps: {}; {} iterations each)",
+                crate::flags::substeps_said(params, pairs),
                 pairs.iterations
             );
             run_check_pairs(
@@ -625,17 +625,4 @@ fn check_radius(
         bail!("{} penetrations", report.penetrations);
     }
     Ok(())
-}
-
-/// The substeps of a step with the pass, as the messages say them: the caller's, or the
-/// automatic rule's.
-fn substeps_said(params: &StepParams, pairs: &PairParams) -> String {
-    if pairs.substeps != 0 || !pairs.follow_speed {
-        octoproxy_core::pair_substeps(params, pairs).to_string()
-    } else {
-        format!(
-            "at least {} for gravity, more while a particle moves more than a radius in one",
-            octoproxy_core::pair_substeps(params, pairs)
-        )
-    }
 }

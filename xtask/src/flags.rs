@@ -236,3 +236,18 @@ pub const BUILD_HELP: &str =
   --radius R        the particles' radius, >= 0: bake the offset surface at R from the mesh
                     (a glTF scene: each mesh once per world scale s, at R/s; no animated
                     scale) (default 0; with a proxy or a baked scene, its own)";
+
+/// The substeps of a step with the pass, as the messages of `sim` and `check` say them: the
+/// caller's count, gravity's, or the rule that follows speed.
+pub fn substeps_said(params: &octoproxy_core::StepParams, pairs: &PairParams) -> String {
+    let gravity = octoproxy_core::pair_substeps(params, pairs);
+    if pairs.substeps != 0 {
+        format!("{gravity} a step, --particle-substeps")
+    } else if pairs.follow_speed {
+        format!(
+            "at least {gravity} a step for gravity, more while a particle moves more than a radius in one"
+        )
+    } else {
+        format!("{gravity} a step for gravity")
+    }
+}

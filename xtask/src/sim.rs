@@ -384,20 +384,11 @@ fn report_pass(
         "particle pass: {} substeps over {} steps ({}), {} iterations each; {} particle-iterations stopped at the neighbour cap, {} particle-substeps faster than a radius per substep (they may pass through other particles, never the scene{})",
         report.substeps,
         report.steps,
-        if pairs.substeps != 0 {
-            format!("{} a step, --particle-substeps", pairs.substeps)
-        } else if pairs.follow_speed {
-            format!(
-                "at least {} a step for gravity, more while a particle moves more than a radius in one",
-                octoproxy_core::pair_substeps(params, pairs)
-            )
-        } else {
-            format!("{} a step for gravity", octoproxy_core::pair_substeps(params, pairs))
-        },
+        crate::flags::substeps_said(params, pairs),
         pairs.iterations,
         report.capped,
         report.fast,
-        if pairs.follow_speed {
+        if pairs.follow_speed && pairs.substeps == 0 {
             ""
         } else {
             ": --particle-substeps speed keeps every particle within a radius per substep"

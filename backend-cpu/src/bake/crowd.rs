@@ -18,6 +18,8 @@
 //! that share an edge without joining there (two sheets through one line, fins welded to a
 //! plate) are two sheets.
 
+use std::collections::HashMap;
+
 use glam::{DVec3, UVec3};
 use octoproxy_core::MAX_DEPTH;
 use rayon::prelude::*;
@@ -25,35 +27,81 @@ use rayon::prelude::*;
 use super::flat::{Flat, Kind};
 use super::{geom, Grid, Tri};
 
-/// Per flat node: whether it is a crowded surface leaf.
-pub(crate) fn crowded(tree: &Flat, tris: &[Tri], grid: &Grid, dmax: u32) -> Vec<bool> {
-    let joins = manifold_edges(tris);
-    let mut crossing = vec![false; tree.nodes.len()];
-    let found: Vec<u32> = tree
-        .surface
-        .par_iter()
-        .filter(|&&leaf| match &tree.nodes[leaf as usize].kind {
-            Kind::Surface(s) => crosses_itself(&s.tris, tris),
-            _ => false,
-        })
-        .copied()
-        .collect();
-    for leaf in found {
-        crossing[leaf as usize] = true;
+/// A leaf's key across the bake's passes: its depth and cell. A leaf's triangles are those
+/// that meet its box, whatever the tree around it, so what is found for a leaf in one pass
+/// holds in the next, where most leaves are the same.
+type LeafKey = (u32, [u32; 3]);
+
+/// What the crowding test keeps across a bake's passes: the scene's manifold edges, and per
+/// leaf whether it crosses itself and whether more than one sheet meets its grown box.
+pub(crate) struct Crowding {
+    joins: Vec<[u32; 3]>,
+    crosses: HashMap<LeafKey, bool>,
+    sheets: HashMap<LeafKey, bool>,
+}
+
+impl Crowding {
+    pub(crate) fn new(tris: &[Tri]) -> Self {
+        Crowding {
+            joins: manifold_edges(tris),
+            crosses: HashMap::new(),
+            sheets: HashMap::new(),
+        }
     }
-    let grow = UVec3::splat(1 << (MAX_DEPTH - dmax));
-    let end = UVec3::splat(1 << MAX_DEPTH);
-    let flags: Vec<(u32, bool)> =
-        tree.surface
+
+    /// Per flat node: whether it is a crowded surface leaf.
+    pub(crate) fn crowded(
+        &mut self,
+        tree: &Flat,
+        tris: &[Tri],
+        grid: &Grid,
+        dmax: u32,
+    ) -> Vec<bool> {
+        let key = |leaf: u32| {
+            let n = &tree.nodes[leaf as usize];
+            (n.depth, n.cell.to_array())
+        };
+        let crosses = &self.crosses;
+        let found: Vec<(LeafKey, bool)> = tree
+            .surface
+            .par_iter()
+            .filter(|&&leaf| !crosses.contains_key(&key(leaf)))
+            .map(|&leaf| {
+                let c = match &tree.nodes[leaf as usize].kind {
+                    Kind::Surface(s) => crosses_itself(&s.tris, tris),
+                    _ => false,
+                };
+                (key(leaf), c)
+            })
+            .collect();
+        self.crosses.extend(found);
+        let mut crossing = vec![false; tree.nodes.len()];
+        for &leaf in &tree.surface {
+            crossing[leaf as usize] = self.crosses[&key(leaf)];
+        }
+        let grow = UVec3::splat(1 << (MAX_DEPTH - dmax));
+        let end = UVec3::splat(1 << MAX_DEPTH);
+        let (joins, known) = (&self.joins, &self.sheets);
+        // `Some(sheets > 1)` where it was asked, `None` where a crossing leaf nearby decides.
+        let flags: Vec<(u32, Option<bool>)> = tree
+            .surface
             .par_iter()
             .map_init(Vec::new, |set, &leaf| {
                 let (lo, hi) = tree.nodes[leaf as usize].range();
                 let (qlo, qhi) = (lo.saturating_sub(grow), (hi + grow).min(end));
-                let (wlo, whi) = (grid.point(qlo), grid.point(qhi));
-                set.clear();
                 let mut near_crossing = false;
                 tree.for_each_touching_surface(qlo, qhi, |n| {
                     near_crossing |= crossing[n as usize];
+                });
+                if near_crossing {
+                    return (leaf, None);
+                }
+                if let Some(&many) = known.get(&key(leaf)) {
+                    return (leaf, Some(many));
+                }
+                let (wlo, whi) = (grid.point(qlo), grid.point(qhi));
+                set.clear();
+                tree.for_each_touching_surface(qlo, qhi, |n| {
                     let node = &tree.nodes[n as usize];
                     let Kind::Surface(s) = &node.kind else {
                         return;
@@ -69,19 +117,20 @@ pub(crate) fn crowded(tree: &Flat, tris: &[Tri], grid: &Grid, dmax: u32) -> Vec<
                         }));
                     }
                 });
-                if near_crossing {
-                    return (leaf, true);
-                }
                 set.sort_unstable();
                 set.dedup();
-                (leaf, sheets(set, &joins) > 1)
+                (leaf, Some(sheets(set, joins) > 1))
             })
             .collect();
-    let mut out = vec![false; tree.nodes.len()];
-    for (leaf, c) in flags {
-        out[leaf as usize] = c;
+        let mut out = vec![false; tree.nodes.len()];
+        for (leaf, many) in flags {
+            out[leaf as usize] = many.unwrap_or(true);
+            if let Some(many) = many {
+                self.sheets.insert(key(leaf), many);
+            }
+        }
+        out
     }
-    out
 }
 
 /// An edge's key: its two vertex ids, the smaller first.

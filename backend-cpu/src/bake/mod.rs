@@ -447,6 +447,7 @@ pub(crate) fn bake_in_passes(
     // leaf is then solid and coarse (`coarse_solid_leaves` counts what rounding at extreme
     // magnitudes still leaves), at the cost of a larger proxy for that scene.
     let mut force = Forced::default();
+    let mut crowding = crowd::Crowding::new(&tris);
     let mut pass = 0;
     let (tree, labels, crowded) = loop {
         pass += 1;
@@ -482,7 +483,7 @@ pub(crate) fn bake_in_passes(
         report.timings.push(("label", t.elapsed()));
 
         let t = Instant::now();
-        let crowded = crowd::crowded(&tree, &tris, &grid, params.dmax);
+        let crowded = crowding.crowded(&tree, &tris, &grid, params.dmax);
         report.timings.push(("crowded", t.elapsed()));
 
         let big: Vec<(u32, UVec3)> = tree
@@ -570,8 +571,6 @@ fn touches_other_parts(tree: &flat::Flat, leaf: u32, tris: &[Tri]) -> bool {
 }
 
 fn gather(meshes: &[MeshRef<'_>], report: &mut BuildReport) -> Result<Vec<Tri>, BuildError> {
-    let mut tris = Vec::new();
-    let mut weld = Weld::default();
     for (mi, m) in meshes.iter().enumerate() {
         if let Some(vertex) = m
             .positions
@@ -580,41 +579,61 @@ fn gather(meshes: &[MeshRef<'_>], report: &mut BuildReport) -> Result<Vec<Tri>, 
         {
             return Err(BuildError::NonFinite { mesh: mi, vertex });
         }
+        let vertices = m.positions.len();
+        let bad = m
+            .triangles
+            .par_iter()
+            .position_first(|t| t.iter().any(|&i| i as usize >= vertices));
+        if let Some(triangle) = bad {
+            let t = m.triangles[triangle];
+            let index = t
+                .into_iter()
+                .find(|&i| i as usize >= vertices)
+                .unwrap_or(t[0]);
+            return Err(BuildError::IndexOutOfRange {
+                mesh: mi,
+                triangle,
+                index,
+                vertices,
+            });
+        }
+    }
+    let vids = weld(meshes);
+    let mut tris = Vec::new();
+    for (m, vid) in meshes.iter().zip(&vids) {
         let (closed, rim, component) = edge_classes(m);
         let base = report.triangles_in as u32;
-        for (ti, t) in m.triangles.iter().enumerate() {
-            report.triangles_in += 1;
-            let mut v = [DVec3::ZERO; 3];
-            for k in 0..3 {
-                let i = t[k];
-                let Some(p) = m.positions.get(i as usize) else {
-                    return Err(BuildError::IndexOutOfRange {
-                        mesh: mi,
-                        triangle: ti,
-                        index: i,
-                        vertices: m.positions.len(),
-                    });
-                };
-                v[k] = DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+        report.triangles_in += m.triangles.len();
+        let made: Vec<Option<Tri>> = m
+            .triangles
+            .par_iter()
+            .enumerate()
+            .map(|(ti, t)| {
+                let v = t.map(|i| {
+                    let p = m.positions[i as usize];
+                    DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)
+                });
+                let c = (v[1] - v[0]).cross(v[2] - v[0]);
+                let len = c.length();
+                (len > 0.0 && len.is_finite()).then(|| Tri {
+                    v,
+                    n: c / len,
+                    area: len * 0.5,
+                    closed: closed[ti],
+                    rim: rim[ti],
+                    component: base + component[ti],
+                    vid: t.map(|i| vid[i as usize]),
+                })
+            })
+            .collect();
+        for t in made {
+            match t {
+                Some(t) => {
+                    report.closed_triangles += t.closed as usize;
+                    tris.push(t);
+                }
+                None => report.degenerate_skipped += 1,
             }
-            let c = (v[1] - v[0]).cross(v[2] - v[0]);
-            let len = c.length();
-            if !(len > 0.0) || !len.is_finite() {
-                report.degenerate_skipped += 1;
-                continue;
-            }
-            if closed[ti] {
-                report.closed_triangles += 1;
-            }
-            tris.push(Tri {
-                v,
-                n: c / len,
-                area: len * 0.5,
-                closed: closed[ti],
-                rim: rim[ti],
-                component: base + component[ti],
-                vid: t.map(|i| weld.id(m.positions[i as usize])),
-            });
         }
     }
     if tris.is_empty() {
@@ -625,17 +644,30 @@ fn gather(meshes: &[MeshRef<'_>], report: &mut BuildReport) -> Result<Vec<Tri>, 
     Ok(tris)
 }
 
-/// Vertex ids by position, across every mesh of a scene.
-#[derive(Default)]
-struct Weld(std::collections::HashMap<[u32; 3], u32>);
-
-impl Weld {
-    /// The id of the position `p` (`-0.0` and `0.0` are one position).
-    fn id(&mut self, p: [f32; 3]) -> u32 {
-        let key = p.map(|x| if x == 0.0 { 0 } else { x.to_bits() });
-        let next = self.0.len() as u32;
-        *self.0.entry(key).or_insert(next)
+/// Vertex ids by position across every mesh of a scene, per mesh and vertex: equal ids are
+/// equal positions (`-0.0` and `0.0` are one), numbered in the order of the positions' bits.
+fn weld(meshes: &[MeshRef<'_>]) -> Vec<Vec<u32>> {
+    let key = |p: &[f32; 3]| p.map(|x| if x == 0.0 { 0 } else { x.to_bits() });
+    let mut all: Vec<([u32; 3], u32, u32)> = meshes
+        .iter()
+        .enumerate()
+        .flat_map(|(mi, m)| {
+            m.positions
+                .iter()
+                .enumerate()
+                .map(move |(vi, p)| (key(p), mi as u32, vi as u32))
+        })
+        .collect();
+    all.par_sort_unstable();
+    let mut ids: Vec<Vec<u32>> = meshes.iter().map(|m| vec![0; m.positions.len()]).collect();
+    let mut id = 0u32;
+    for (i, &(k, mi, vi)) in all.iter().enumerate() {
+        if i > 0 && all[i - 1].0 != k {
+            id += 1;
+        }
+        ids[mi as usize][vi as usize] = id;
     }
+    ids
 }
 
 /// Classifies triangles by their edges: those of closed components (components joined by

@@ -86,41 +86,42 @@ impl Crowding {
         let flags: Vec<(u32, Option<bool>)> = tree
             .surface
             .par_iter()
-            .map_init(Vec::new, |set, &leaf| {
-                let (lo, hi) = tree.nodes[leaf as usize].range();
-                let (qlo, qhi) = (lo.saturating_sub(grow), (hi + grow).min(end));
-                let mut near_crossing = false;
-                tree.for_each_touching_surface(qlo, qhi, |n| {
-                    near_crossing |= crossing[n as usize];
-                });
-                if near_crossing {
-                    return (leaf, None);
-                }
-                if let Some(&many) = known.get(&key(leaf)) {
-                    return (leaf, Some(many));
-                }
-                let (wlo, whi) = (grid.point(qlo), grid.point(qhi));
-                set.clear();
-                tree.for_each_touching_surface(qlo, qhi, |n| {
-                    let node = &tree.nodes[n as usize];
-                    let Kind::Surface(s) = &node.kind else {
-                        return;
-                    };
-                    // A leaf inside the grown box brings all its triangles (each meets it); one
-                    // across its boundary, those that meet the box; one beside it, none.
-                    let (nlo, nhi) = node.range();
-                    if nlo.cmpge(qlo).all() && nhi.cmple(qhi).all() {
-                        set.extend_from_slice(&s.tris);
-                    } else if nlo.cmplt(qhi).all() && nhi.cmpgt(qlo).all() {
-                        set.extend(s.tris.iter().copied().filter(|&t| {
-                            geom::triangle_overlaps_box(&tris[t as usize].v, wlo, whi)
-                        }));
+            .map_init(
+                || (Vec::new(), Sheets::default()),
+                |(set, counter), &leaf| {
+                    let (lo, hi) = tree.nodes[leaf as usize].range();
+                    let (qlo, qhi) = (lo.saturating_sub(grow), (hi + grow).min(end));
+                    let mut near_crossing = false;
+                    tree.for_each_touching_surface(qlo, qhi, |n| {
+                        near_crossing |= crossing[n as usize];
+                    });
+                    if near_crossing {
+                        return (leaf, None);
                     }
-                });
-                set.sort_unstable();
-                set.dedup();
-                (leaf, Some(sheets(set, joins) > 1))
-            })
+                    if let Some(&many) = known.get(&key(leaf)) {
+                        return (leaf, Some(many));
+                    }
+                    let (wlo, whi) = (grid.point(qlo), grid.point(qhi));
+                    set.clear();
+                    tree.for_each_touching_surface(qlo, qhi, |n| {
+                        let node = &tree.nodes[n as usize];
+                        let Kind::Surface(s) = &node.kind else {
+                            return;
+                        };
+                        // A leaf inside the grown box brings all its triangles (each meets it); one
+                        // across its boundary, those that meet the box; one beside it, none.
+                        let (nlo, nhi) = node.range();
+                        if nlo.cmpge(qlo).all() && nhi.cmple(qhi).all() {
+                            set.extend_from_slice(&s.tris);
+                        } else if nlo.cmplt(qhi).all() && nhi.cmpgt(qlo).all() {
+                            set.extend(s.tris.iter().copied().filter(|&t| {
+                                geom::triangle_overlaps_box(&tris[t as usize].v, wlo, whi)
+                            }));
+                        }
+                    });
+                    (leaf, Some(counter.count(set, joins) > 1))
+                },
+            )
             .collect();
         let mut out = vec![false; tree.nodes.len()];
         for (leaf, many) in flags {
@@ -171,34 +172,80 @@ fn manifold_edges(tris: &[Tri]) -> Vec<[u32; 3]> {
     joins
 }
 
-/// How many sheets (sets joined by manifold edges, `joins`) the triangles `set` (sorted, no
-/// repeats) make.
-fn sheets(set: &[u32], joins: &[[u32; 3]]) -> usize {
-    let mut parent: Vec<u32> = (0..set.len() as u32).collect();
-    fn find(p: &mut [u32], mut x: u32) -> u32 {
+/// How many sheets (sets joined by manifold edges, `joins`) the triangles of `list` make
+/// (repeats count once).
+#[cfg(test)]
+fn sheets(list: &[u32], joins: &[[u32; 3]]) -> usize {
+    Sheets::default().count(list, joins)
+}
+
+/// [`sheets`]' scratch, kept between calls: an open-addressing table from triangle to its
+/// place among the distinct triangles, and their union–find parents.
+#[derive(Default)]
+struct Sheets {
+    table: Vec<(u32, u32)>,
+    parent: Vec<u32>,
+}
+
+impl Sheets {
+    const FREE: u32 = u32::MAX;
+
+    /// The slot of triangle `t`: its own, or the free one where it would go.
+    #[inline]
+    fn slot(&self, t: u32) -> usize {
+        let mask = self.table.len() - 1;
+        let mut i = (t.wrapping_mul(0x9e37_79b1) as usize) & mask;
+        while self.table[i].0 != Self::FREE && self.table[i].0 != t {
+            i = (i + 1) & mask;
+        }
+        i
+    }
+
+    fn find(&mut self, mut x: u32) -> u32 {
+        let p = &mut self.parent;
         while p[x as usize] != x {
             p[x as usize] = p[p[x as usize] as usize];
             x = p[x as usize];
         }
         x
     }
-    let mut roots = set.len();
-    for (i, &t) in set.iter().enumerate() {
-        for &n in &joins[t as usize] {
-            // Each joined pair once: from its smaller triangle.
-            if n == NONE || n < t {
+
+    fn count(&mut self, list: &[u32], joins: &[[u32; 3]]) -> usize {
+        let size = (2 * list.len()).max(2).next_power_of_two();
+        self.table.clear();
+        self.table.resize(size, (Self::FREE, 0));
+        self.parent.clear();
+        for &t in list {
+            let i = self.slot(t);
+            if self.table[i].0 == Self::FREE {
+                self.table[i] = (t, self.parent.len() as u32);
+                self.parent.push(self.parent.len() as u32);
+            }
+        }
+        let mut roots = self.parent.len();
+        for i in 0..self.table.len() {
+            let (t, place) = self.table[i];
+            if t == Self::FREE {
                 continue;
             }
-            if let Ok(j) = set.binary_search(&n) {
-                let (a, b) = (find(&mut parent, i as u32), find(&mut parent, j as u32));
+            for &n in &joins[t as usize] {
+                // Each joined pair once: from its smaller triangle.
+                if n == NONE || n < t {
+                    continue;
+                }
+                let (other, there) = self.table[self.slot(n)];
+                if other != n {
+                    continue;
+                }
+                let (a, b) = (self.find(place), self.find(there));
                 if a != b {
-                    parent[a as usize] = b;
+                    self.parent[a as usize] = b;
                     roots -= 1;
                 }
             }
         }
+        roots
     }
-    roots
 }
 
 /// Whether two of the triangles `list` cross or touch each other away from a shared vertex:

@@ -2,6 +2,8 @@
 //! cells, each surface leaf's clipped normal and triangle list, and the neighbour traversal
 //! (`Flat::for_each_touching_leaf`) that labelling and refinement query.
 
+use std::collections::HashMap;
+
 use glam::{DVec3, UVec3};
 use octoproxy_core::format::{NodeRecord, CLEARANCE_MAX, CLEARANCE_STEPS};
 use octoproxy_core::MAX_DEPTH;
@@ -56,14 +58,38 @@ pub(crate) struct Flat {
 
 impl Flat {
     /// Flattens the pointer tree and computes each surface leaf's normal and anchors.
-    pub fn new(root: Node, tris: &[Tri], grid: &Grid) -> Flat {
+    /// A surface leaf of `last` (the bake's last pass) at the same depth and cell holds the
+    /// same triangles, so its normal and anchors are taken from there.
+    pub fn new(root: Node, tris: &[Tri], grid: &Grid, last: Option<&Flat>) -> Flat {
         let mut flat = Flat {
             nodes: Vec::new(),
             surface: Vec::new(),
         };
         flat.push(root, UVec3::ZERO, 0);
+        let known: HashMap<(u32, [u32; 3]), &Surface> = last
+            .map(|last| {
+                last.surface
+                    .iter()
+                    .filter_map(|&i| {
+                        let n = &last.nodes[i as usize];
+                        match &n.kind {
+                            Kind::Surface(s) => Some(((n.depth, n.cell.to_array()), &**s)),
+                            Kind::Internal { .. } => None,
+                        }
+                    })
+                    .collect()
+            })
+            .unwrap_or_default();
         flat.nodes.par_iter_mut().for_each(|n| {
             if let Kind::Surface(s) = &mut n.kind {
+                if let Some(was) = known.get(&(n.depth, n.cell.to_array())) {
+                    s.normal = was.normal;
+                    s.two_sided = was.two_sided;
+                    s.plane_offset = was.plane_offset;
+                    s.clearance = was.clearance;
+                    s.anchors.clone_from(&was.anchors);
+                    return;
+                }
                 let (lo, hi) = grid.cell_box(n.cell, n.depth);
                 let bound = NodeRecord::plane_offset_bound(grid.root_size, n.depth) as f64;
                 finish_surface(s, tris, lo, hi, bound);

@@ -24,11 +24,13 @@
 //! label means the other side of the leaf's plane, and a particle it stamps would pass through
 //! the surface it faces. Such a surface leaf is made two-sided too.
 
-use glam::DVec3;
+use std::collections::HashMap;
+
+use glam::{DVec3, UVec3};
 use octoproxy_core::Label;
 use rayon::prelude::*;
 
-use super::flat::{Flat, Kind};
+use super::flat::{Flat, Kind, Surface};
 use super::{geom, BuildProgress, Grid, Tri};
 use crate::ground_truth::GroundTruth;
 
@@ -72,23 +74,53 @@ struct Vote {
     against: bool,
 }
 
+/// A surface leaf's votes across the bake's passes, by its depth and cell: per touching
+/// empty leaf (its closed box in plane indices), each segment's `(front, closed, against)`.
+/// They depend on the two leaves alone (a leaf's triangles are those that meet its box), so
+/// a pair met again in the next pass votes as before.
+#[derive(Default)]
+pub(crate) struct VoteCache(HashMap<LeafKey, Vec<PairVotes>>);
+
+/// A leaf's depth and cell.
+type LeafKey = (u32, [u32; 3]);
+
+/// A surface leaf's pairs' votes, for [`VoteCache`].
+type LeafPairs = Option<(LeafKey, Vec<PairVotes>)>;
+
+/// The votes of one (surface leaf, empty leaf) pair.
+#[derive(Clone, Copy)]
+struct PairVotes {
+    empty: (UVec3, UVec3),
+    votes: [(bool, bool, bool); SAMPLES],
+    len: u8,
+}
+
 pub(crate) fn label(
     tree: &Flat,
     tris: &[Tri],
     grid: &Grid,
     matter: Option<&GroundTruth>,
+    cache: &mut VoteCache,
     progress: &dyn BuildProgress,
 ) -> Labels {
     progress.begin("label", tree.surface.len() as u64);
-    let votes: Vec<Vote> = tree
+    let known = &cache.0;
+    let found: Vec<(Vec<Vote>, LeafPairs)> = tree
         .surface
         .par_iter()
-        .flat_map_iter(|&leaf| {
-            let v = leaf_votes(tree, leaf, tris, grid);
+        .map(|&leaf| {
+            let v = leaf_votes(tree, leaf, tris, grid, known);
             progress.advance(1);
             v
         })
         .collect();
+    let mut votes = Vec::new();
+    let mut next = HashMap::new();
+    for (v, pairs) in found {
+        votes.extend(v);
+        next.extend(pairs);
+    }
+    cache.0 = next;
     // counts: closed front, closed back, open front, open back.
     let mut counts = vec![[0u32; 4]; tree.nodes.len() * 8];
     for v in &votes {
@@ -162,51 +194,92 @@ pub(crate) fn label(
     }
 }
 
-fn leaf_votes(tree: &Flat, leaf: u32, tris: &[Tri], grid: &Grid) -> Vec<Vote> {
+/// The votes of surface leaf `leaf` with every empty leaf it touches, and its pairs' votes
+/// for the next pass (`known`: the last pass's).
+fn leaf_votes(
+    tree: &Flat,
+    leaf: u32,
+    tris: &[Tri],
+    grid: &Grid,
+    known: &HashMap<LeafKey, Vec<PairVotes>>,
+) -> (Vec<Vote>, LeafPairs) {
     let node = &tree.nodes[leaf as usize];
     let Kind::Surface(surface) = &node.kind else {
-        return Vec::new();
+        return (Vec::new(), None);
     };
+    let key = (node.depth, node.cell.to_array());
+    let was = known.get(&key);
     let (lo, hi) = node.range();
     let mut out = Vec::new();
+    let mut pairs = Vec::new();
     tree.for_each_touching_empty(lo, hi, |empty, elo, ehi| {
-        // The shared closed region, in plane indices, then its centre in world space.
-        let slo = lo.max(elo);
-        let shi = hi.min(ehi);
-        let pe = DVec3::new(
-            (grid.plane(0, slo.x) + grid.plane(0, shi.x)) * 0.5,
-            (grid.plane(1, slo.y) + grid.plane(1, shi.y)) * 0.5,
-            (grid.plane(2, slo.z) + grid.plane(2, shi.z)) * 0.5,
-        );
         let centre = DVec3::new(
             (grid.plane(0, elo.x) + grid.plane(0, ehi.x)) * 0.5,
             (grid.plane(1, elo.y) + grid.plane(1, ehi.y)) * 0.5,
             (grid.plane(2, elo.z) + grid.plane(2, ehi.z)) * 0.5,
         );
-        // The nearest anchors.
-        let mut best: [(f64, usize); SAMPLES] = [(f64::INFINITY, usize::MAX); SAMPLES];
-        for (i, (p, _)) in surface.anchors.iter().enumerate() {
-            let d = (*p - pe).length_squared();
-            if d < best[SAMPLES - 1].0 {
-                best[SAMPLES - 1] = (d, i);
-                best.sort_by(|a, b| a.0.total_cmp(&b.0));
-            }
-        }
-        for &(_, i) in best.iter().filter(|b| b.1 != usize::MAX) {
-            let (pb, own) = surface.anchors[i];
-            if let Some((front, closed, n)) = view_visible(pe, pb, own, &surface.tris, tris) {
-                let against = !surface.two_sided && n.dot(surface.normal) < 0.0;
-                out.push(Vote {
+        let pair = match was.and_then(|w| w.iter().find(|p| p.empty == (elo, ehi))) {
+            Some(p) => *p,
+            None => pair_votes(surface, lo, hi, elo, ehi, tris, grid),
+        };
+        out.extend(
+            pair.votes[..pair.len as usize]
+                .iter()
+                .map(|&(front, closed, against)| Vote {
                     empty,
                     centre,
                     surface: leaf,
                     front,
                     closed,
                     against,
-                });
-            }
-        }
+                }),
+        );
+        pairs.push(pair);
     });
+    (out, Some((key, pairs)))
+}
+
+/// The votes of a surface leaf (`lo..hi`) with an empty leaf (`elo..ehi`) it touches: up to
+/// [`SAMPLES`] segments from the centre of their shared boundary to the nearest anchors.
+fn pair_votes(
+    surface: &Surface,
+    lo: UVec3,
+    hi: UVec3,
+    elo: UVec3,
+    ehi: UVec3,
+    tris: &[Tri],
+    grid: &Grid,
+) -> PairVotes {
+    // The shared closed region, in plane indices, then its centre in world space.
+    let slo = lo.max(elo);
+    let shi = hi.min(ehi);
+    let pe = DVec3::new(
+        (grid.plane(0, slo.x) + grid.plane(0, shi.x)) * 0.5,
+        (grid.plane(1, slo.y) + grid.plane(1, shi.y)) * 0.5,
+        (grid.plane(2, slo.z) + grid.plane(2, shi.z)) * 0.5,
+    );
+    // The nearest anchors.
+    let mut best: [(f64, usize); SAMPLES] = [(f64::INFINITY, usize::MAX); SAMPLES];
+    for (i, (p, _)) in surface.anchors.iter().enumerate() {
+        let d = (*p - pe).length_squared();
+        if d < best[SAMPLES - 1].0 {
+            best[SAMPLES - 1] = (d, i);
+            best.sort_by(|a, b| a.0.total_cmp(&b.0));
+        }
+    }
+    let mut out = PairVotes {
+        empty: (elo, ehi),
+        votes: [(false, false, false); SAMPLES],
+        len: 0,
+    };
+    for &(_, i) in best.iter().filter(|b| b.1 != usize::MAX) {
+        let (pb, own) = surface.anchors[i];
+        if let Some((front, closed, n)) = view_visible(pe, pb, own, &surface.tris, tris) {
+            let against = !surface.two_sided && n.dot(surface.normal) < 0.0;
+            out.votes[out.len as usize] = (front, closed, against);
+            out.len += 1;
+        }
+    }
     out
 }
 

@@ -334,10 +334,23 @@ impl Grid {
 }
 
 /// A node of the pointer tree, before encoding.
+#[derive(Clone)]
 pub(crate) enum Node {
     Empty,
     Surface { tris: Vec<u32> },
     Internal { children: Box<[Node; 8]> },
+}
+
+impl Node {
+    /// Internal nodes in the subtree: each made 8 nodes ([`BuildParams::max_nodes`]).
+    fn internal_nodes(&self) -> u64 {
+        match self {
+            Node::Internal { children } => {
+                1 + children.iter().map(Node::internal_nodes).sum::<u64>()
+            }
+            _ => 0,
+        }
+    }
 }
 
 /// Bakes the meshes of one scene into proxy words.
@@ -448,6 +461,10 @@ pub(crate) fn bake_in_passes(
     // magnitudes still leaves), at the cost of a larger proxy for that scene.
     let mut force = Forced::default();
     let mut crowding = crowd::Crowding::new(&tris);
+    // The last pass's tree: a node that overlaps no forced cell comes out the same again.
+    let mut last: Option<Node> = None;
+    let mut last_flat: Option<flat::Flat> = None;
+    let mut votes = label::VoteCache::default();
     let mut pass = 0;
     let (tree, labels, crowded) = loop {
         pass += 1;
@@ -463,7 +480,7 @@ pub(crate) fn bake_in_passes(
             over: AtomicBool::new(false),
             progress,
         };
-        let root = ctx.build(all, UVec3::ZERO, 0);
+        let root = ctx.build(all, UVec3::ZERO, 0, last.as_ref());
         if ctx.over.load(Ordering::Relaxed) {
             return Err(BuildError::TooManyNodes {
                 max_nodes: params.max_nodes,
@@ -475,11 +492,12 @@ pub(crate) fn bake_in_passes(
         report.timings.push(("subdivide", t.elapsed()));
 
         let t = Instant::now();
-        let tree = flat::Flat::new(root, &tris, &grid);
+        let tree = flat::Flat::new(root.clone(), &tris, &grid, last_flat.as_ref());
+        last = Some(root);
         report.timings.push(("normals", t.elapsed()));
 
         let t = Instant::now();
-        let labels = label::label(&tree, &tris, &grid, matter.as_ref(), progress);
+        let labels = label::label(&tree, &tris, &grid, matter.as_ref(), &mut votes, progress);
         report.timings.push(("label", t.elapsed()));
 
         let t = Instant::now();
@@ -502,6 +520,7 @@ pub(crate) fn bake_in_passes(
             report.passes = pass;
             break (tree, labels, crowded);
         }
+        last_flat = Some(tree);
         if pass >= max_passes {
             force.everything = true;
             continue;
@@ -868,8 +887,19 @@ struct Subdiv<'a> {
 
 impl Subdiv<'_> {
     /// Builds the subtree of `cell` at `depth` from the triangles that overlap it.
-    fn build(&self, list: Vec<u32>, cell: UVec3, depth: u32) -> Node {
-        let node = self.build_inner(list, cell, depth);
+    /// The node of `cell` at `depth` holding `list` (the triangles that meet it), given the
+    /// last pass's node there, if any: a node that overlaps no forced cell is that node again
+    /// (the last pass forced no more, and everything else that decides a node is the same).
+    fn build(&self, list: Vec<u32>, cell: UVec3, depth: u32, last: Option<&Node>) -> Node {
+        if let Some(last) = last.filter(|_| !self.force.overlaps(depth, cell)) {
+            self.nodes
+                .fetch_add(8 * last.internal_nodes(), Ordering::Relaxed);
+            if depth <= PROGRESS_DEPTH {
+                self.progress.advance(1 << (3 * (PROGRESS_DEPTH - depth)));
+            }
+            return last.clone();
+        }
+        let node = self.build_inner(list, cell, depth, last);
         // Progress in units of depth-3 cells: 512 in all.
         if depth == PROGRESS_DEPTH
             || (depth < PROGRESS_DEPTH && !matches!(node, Node::Internal { .. }))
@@ -879,7 +909,7 @@ impl Subdiv<'_> {
         node
     }
 
-    fn build_inner(&self, list: Vec<u32>, cell: UVec3, depth: u32) -> Node {
+    fn build_inner(&self, list: Vec<u32>, cell: UVec3, depth: u32, last: Option<&Node>) -> Node {
         if list.is_empty() {
             return Node::Empty;
         }
@@ -921,9 +951,13 @@ impl Subdiv<'_> {
             return Node::Surface { tris: list };
         }
         drop(list);
+        let last_children = match last {
+            Some(Node::Internal { children }) => Some(children),
+            _ => None,
+        };
         let child = |(o, sub): (u32, Vec<u32>)| -> Node {
             let c = cell * 2 + UVec3::new(o & 1, (o >> 1) & 1, (o >> 2) & 1);
-            self.build(sub, c, depth + 1)
+            self.build(sub, c, depth + 1, last_children.map(|l| &l[o as usize]))
         };
         // In parallel where there is much to do: many triangles, or (however few) the top of
         // the tree, where a few large triangles may still make a deep subtree in every child.

@@ -623,11 +623,11 @@ fn gather(meshes: &[MeshRef<'_>], report: &mut BuildReport) -> Result<Vec<Tri>, 
         let (closed, rim, component) = edge_classes(m);
         let base = report.triangles_in as u32;
         report.triangles_in += m.triangles.len();
-        let made: Vec<Option<Tri>> = m
+        let made: Vec<Tri> = m
             .triangles
             .par_iter()
             .enumerate()
-            .map(|(ti, t)| {
+            .filter_map(|(ti, t)| {
                 let v = t.map(|i| {
                     let p = m.positions[i as usize];
                     DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)
@@ -645,14 +645,12 @@ fn gather(meshes: &[MeshRef<'_>], report: &mut BuildReport) -> Result<Vec<Tri>, 
                 })
             })
             .collect();
-        for t in made {
-            match t {
-                Some(t) => {
-                    report.closed_triangles += t.closed as usize;
-                    tris.push(t);
-                }
-                None => report.degenerate_skipped += 1,
-            }
+        report.degenerate_skipped += m.triangles.len() - made.len();
+        report.closed_triangles += made.par_iter().filter(|t| t.closed).count();
+        if tris.is_empty() {
+            tris = made;
+        } else {
+            tris.extend(made);
         }
     }
     if tris.is_empty() {

@@ -25,7 +25,7 @@ use octoproxy_core::MAX_DEPTH;
 use rayon::prelude::*;
 
 use super::flat::{Flat, Kind};
-use super::{geom, Grid, Tri};
+use super::{geom, Grid, Tri, REUSE_TRIANGLES};
 
 /// A leaf's key across the bake's passes: its depth and cell. A leaf's triangles are those
 /// that meet its box, whatever the tree around it, so what is found for a leaf in one pass
@@ -49,6 +49,12 @@ impl Crowding {
         }
     }
 
+    /// Forgets what was found about leaves (keeps the manifold edges).
+    pub(crate) fn forget(&mut self) {
+        self.crosses.clear();
+        self.sheets.clear();
+    }
+
     /// Per flat node: whether it is a crowded surface leaf.
     pub(crate) fn crowded(
         &mut self,
@@ -61,23 +67,31 @@ impl Crowding {
             let n = &tree.nodes[leaf as usize];
             (n.depth, n.cell.to_array())
         };
+        // Leaves of at least `REUSE_TRIANGLES` keep what was found about them for the next pass.
+        let heavy = |leaf: u32| match &tree.nodes[leaf as usize].kind {
+            Kind::Surface(s) => s.tris.len() >= REUSE_TRIANGLES,
+            Kind::Internal { .. } => false,
+        };
         let crosses = &self.crosses;
-        let found: Vec<(LeafKey, bool)> = tree
+        let found: Vec<(u32, bool)> = tree
             .surface
             .par_iter()
-            .filter(|&&leaf| !crosses.contains_key(&key(leaf)))
             .map(|&leaf| {
-                let c = match &tree.nodes[leaf as usize].kind {
-                    Kind::Surface(s) => crosses_itself(&s.tris, tris),
-                    _ => false,
+                let known = heavy(leaf).then(|| crosses.get(&key(leaf))).flatten();
+                let c = match (known, &tree.nodes[leaf as usize].kind) {
+                    (Some(&c), _) => c,
+                    (None, Kind::Surface(s)) => crosses_itself(&s.tris, tris),
+                    (None, Kind::Internal { .. }) => false,
                 };
-                (key(leaf), c)
+                (leaf, c)
             })
             .collect();
-        self.crosses.extend(found);
         let mut crossing = vec![false; tree.nodes.len()];
-        for &leaf in &tree.surface {
-            crossing[leaf as usize] = self.crosses[&key(leaf)];
+        for (leaf, c) in found {
+            crossing[leaf as usize] = c;
+            if heavy(leaf) {
+                self.crosses.insert(key(leaf), c);
+            }
         }
         let grow = UVec3::splat(1 << (MAX_DEPTH - dmax));
         let end = UVec3::splat(1 << MAX_DEPTH);
@@ -86,47 +100,46 @@ impl Crowding {
         let flags: Vec<(u32, Option<bool>)> = tree
             .surface
             .par_iter()
-            .map_init(
-                || (Vec::new(), Sheets::default()),
-                |(set, counter), &leaf| {
-                    let (lo, hi) = tree.nodes[leaf as usize].range();
-                    let (qlo, qhi) = (lo.saturating_sub(grow), (hi + grow).min(end));
-                    let mut near_crossing = false;
-                    tree.for_each_touching_surface(qlo, qhi, |n| {
-                        near_crossing |= crossing[n as usize];
-                    });
-                    if near_crossing {
-                        return (leaf, None);
+            .map_init(Vec::new, |set, &leaf| {
+                let (lo, hi) = tree.nodes[leaf as usize].range();
+                let (qlo, qhi) = (lo.saturating_sub(grow), (hi + grow).min(end));
+                let mut near_crossing = false;
+                tree.for_each_touching_surface(qlo, qhi, |n| {
+                    near_crossing |= crossing[n as usize];
+                });
+                if near_crossing {
+                    return (leaf, None);
+                }
+                if let Some(&many) = heavy(leaf).then(|| known.get(&key(leaf))).flatten() {
+                    return (leaf, Some(many));
+                }
+                let (wlo, whi) = (grid.point(qlo), grid.point(qhi));
+                set.clear();
+                tree.for_each_touching_surface(qlo, qhi, |n| {
+                    let node = &tree.nodes[n as usize];
+                    let Kind::Surface(s) = &node.kind else {
+                        return;
+                    };
+                    // A leaf inside the grown box brings all its triangles (each meets it); one
+                    // across its boundary, those that meet the box; one beside it, none.
+                    let (nlo, nhi) = node.range();
+                    if nlo.cmpge(qlo).all() && nhi.cmple(qhi).all() {
+                        set.extend_from_slice(&s.tris);
+                    } else if nlo.cmplt(qhi).all() && nhi.cmpgt(qlo).all() {
+                        set.extend(s.tris.iter().copied().filter(|&t| {
+                            geom::triangle_overlaps_box(&tris[t as usize].v, wlo, whi)
+                        }));
                     }
-                    if let Some(&many) = known.get(&key(leaf)) {
-                        return (leaf, Some(many));
-                    }
-                    let (wlo, whi) = (grid.point(qlo), grid.point(qhi));
-                    set.clear();
-                    tree.for_each_touching_surface(qlo, qhi, |n| {
-                        let node = &tree.nodes[n as usize];
-                        let Kind::Surface(s) = &node.kind else {
-                            return;
-                        };
-                        // A leaf inside the grown box brings all its triangles (each meets it); one
-                        // across its boundary, those that meet the box; one beside it, none.
-                        let (nlo, nhi) = node.range();
-                        if nlo.cmpge(qlo).all() && nhi.cmple(qhi).all() {
-                            set.extend_from_slice(&s.tris);
-                        } else if nlo.cmplt(qhi).all() && nhi.cmpgt(qlo).all() {
-                            set.extend(s.tris.iter().copied().filter(|&t| {
-                                geom::triangle_overlaps_box(&tris[t as usize].v, wlo, whi)
-                            }));
-                        }
-                    });
-                    (leaf, Some(counter.count(set, joins) > 1))
-                },
-            )
+                });
+                set.sort_unstable();
+                set.dedup();
+                (leaf, Some(sheets(set, joins) > 1))
+            })
             .collect();
         let mut out = vec![false; tree.nodes.len()];
         for (leaf, many) in flags {
             out[leaf as usize] = many.unwrap_or(true);
-            if let Some(many) = many {
+            if let Some(many) = many.filter(|_| heavy(leaf)) {
                 self.sheets.insert(key(leaf), many);
             }
         }
@@ -172,80 +185,34 @@ fn manifold_edges(tris: &[Tri]) -> Vec<[u32; 3]> {
     joins
 }
 
-/// How many sheets (sets joined by manifold edges, `joins`) the triangles of `list` make
-/// (repeats count once).
-#[cfg(test)]
-fn sheets(list: &[u32], joins: &[[u32; 3]]) -> usize {
-    Sheets::default().count(list, joins)
-}
-
-/// [`sheets`]' scratch, kept between calls: an open-addressing table from triangle to its
-/// place among the distinct triangles, and their union–find parents.
-#[derive(Default)]
-struct Sheets {
-    table: Vec<(u32, u32)>,
-    parent: Vec<u32>,
-}
-
-impl Sheets {
-    const FREE: u32 = u32::MAX;
-
-    /// The slot of triangle `t`: its own, or the free one where it would go.
-    #[inline]
-    fn slot(&self, t: u32) -> usize {
-        let mask = self.table.len() - 1;
-        let mut i = (t.wrapping_mul(0x9e37_79b1) as usize) & mask;
-        while self.table[i].0 != Self::FREE && self.table[i].0 != t {
-            i = (i + 1) & mask;
-        }
-        i
-    }
-
-    fn find(&mut self, mut x: u32) -> u32 {
-        let p = &mut self.parent;
+/// How many sheets (sets joined by manifold edges, `joins`) the triangles `set` (sorted, no
+/// repeats) make.
+fn sheets(set: &[u32], joins: &[[u32; 3]]) -> usize {
+    let mut parent: Vec<u32> = (0..set.len() as u32).collect();
+    fn find(p: &mut [u32], mut x: u32) -> u32 {
         while p[x as usize] != x {
             p[x as usize] = p[p[x as usize] as usize];
             x = p[x as usize];
         }
         x
     }
-
-    fn count(&mut self, list: &[u32], joins: &[[u32; 3]]) -> usize {
-        let size = (2 * list.len()).max(2).next_power_of_two();
-        self.table.clear();
-        self.table.resize(size, (Self::FREE, 0));
-        self.parent.clear();
-        for &t in list {
-            let i = self.slot(t);
-            if self.table[i].0 == Self::FREE {
-                self.table[i] = (t, self.parent.len() as u32);
-                self.parent.push(self.parent.len() as u32);
-            }
-        }
-        let mut roots = self.parent.len();
-        for i in 0..self.table.len() {
-            let (t, place) = self.table[i];
-            if t == Self::FREE {
+    let mut roots = set.len();
+    for (i, &t) in set.iter().enumerate() {
+        for &n in &joins[t as usize] {
+            // Each joined pair once: from its smaller triangle.
+            if n == NONE || n < t {
                 continue;
             }
-            for &n in &joins[t as usize] {
-                // Each joined pair once: from its smaller triangle.
-                if n == NONE || n < t {
-                    continue;
-                }
-                let (other, there) = self.table[self.slot(n)];
-                if other != n {
-                    continue;
-                }
-                let (a, b) = (self.find(place), self.find(there));
+            if let Ok(j) = set.binary_search(&n) {
+                let (a, b) = (find(&mut parent, i as u32), find(&mut parent, j as u32));
                 if a != b {
-                    self.parent[a as usize] = b;
+                    parent[a as usize] = b;
                     roots -= 1;
                 }
             }
         }
-        roots
     }
+    roots
 }
 
 /// Whether two of the triangles `list` cross or touch each other away from a shared vertex:

@@ -10,7 +10,7 @@ use octoproxy_core::MAX_DEPTH;
 use rayon::prelude::*;
 
 use super::geom;
-use super::{Grid, Node, Tri, TWO_SIDED_COHERENCE};
+use super::{Grid, Node, Tri, REUSE_TRIANGLES, TWO_SIDED_COHERENCE};
 
 /// No child: the octant is an empty leaf.
 pub(crate) const EMPTY: u32 = u32::MAX;
@@ -59,7 +59,8 @@ pub(crate) struct Flat {
 impl Flat {
     /// Flattens the pointer tree and computes each surface leaf's normal and anchors.
     /// A surface leaf of `last` (the bake's last pass) at the same depth and cell holds the
-    /// same triangles, so its normal and anchors are taken from there.
+    /// same triangles, so its normal and anchors are taken from there (for leaves of at least
+    /// [`REUSE_TRIANGLES`]).
     pub fn new(root: Node, tris: &[Tri], grid: &Grid, last: Option<&Flat>) -> Flat {
         let mut flat = Flat {
             nodes: Vec::new(),
@@ -73,8 +74,10 @@ impl Flat {
                     .filter_map(|&i| {
                         let n = &last.nodes[i as usize];
                         match &n.kind {
-                            Kind::Surface(s) => Some(((n.depth, n.cell.to_array()), &**s)),
-                            Kind::Internal { .. } => None,
+                            Kind::Surface(s) if s.tris.len() >= REUSE_TRIANGLES => {
+                                Some(((n.depth, n.cell.to_array()), &**s))
+                            }
+                            _ => None,
                         }
                     })
                     .collect()
@@ -82,7 +85,11 @@ impl Flat {
             .unwrap_or_default();
         flat.nodes.par_iter_mut().for_each(|n| {
             if let Kind::Surface(s) = &mut n.kind {
-                if let Some(was) = known.get(&(n.depth, n.cell.to_array())) {
+                let heavy = s.tris.len() >= REUSE_TRIANGLES;
+                if let Some(was) = heavy
+                    .then(|| known.get(&(n.depth, n.cell.to_array())))
+                    .flatten()
+                {
                     s.normal = was.normal;
                     s.two_sided = was.two_sided;
                     s.plane_offset = was.plane_offset;
@@ -96,6 +103,29 @@ impl Flat {
             }
         });
         flat
+    }
+
+    /// The pointer tree of node `id` ([`EMPTY`]: an empty leaf), as [`Flat::new`] took it.
+    pub fn node(&self, id: u32) -> Node {
+        if id == EMPTY {
+            return Node::Empty;
+        }
+        match &self.nodes[id as usize].kind {
+            Kind::Surface(s) => Node::Surface {
+                tris: s.tris.clone(),
+            },
+            Kind::Internal { children } => Node::Internal {
+                children: Box::new(children.map(|c| self.node(c))),
+            },
+        }
+    }
+
+    /// The children of node `id`, if it is an internal node.
+    pub fn children(&self, id: u32) -> Option<&[u32; 8]> {
+        match self.nodes.get(id as usize).map(|n| &n.kind) {
+            Some(Kind::Internal { children }) => Some(children),
+            _ => None,
+        }
     }
 
     fn push(&mut self, node: Node, cell: UVec3, depth: u32) -> u32 {

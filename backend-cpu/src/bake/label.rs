@@ -31,7 +31,7 @@ use octoproxy_core::Label;
 use rayon::prelude::*;
 
 use super::flat::{Flat, Kind, Surface};
-use super::{geom, BuildProgress, Grid, Tri};
+use super::{geom, BuildProgress, Grid, Tri, REUSE_TRIANGLES};
 use crate::ground_truth::GroundTruth;
 
 /// Segments cast per (surface leaf, empty leaf) pair.
@@ -74,7 +74,8 @@ struct Vote {
     against: bool,
 }
 
-/// A surface leaf's votes across the bake's passes, by its depth and cell: per touching
+/// A surface leaf's votes across the bake's passes (leaves of at least [`REUSE_TRIANGLES`]),
+/// by its depth and cell: per touching
 /// empty leaf (its closed box in plane indices), each segment's `(front, closed, against)`.
 /// They depend on the two leaves alone (a leaf's triangles are those that meet its box), so
 /// a pair met again in the next pass votes as before.
@@ -208,7 +209,8 @@ fn leaf_votes(
         return (Vec::new(), None);
     };
     let key = (node.depth, node.cell.to_array());
-    let was = known.get(&key);
+    let heavy = surface.tris.len() >= REUSE_TRIANGLES;
+    let was = heavy.then(|| known.get(&key)).flatten();
     let (lo, hi) = node.range();
     let mut out = Vec::new();
     let mut pairs = Vec::new();
@@ -234,9 +236,11 @@ fn leaf_votes(
                     against,
                 }),
         );
-        pairs.push(pair);
+        if heavy {
+            pairs.push(pair);
+        }
     });
-    (out, Some((key, pairs)))
+    (out, heavy.then_some((key, pairs)))
 }
 
 /// The votes of a surface leaf (`lo..hi`) with an empty leaf (`elo..ehi`) it touches: up to

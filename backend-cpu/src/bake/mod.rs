@@ -62,6 +62,11 @@ const PROGRESS_DEPTH: u32 = 3;
 /// hold (below it, only nodes with many triangles do).
 const PARALLEL_DEPTH: u32 = 3;
 
+/// Surface leaves with at least this many triangles keep what a pass found about them for
+/// the next (their normal, votes and crowding): below it, finding it again costs less than
+/// keeping it.
+pub(crate) const REUSE_TRIANGLES: usize = 8;
+
 /// Most subdivide–label passes a bake makes (see [`bake`]).
 const MAX_PASSES: u32 = 8;
 
@@ -334,7 +339,6 @@ impl Grid {
 }
 
 /// A node of the pointer tree, before encoding.
-#[derive(Clone)]
 pub(crate) enum Node {
     Empty,
     Surface { tris: Vec<u32> },
@@ -438,6 +442,18 @@ pub(crate) fn bake_in_passes(
     progress: &dyn BuildProgress,
     max_passes: u32,
 ) -> Result<(Vec<u32>, BuildReport), BuildError> {
+    bake_reusing(meshes, params, progress, max_passes, true)
+}
+
+/// [`bake_in_passes`]; `reuse` false finds everything again in every pass (tests check that
+/// reusing what the last pass found changes no byte).
+pub(crate) fn bake_reusing(
+    meshes: &[MeshRef<'_>],
+    params: &BuildParams,
+    progress: &dyn BuildProgress,
+    max_passes: u32,
+    reuse: bool,
+) -> Result<(Vec<u32>, BuildReport), BuildError> {
     params.validate()?;
     let mut report = BuildReport::default();
     let t = Instant::now();
@@ -462,7 +478,6 @@ pub(crate) fn bake_in_passes(
     let mut force = Forced::default();
     let mut crowding = crowd::Crowding::new(&tris);
     // The last pass's tree: a node that overlaps no forced cell comes out the same again.
-    let mut last: Option<Node> = None;
     let mut last_flat: Option<flat::Flat> = None;
     let mut votes = label::VoteCache::default();
     let mut pass = 0;
@@ -480,7 +495,7 @@ pub(crate) fn bake_in_passes(
             over: AtomicBool::new(false),
             progress,
         };
-        let root = ctx.build(all, UVec3::ZERO, 0, last.as_ref());
+        let root = ctx.build(all, UVec3::ZERO, 0, last_flat.as_ref().map(|f| (f, 0)));
         if ctx.over.load(Ordering::Relaxed) {
             return Err(BuildError::TooManyNodes {
                 max_nodes: params.max_nodes,
@@ -492,8 +507,7 @@ pub(crate) fn bake_in_passes(
         report.timings.push(("subdivide", t.elapsed()));
 
         let t = Instant::now();
-        let tree = flat::Flat::new(root.clone(), &tris, &grid, last_flat.as_ref());
-        last = Some(root);
+        let tree = flat::Flat::new(root, &tris, &grid, last_flat.as_ref());
         report.timings.push(("normals", t.elapsed()));
 
         let t = Instant::now();
@@ -520,7 +534,12 @@ pub(crate) fn bake_in_passes(
             report.passes = pass;
             break (tree, labels, crowded);
         }
-        last_flat = Some(tree);
+        if reuse {
+            last_flat = Some(tree);
+        } else {
+            crowding.forget();
+            votes = label::VoteCache::default();
+        }
         if pass >= max_passes {
             force.everything = true;
             continue;
@@ -888,14 +907,21 @@ impl Subdiv<'_> {
     /// The node of `cell` at `depth` holding `list` (the triangles that meet it), given the
     /// last pass's node there, if any: a node that overlaps no forced cell is that node again
     /// (the last pass forced no more, and everything else that decides a node is the same).
-    fn build(&self, list: Vec<u32>, cell: UVec3, depth: u32, last: Option<&Node>) -> Node {
-        if let Some(last) = last.filter(|_| !self.force.overlaps(depth, cell)) {
+    fn build(
+        &self,
+        list: Vec<u32>,
+        cell: UVec3,
+        depth: u32,
+        last: Option<(&flat::Flat, u32)>,
+    ) -> Node {
+        if let Some((tree, id)) = last.filter(|_| !self.force.overlaps(depth, cell)) {
+            let node = tree.node(id);
             self.nodes
-                .fetch_add(8 * last.internal_nodes(), Ordering::Relaxed);
+                .fetch_add(8 * node.internal_nodes(), Ordering::Relaxed);
             if depth <= PROGRESS_DEPTH {
                 self.progress.advance(1 << (3 * (PROGRESS_DEPTH - depth)));
             }
-            return last.clone();
+            return node;
         }
         let node = self.build_inner(list, cell, depth, last);
         // Progress in units of depth-3 cells: 512 in all.
@@ -907,7 +933,13 @@ impl Subdiv<'_> {
         node
     }
 
-    fn build_inner(&self, list: Vec<u32>, cell: UVec3, depth: u32, last: Option<&Node>) -> Node {
+    fn build_inner(
+        &self,
+        list: Vec<u32>,
+        cell: UVec3,
+        depth: u32,
+        last: Option<(&flat::Flat, u32)>,
+    ) -> Node {
         if list.is_empty() {
             return Node::Empty;
         }
@@ -949,13 +981,11 @@ impl Subdiv<'_> {
             return Node::Surface { tris: list };
         }
         drop(list);
-        let last_children = match last {
-            Some(Node::Internal { children }) => Some(children),
-            _ => None,
-        };
+        let last_children = last.and_then(|(tree, id)| tree.children(id).map(|c| (tree, c)));
         let child = |(o, sub): (u32, Vec<u32>)| -> Node {
             let c = cell * 2 + UVec3::new(o & 1, (o >> 1) & 1, (o >> 2) & 1);
-            self.build(sub, c, depth + 1, last_children.map(|l| &l[o as usize]))
+            let last = last_children.map(|(tree, ids)| (tree, ids[o as usize]));
+            self.build(sub, c, depth + 1, last)
         };
         // In parallel where there is much to do: many triangles, or (however few) the top of
         // the tree, where a few large triangles may still make a deep subtree in every child.

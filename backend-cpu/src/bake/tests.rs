@@ -957,3 +957,49 @@ fn the_last_pass_leaves_no_solid_leaf_coarser_than_dmax() {
         "no scene needed more than one pass: the last pass went untested"
     );
 }
+
+#[test]
+fn passes_that_reuse_what_the_last_found_give_the_same_bytes() {
+    // Scenes that take several passes (parts through each other, a soup, a sphere through a
+    // plate, a shared mesh): a later pass reuses subtrees, normals, votes and crowding of the
+    // leaves the last pass found, and must give the proxy that finding everything again gives.
+    use crate::scenes::{merge, slab, triangle_soup, uv_sphere};
+    let mut scenes = vec![
+        merge(&[
+            slab([0.0; 3], [1.0, 0.02, 1.0]),
+            slab([0.0; 3], [0.02, 1.0, 1.0]),
+            slab([0.1, 0.0, 0.0], [0.02, 1.0, 0.7]),
+        ]),
+        triangle_soup(60, 5),
+        merge(&[
+            uv_sphere([0.0; 3], 0.5, 24, 12),
+            slab([0.0; 3], [1.4, 0.03, 0.3]),
+        ]),
+    ];
+    let shared =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/meshes/suzanne.obj.gz");
+    match crate::io::load_mesh(&shared) {
+        Ok((mesh, _)) => scenes.push(mesh),
+        Err(_) if std::env::var("CI").as_deref() != Ok("true") => {
+            eprintln!("skipped suzanne: {} not found", shared.display())
+        }
+        Err(e) => panic!("{}: {e}", shared.display()),
+    }
+    let mut several = 0;
+    for (i, mesh) in scenes.iter().enumerate() {
+        for (dmin, dmax) in [(2, 7), (4, 8)] {
+            let params = BuildParams {
+                dmin,
+                dmax,
+                ..BuildParams::default()
+            };
+            let refs = [MeshRef::from(mesh)];
+            let (a, ra) = bake_reusing(&refs, &params, &(), MAX_PASSES, true).unwrap();
+            let (b, rb) = bake_reusing(&refs, &params, &(), MAX_PASSES, false).unwrap();
+            assert_eq!(ra.passes, rb.passes, "scene {i}, dmax {dmax}");
+            assert!(a == b, "scene {i}, dmax {dmax}: the proxies differ");
+            several += (ra.passes > 1) as u32;
+        }
+    }
+    assert!(several >= 3, "only {several} bakes took more than one pass");
+}

@@ -33,11 +33,14 @@ use super::{geom, Grid, Tri, REUSE_TRIANGLES};
 type LeafKey = (u32, [u32; 3]);
 
 /// What the crowding test keeps across a bake's passes: the scene's manifold edges, and per
-/// leaf whether it crosses itself and whether more than one sheet meets its grown box.
+/// leaf whether it crosses itself and whether more than one sheet meets its grown box. The
+/// triangles that meet the grown box are gathered from the surface leaves around it, through
+/// their own boxes (a rounded test), so the sheets are reused only where those leaves are the
+/// very same (their keys, in the order met).
 pub(crate) struct Crowding {
     joins: Vec<[u32; 3]>,
     crosses: HashMap<LeafKey, bool>,
-    sheets: HashMap<LeafKey, bool>,
+    sheets: HashMap<LeafKey, (Vec<LeafKey>, bool)>,
 }
 
 impl Crowding {
@@ -97,21 +100,26 @@ impl Crowding {
         let end = UVec3::splat(1 << MAX_DEPTH);
         let (joins, known) = (&self.joins, &self.sheets);
         // `Some(sheets > 1)` where it was asked, `None` where a crossing leaf nearby decides.
-        let flags: Vec<(u32, Option<bool>)> = tree
+        let flags: Vec<(u32, Option<bool>, Vec<LeafKey>)> = tree
             .surface
             .par_iter()
             .map_init(Vec::new, |set, &leaf| {
                 let (lo, hi) = tree.nodes[leaf as usize].range();
                 let (qlo, qhi) = (lo.saturating_sub(grow), (hi + grow).min(end));
                 let mut near_crossing = false;
+                let mut around = Vec::new();
                 tree.for_each_touching_surface(qlo, qhi, |n| {
                     near_crossing |= crossing[n as usize];
+                    if heavy(leaf) {
+                        around.push(key(n));
+                    }
                 });
                 if near_crossing {
-                    return (leaf, None);
+                    return (leaf, None, around);
                 }
-                if let Some(&many) = heavy(leaf).then(|| known.get(&key(leaf))).flatten() {
-                    return (leaf, Some(many));
+                let was = heavy(leaf).then(|| known.get(&key(leaf))).flatten();
+                if let Some((_, many)) = was.filter(|(keys, _)| *keys == around) {
+                    return (leaf, Some(*many), around);
                 }
                 let (wlo, whi) = (grid.point(qlo), grid.point(qhi));
                 set.clear();
@@ -133,14 +141,14 @@ impl Crowding {
                 });
                 set.sort_unstable();
                 set.dedup();
-                (leaf, Some(sheets(set, joins) > 1))
+                (leaf, Some(sheets(set, joins) > 1), around)
             })
             .collect();
         let mut out = vec![false; tree.nodes.len()];
-        for (leaf, many) in flags {
+        for (leaf, many, around) in flags {
             out[leaf as usize] = many.unwrap_or(true);
             if let Some(many) = many.filter(|_| heavy(leaf)) {
-                self.sheets.insert(key(leaf), many);
+                self.sheets.insert(key(leaf), (around, many));
             }
         }
         out
@@ -271,12 +279,19 @@ fn crosses_itself(list: &[u32], tris: &[Tri]) -> bool {
 }
 
 /// Whether the segment `a`–`b` lies clearly on one side of the plane of `q`: both ends
-/// farther from it than a billionth of the sizes involved, and the plane's crossing
-/// clearly beyond the segment's ends. Then [`geom::segment_triangle`] misses too (its
+/// farther from it than a billionth of the sizes involved, the plane's crossing clearly
+/// beyond the segment's ends, and `q` no needle (the sine of its angle above 10⁻⁶). Then [`geom::segment_triangle`] misses too (its
 /// rounding is far smaller), and is not called: most pairs of neighbours in a fine mesh
 /// are such.
 #[inline]
 fn apart(a: DVec3, b: DVec3, q: &Tri) -> bool {
+    // A needle's normal is good only to about ε over the sine of its angle: leave it to the
+    // exact test.
+    let (e1, e2) = (q.v[1] - q.v[0], q.v[2] - q.v[0]);
+    let twice_area = 2.0 * q.area;
+    if twice_area * twice_area < 1e-12 * e1.length_squared() * e2.length_squared() {
+        return false;
+    }
     let (da, db) = ((a - q.v[0]).dot(q.n), (b - q.v[0]).dot(q.n));
     if !(da * db > 0.0) {
         return false;
@@ -284,8 +299,8 @@ fn apart(a: DVec3, b: DVec3, q: &Tri) -> bool {
     let near = da.abs().min(db.abs());
     let size2 = (a - q.v[0]).length_squared()
         + (b - q.v[0]).length_squared()
-        + (q.v[1] - q.v[0]).length_squared()
-        + (q.v[2] - q.v[0]).length_squared();
+        + e1.length_squared()
+        + e2.length_squared();
     near * near > 1e-18 * size2 && near > 1e-9 * (da - db).abs()
 }
 

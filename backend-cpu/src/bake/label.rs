@@ -96,6 +96,13 @@ struct PairVotes {
     len: u8,
 }
 
+impl PairVotes {
+    /// The order of a leaf's pairs in the cache: by the empty leaf's box.
+    fn order(&self) -> ([u32; 3], [u32; 3]) {
+        (self.empty.0.to_array(), self.empty.1.to_array())
+    }
+}
+
 pub(crate) fn label(
     tree: &Flat,
     tris: &[Tri],
@@ -220,10 +227,13 @@ fn leaf_votes(
             (grid.plane(1, elo.y) + grid.plane(1, ehi.y)) * 0.5,
             (grid.plane(2, elo.z) + grid.plane(2, ehi.z)) * 0.5,
         );
-        let pair = match was.and_then(|w| w.iter().find(|p| p.empty == (elo, ehi))) {
-            Some(p) => *p,
-            None => pair_votes(surface, lo, hi, elo, ehi, tris, grid),
-        };
+        let found = was.and_then(|w| {
+            let at = (elo.to_array(), ehi.to_array());
+            w.binary_search_by(|p| p.order().cmp(&at))
+                .ok()
+                .map(|i| w[i])
+        });
+        let pair = found.unwrap_or_else(|| pair_votes(surface, lo, hi, elo, ehi, tris, grid));
         out.extend(
             pair.votes[..pair.len as usize]
                 .iter()
@@ -240,6 +250,8 @@ fn leaf_votes(
             pairs.push(pair);
         }
     });
+    // Sorted by the empty leaf's box, for the next pass's search.
+    pairs.sort_unstable_by_key(PairVotes::order);
     (out, heavy.then_some((key, pairs)))
 }
 

@@ -916,8 +916,11 @@ impl Subdiv<'_> {
     ) -> Node {
         if let Some((tree, id)) = last.filter(|_| !self.force.overlaps(depth, cell)) {
             let node = tree.node(id);
-            self.nodes
-                .fetch_add(8 * node.internal_nodes(), Ordering::Relaxed);
+            // The nodes it made last time, counted as making them again counts them.
+            let made = 8 * node.internal_nodes();
+            if self.nodes.fetch_add(made, Ordering::Relaxed) + made > self.params.max_nodes {
+                self.over.store(true, Ordering::Relaxed);
+            }
             if depth <= PROGRESS_DEPTH {
                 self.progress.advance(1 << (3 * (PROGRESS_DEPTH - depth)));
             }
@@ -977,7 +980,9 @@ impl Subdiv<'_> {
         if subs.iter().all(Vec::is_empty) {
             // The parent's exact test kept triangles that no child's test keeps (rounding at
             // extreme magnitudes): the node stays a surface leaf rather than an internal node
-            // with no children, which no valid proxy has.
+            // with no children, which no valid proxy has, and gives back the 8 nodes it
+            // counted (a reused subtree counts its internal nodes alone).
+            self.nodes.fetch_sub(8, Ordering::Relaxed);
             return Node::Surface { tris: list };
         }
         drop(list);

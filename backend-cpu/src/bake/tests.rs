@@ -902,13 +902,11 @@ fn a_clearance_never_reaches_the_surface_where_f32_planes_round() {
     assert_eq!(flat::clearance_steps(0.0, 0.0, 0.0625, true), 0);
 }
 
-#[test]
-fn the_last_pass_leaves_no_solid_leaf_coarser_than_dmax() {
-    // Thin parts through each other, a sheet soup and a sphere at a coarse dmin: scenes whose
-    // first pass leaves coarse leaves solid. With one pass before the last, the last refines
-    // every surface leaf to dmax; with all of them, the same holds.
+/// Scenes whose first pass leaves coarse leaves solid: thin parts through each other, a sheet
+/// soup, a sphere through a plate.
+fn several_pass_scenes() -> [crate::io::Mesh; 3] {
     use crate::scenes::{merge, slab, triangle_soup, uv_sphere};
-    let scenes = [
+    [
         merge(&[
             slab([0.0; 3], [1.0, 0.02, 1.0]),
             slab([0.0; 3], [0.02, 1.0, 1.0]),
@@ -919,7 +917,15 @@ fn the_last_pass_leaves_no_solid_leaf_coarser_than_dmax() {
             uv_sphere([0.0; 3], 0.5, 24, 12),
             slab([0.0; 3], [1.4, 0.03, 0.3]),
         ]),
-    ];
+    ]
+}
+
+#[test]
+fn the_last_pass_leaves_no_solid_leaf_coarser_than_dmax() {
+    // Thin parts through each other, a sheet soup and a sphere at a coarse dmin: scenes whose
+    // first pass leaves coarse leaves solid. With one pass before the last, the last refines
+    // every surface leaf to dmax; with all of them, the same holds.
+    let scenes = several_pass_scenes();
     let params = BuildParams {
         dmin: 2,
         dmax: 7,
@@ -963,19 +969,7 @@ fn passes_that_reuse_what_the_last_found_give_the_same_bytes() {
     // Scenes that take several passes (parts through each other, a soup, a sphere through a
     // plate, a shared mesh): a later pass reuses subtrees, normals, votes and crowding of the
     // leaves the last pass found, and must give the proxy that finding everything again gives.
-    use crate::scenes::{merge, slab, triangle_soup, uv_sphere};
-    let mut scenes = vec![
-        merge(&[
-            slab([0.0; 3], [1.0, 0.02, 1.0]),
-            slab([0.0; 3], [0.02, 1.0, 1.0]),
-            slab([0.1, 0.0, 0.0], [0.02, 1.0, 0.7]),
-        ]),
-        triangle_soup(60, 5),
-        merge(&[
-            uv_sphere([0.0; 3], 0.5, 24, 12),
-            slab([0.0; 3], [1.4, 0.03, 0.3]),
-        ]),
-    ];
+    let mut scenes = several_pass_scenes().to_vec();
     let shared =
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/meshes/suzanne.obj.gz");
     match crate::io::load_mesh(&shared) {

@@ -71,9 +71,10 @@ pub use scene::{
 };
 pub use step::{
     check_radius, initial_side, max_leaves_per_step, pinch, respond, step_particle,
-    step_particle_counted, step_particle_hinted, step_particle_traced, LeafHint, MarchBranch,
-    MarchCounts, ParamError, RadiusMismatch, StepOutcome, StepParams, LEAF_BOUND_EXTRA,
-    LEAF_BOUND_PER_CELL, MAX_LEAVES_PER_STEP, PINCH_PARALLEL, RADIUS_TOLERANCE,
+    step_particle_counted, step_particle_hinted, step_particle_profiled, step_particle_traced,
+    LeafHint, MarchBranch, MarchCounts, ParamError, RadiusMismatch, StepKind, StepOutcome,
+    StepParams, StepProfile, LEAF_BOUND_EXTRA, LEAF_BOUND_PER_CELL, MAX_LEAVES_PER_STEP,
+    PINCH_PARALLEL, RADIUS_TOLERANCE,
 };
 #[cfg(feature = "alloc")]
 pub use view::OwnedProxy;

@@ -609,11 +609,12 @@ pub(crate) fn step_hinted_observed<O: MarchObserver>(
     march_from_hint(view, p, params, hint, obs)
 }
 
-/// The other common case of [`step_particle_hinted`]: a particle outside the root cube, beyond
-/// one of its faces and not moving back toward it (particles that fly off a scene keep going).
-/// The segment stays in the half-space beyond that face, so the march would find that it
-/// never enters the root and move the particle to the end point; this does the same in the
-/// same operations. `true` when settled; the hint stays [`LeafHint::NONE`].
+/// The other common case of [`step_particle_hinted`]: a particle outside the root cube whose
+/// path stays beyond one of its faces. Either it is beyond the face and not moving back
+/// toward it (particles that fly off a scene keep going), or both ends of its path are beyond
+/// the face by a margin (rain falling toward a scene from above). The march would find that
+/// it never enters the root and move the particle to the end point; this does the same in
+/// the same operations. `true` when settled; the hint stays [`LeafHint::NONE`].
 #[inline(always)]
 fn settle_leaving_root(view: &ProxyView<'_>, p: &mut Particle, params: &StepParams) -> bool {
     let x0 = Vec3::from_array(p.position);
@@ -625,9 +626,18 @@ fn settle_leaving_root(view: &ProxyView<'_>, p: &mut Particle, params: &StepPara
     let leaving = (x0.cmplt(root.min) & v.cmple(zero)) | (x0.cmpgt(root.max) & v.cmpge(zero));
     // A finite `v` means a finite starting velocity too; a non-finite end would be
     // `Invalid` in the march; `dt > 0` is the march's loop condition.
-    let settled =
-        leaving.any() & x0.is_finite() & v.is_finite() & end.is_finite() & (params.dt > 0.0);
-    if !settled {
+    let valid = x0.is_finite() & v.is_finite() & end.is_finite() & (params.dt > 0.0);
+    if !valid {
+        return false;
+    }
+    // Both ends beyond one face by a margin far above the rounding of `x0`, `end` and the
+    // face (2^-12 of their magnitudes): the segment stays beyond it, and `enter_box` (the
+    // test `enter_root` makes) computes an entry time past the step on that axis, so finds
+    // none; the march then moves the particle to the end. Nearer the face, the march decides.
+    let margin = (x0.abs() + end.abs() + root.min.abs() + root.max.abs()) * (1.0 / 4096.0);
+    let beyond = (x0.cmplt(root.min) & end.cmplt(root.min - margin))
+        | (x0.cmpgt(root.max) & end.cmpgt(root.max + margin));
+    if !(leaving | beyond).any() {
         return false;
     }
     p.position = end.to_array();
@@ -836,6 +846,129 @@ pub fn step_particle_counted(
     march(view, p, params, &mut LeafHint::default(), counts)
 }
 
+/// What kind of step a particle took, as [`step_particle_profiled`] tells it: the classes the
+/// bench times apart.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum StepKind {
+    /// Settled before the march: strictly inside its hinted empty leaf for the whole step, or
+    /// outside the root and moving away from it.
+    Settled,
+    /// Marched, and stayed in the leaf it started in (or outside the root: no leaf).
+    OneLeaf,
+    /// Marched into one more leaf.
+    TwoLeaves,
+    /// Marched through three leaves or more.
+    Several,
+    /// Collided (a shell block included), wherever it started.
+    Colliding,
+    /// Started inside a surface leaf and did not collide (settled on the leaf's plane or
+    /// marched out).
+    InSurface,
+}
+
+impl StepKind {
+    /// Every kind, in the order of the variants.
+    pub const ALL: [StepKind; 6] = [
+        StepKind::Settled,
+        StepKind::OneLeaf,
+        StepKind::TwoLeaves,
+        StepKind::Several,
+        StepKind::Colliding,
+        StepKind::InSurface,
+    ];
+
+    /// A short name: `settled`, `one leaf`, `two leaves`, `several`, `colliding`, `in surface`.
+    pub fn name(self) -> &'static str {
+        match self {
+            StepKind::Settled => "settled",
+            StepKind::OneLeaf => "one leaf",
+            StepKind::TwoLeaves => "two leaves",
+            StepKind::Several => "several",
+            StepKind::Colliding => "colliding",
+            StepKind::InSurface => "in surface",
+        }
+    }
+}
+
+/// [`step_particle_profiled`]'s account of one step: its kind and the leaves it visited (1
+/// for a step settled in its hinted leaf or on its surface leaf's plane, 0 outside the root).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct StepProfile {
+    /// The kind of step.
+    pub kind: StepKind,
+    /// Leaves entered, the first included.
+    pub leaves: u32,
+}
+
+/// [`step_particle_hinted`], telling what kind of step it was and how many leaves it visited
+/// ([`StepProfile`]). Host-only, for the bench's profile; the same step, so the same bits
+/// and the same hint, plus one point location of the start (whether it is in a surface
+/// leaf).
+pub fn step_particle_profiled(
+    view: &ProxyView<'_>,
+    p: &mut Particle,
+    params: &StepParams,
+    hint: &mut LeafHint,
+) -> (StepOutcome, StepProfile) {
+    let in_surface = Vec3::from_array(p.position).is_finite()
+        && view
+            .locate_leaf(Vec3::from_array(p.position))
+            .is_some_and(|l| l.kind == LeafKind::Surface);
+    let hinted = *hint != LeafHint::NONE;
+    let mut obs = Profiler::default();
+    let outcome = step_hinted_observed(view, p, params, hint, &mut obs);
+    let leaves = match obs.visited {
+        Some(v) => v,
+        // No march: settled in its hinted leaf (or on the plane of its surface leaf), or
+        // outside the root without a hint.
+        None => u32::from(hinted),
+    };
+    let kind = if obs.collisions > 0 {
+        StepKind::Colliding
+    } else if in_surface {
+        StepKind::InSurface
+    } else if obs.visited.is_none() {
+        StepKind::Settled
+    } else {
+        match leaves {
+            0 | 1 => StepKind::OneLeaf,
+            2 => StepKind::TwoLeaves,
+            _ => StepKind::Several,
+        }
+    };
+    (outcome, StepProfile { kind, leaves })
+}
+
+/// [`step_particle_profiled`]'s observer: whether the march ran, the leaves it visited, and
+/// the collisions.
+#[derive(Default)]
+struct Profiler {
+    visited: Option<u32>,
+    collisions: u32,
+}
+
+impl MarchObserver for Profiler {
+    #[inline(always)]
+    fn piece(&mut self, _: Vec3, _: Vec3) {}
+    #[inline(always)]
+    fn branch(&mut self, _: MarchBranch) {}
+    fn hit(
+        &mut self,
+        _x: Vec3,
+        _n: Vec3,
+        _before: Vec3,
+        _after: Vec3,
+        _remaining: f32,
+        _leaf: u32,
+    ) -> bool {
+        self.collisions += 1;
+        false
+    }
+    fn finished(&mut self, visited: u32) {
+        self.visited = Some(visited);
+    }
+}
+
 /// The rare branches of a march, as [`step_particle_counted`] counts them. Each is a place
 /// where the WGSL mirror could drift without the common paths noticing.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -963,6 +1096,9 @@ pub(crate) trait MarchObserver {
     ) -> bool {
         false
     }
+    /// The march ended, having entered `visited` leaves (the first included).
+    #[inline(always)]
+    fn finished(&mut self, _visited: u32) {}
 }
 
 /// The observer of the step itself: nothing.
@@ -1786,6 +1922,7 @@ fn finish_march<O: MarchObserver>(
     cage: Option<LeafInfo>,
     obs: &mut O,
 ) -> StepOutcome {
+    obs.finished(st.visited);
     if !st.x.is_finite() || !st.v.is_finite() {
         obs.branch(MarchBranch::InvalidEnd);
         p.flags |= FLAG_INVALID;
@@ -1843,6 +1980,7 @@ pub(crate) fn march_after<O: MarchObserver>(
     let start_hint = core::mem::take(hint);
     if !Vec3::from_array(p.position).is_finite() || !Vec3::from_array(p.velocity).is_finite() {
         obs.branch(MarchBranch::InvalidStart);
+        obs.finished(0);
         p.flags |= FLAG_INVALID;
         return StepOutcome::Invalid;
     }

@@ -467,6 +467,30 @@ fn particles_leaving_the_root_step_as_the_march_steps_them() {
         side([-f32::INFINITY, 0.5, 0.5], [-1.0, 0.0, 0.0], SIDE_FRONT, 0),
     ];
     starts.push(side([2.0, 2.0, 2.0], [1.0, 1.0, 1.0], SIDE_BACK, 0));
+    // Coming toward the root and missing it (settled without the march), ending on its face,
+    // passing a corner, or entering: rain above a scene. And strictly outside at random,
+    // every way.
+    starts.extend([
+        side([0.5, 3.0, 0.5], [0.0, -60.0, 0.0], SIDE_FRONT, 0),
+        side([0.5, 1.5, 0.5], [0.0, -30.0, 0.0], SIDE_FRONT, 0),
+        side([-0.5, 1.6, 0.5], [60.0, -30.0, 0.0], SIDE_BACK, 0),
+        side([-0.5, 1.2, 0.5], [60.0, -60.0, 0.0], SIDE_FRONT, 0),
+        side([1.5, 1.5, 1.5], [-30.0, -30.0, -30.0], SIDE_FRONT, 0),
+        // Ending a hair beyond the face, within the margin and beyond it.
+        side([0.5, 1.5, 0.5], [0.0, -29.999_98, 0.0], SIDE_FRONT, 0),
+        side([0.5, 1.5, 0.5], [0.0, -29.99, 0.0], SIDE_FRONT, 0),
+        side([0.5, 1.5, 0.5], [0.0, -29.9, 0.0], SIDE_FRONT, 0),
+        side([0.5, 1e6, 0.5], [0.0, -6e7 + 61.0, 0.0], SIDE_FRONT, 0),
+    ]);
+    let mut seed = 77u64;
+    let mut r = |lo: f32, hi: f32| {
+        lo + (hi - lo) * ((xorshift(&mut seed) >> 40) as f32 / (1u64 << 24) as f32)
+    };
+    for _ in 0..400 {
+        let x = [r(-1.0, 2.0), r(-1.0, 2.0), r(-1.0, 2.0)];
+        let v = [r(-90.0, 90.0), r(-90.0, 90.0), r(-90.0, 90.0)];
+        starts.push(side(x, v, SIDE_FRONT, 0));
+    }
     for params in [
         StepParams {
             gravity: [0.0; 3],
@@ -952,5 +976,98 @@ fn particles_resting_on_a_surface_leafs_plane_step_as_the_march_steps_them() {
             );
             assert!(plain.collisions() > 0);
         }
+    }
+}
+
+#[test]
+fn a_profiled_step_is_the_step_and_names_its_kind() {
+    let w = tiny();
+    let view = ProxyView::new(&w).unwrap();
+    let params = StepParams {
+        gravity: [0.0; 3],
+        ..StepParams::default()
+    };
+    /// Start, velocity, whether the step has the hint of one step before, the kind, the
+    /// leaves.
+    type Case = ([f32; 3], [f32; 3], bool, StepKind, u32);
+    let cases: [Case; 7] = [
+        // Inside one empty leaf: marched without a hint, settled with one.
+        (
+            [0.75, 0.75, 0.75],
+            [0.6, 0.0, 0.0],
+            false,
+            StepKind::OneLeaf,
+            1,
+        ),
+        (
+            [0.75, 0.75, 0.75],
+            [0.6, 0.0, 0.0],
+            true,
+            StepKind::Settled,
+            1,
+        ),
+        // Into the next empty leaf.
+        (
+            [0.55, 0.75, 0.75],
+            [-12.0, 0.0, 0.0],
+            false,
+            StepKind::TwoLeaves,
+            2,
+        ),
+        // Through three.
+        (
+            [0.95, 0.75, 0.25],
+            [-30.0, 0.0, 30.0],
+            false,
+            StepKind::Several,
+            3,
+        ),
+        // Down into the surface leaf against its normal, and back out.
+        (
+            [0.25, 0.75, 0.25],
+            [0.0, -40.0, 0.0],
+            false,
+            StepKind::Colliding,
+            3,
+        ),
+        // Rising out of the surface leaf.
+        (
+            [0.25, 0.3, 0.25],
+            [0.0, 0.6, 0.0],
+            false,
+            StepKind::InSurface,
+            1,
+        ),
+        // Outside the root, moving away.
+        (
+            [2.0, 2.0, 2.0],
+            [1.0, 0.0, 0.0],
+            false,
+            StepKind::Settled,
+            0,
+        ),
+    ];
+    for (x, v, hinted, kind, leaves) in cases {
+        let start = Particle::new(x, v);
+        let mut hint = LeafHint::NONE;
+        let mut first = start;
+        if hinted {
+            // The hint a step inside the leaf leaves, from a copy one step behind.
+            step_particle_hinted(&view, &mut first, &params, &mut hint);
+        }
+        let (mut plain, mut profiled) = (first, first);
+        let (mut h0, mut h1) = (hint, hint);
+        let outcome = step_particle_hinted(&view, &mut plain, &params, &mut h0);
+        let (o, profile) = step_particle_profiled(&view, &mut profiled, &params, &mut h1);
+        assert_eq!(o, outcome);
+        assert_eq!(bytemuck::bytes_of(&profiled), bytemuck::bytes_of(&plain));
+        assert_eq!(h1, h0);
+        assert_eq!(profile.kind, kind, "{x:?} {v:?}");
+        assert_eq!(profile.leaves, leaves, "{x:?} {v:?}");
+        assert_eq!(
+            profile.kind == StepKind::Colliding,
+            plain.collisions() > first.collisions(),
+            "{x:?} {v:?}"
+        );
     }
 }

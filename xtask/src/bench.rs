@@ -37,14 +37,16 @@ use crate::plot;
 
 mod instances;
 mod particles;
+mod profile;
 
 const USAGE: &str = "\
 usage: octoproxy bench [--quick] [--backends cpu,wgpu] [--scenes S,S...] [--particles N,N...]
 
   --quick          one scene (the bunny), 100k particles, every method: a few minutes
   --backends L     which of cpu, wgpu to run (default: both; wgpu only when an adapter exists)
-  --scenes L       of bunny, nefertiti, ogre, beast, nefertiti-1.6m, nefertiti-6.4m, the
-                   instance cases instances-1, instances-10, instances-100, instances-1000,
+  --scenes L       of bunny, nefertiti, ogre, beast, nefertiti-1.6m, nefertiti-6.4m, their
+                   rain cases (bunny-rain, ...: particles falling through the scene at up
+                   to its size per step), the instance cases instances-1, instances-10, instances-100, instances-1000,
                    and the cases of particles that collide with each other, particles-pile
                    and particles-cloud (default: all)
   --particles L    particle counts (default 10000,100000,1000000,4000000, and 3M and 10M on a
@@ -69,7 +71,10 @@ usage: octoproxy bench [--quick] [--backends cpu,wgpu] [--scenes S,S...] [--part
   --docs-only      run nothing: rewrite docs/bench/results.md and the figures in README.md
                    and docs/ from the committed docs/bench/results.json
 
-Scenes come from ../shared/meshes. Methods: octoproxy-cpu, octoproxy-cpu-nolut,
+Scenes come from ../shared/meshes; the mesh scenes step under gravity scaled to the scene
+(60 steps add a tenth of a depth-8 leaf per step), each CPU time the median of 3 runs, the
+methods taking turns, and octoproxy's steps are profiled (leaves per step, the cost of each
+kind of step) at 1M particles. Methods: octoproxy-cpu, octoproxy-cpu-nolut,
 triangle-octree, parry3d, sdf-grid and floor on the CPU; octoproxy-wgpu and floor on the GPU;
 on one scene (nefertiti, else the first), the same proxy as a one-instance static scene through
 the scene API (octoproxy-cpu-scene-api, octoproxy-wgpu-scene-api). An instance case places
@@ -87,6 +92,16 @@ const MESH_SCENES: [&str; 6] = [
     "nefertiti-1.6m",
     "nefertiti-6.4m",
 ];
+/// The rain case of each mesh scene ([`profile::rain_particles`]).
+const RAIN_SCENES: [&str; 6] = [
+    "bunny-rain",
+    "nefertiti-rain",
+    "ogre-rain",
+    "beast-rain",
+    "nefertiti-1.6m-rain",
+    "nefertiti-6.4m-rain",
+];
+const _: () = assert!(RAIN_SCENES.len() == MESH_SCENES.len());
 const DT: f32 = 1.0 / 60.0;
 /// Speed bands, in depth-8 leaves per step.
 const BANDS: [(&str, f32, f32); 3] = [("slow", 0.1, 0.5), ("medium", 0.5, 2.0), ("fast", 2.0, 5.0)];
@@ -124,6 +139,7 @@ struct Opts {
 fn all_scenes() -> impl Iterator<Item = &'static str> {
     MESH_SCENES
         .into_iter()
+        .chain(RAIN_SCENES)
         .chain(instances::SCENES)
         .chain(particles::SCENES)
 }
@@ -290,7 +306,6 @@ fn parse(args: Vec<std::ffi::OsString>) -> Result<Option<Opts>> {
 
 /// One scene: its mesh, closed or not, and its ground truth.
 struct SceneData {
-    name: String,
     mesh: Mesh,
     closed: bool,
 }
@@ -321,11 +336,7 @@ fn load_scene(name: &str, dir: &Path) -> Result<SceneData> {
     for _ in 0..subdivisions {
         mesh = subdivide(&mesh);
     }
-    Ok(SceneData {
-        name: name.to_string(),
-        mesh,
-        closed,
-    })
+    Ok(SceneData { mesh, closed })
 }
 
 /// One line of results.
@@ -520,7 +531,28 @@ struct Timing {
     max: f64,
 }
 
+/// Timed runs of each CPU method per case, taking turns: each time is their median.
+const ROUNDS: usize = 3;
+
 impl Timing {
+    /// The median, fastest and slowest of `times` (NaN for none).
+    fn of(times: &[f64]) -> Timing {
+        let mut t = times.to_vec();
+        t.sort_by(f64::total_cmp);
+        if t.is_empty() {
+            return Timing {
+                median: f64::NAN,
+                min: f64::NAN,
+                max: f64::NAN,
+            };
+        }
+        Timing {
+            median: t[t.len() / 2],
+            min: t[0],
+            max: t[t.len() - 1],
+        }
+    }
+
     /// `row` with the median as its time and the runs' range.
     fn on(self, mut row: Row) -> Row {
         row.ns_per_particle_step = self.median;
@@ -594,12 +626,7 @@ fn time_gpu(
         }
         times.push(timed.as_secs_f64() * 1e9 / (particles.len() as f64 * steps as f64));
     }
-    times.sort_by(f64::total_cmp);
-    Ok(Timing {
-        median: times[times.len() / 2],
-        min: times[0],
-        max: times[times.len() - 1],
-    })
+    Ok(Timing::of(&times))
 }
 
 fn machine() -> String {
@@ -667,11 +694,23 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
     if gpu.as_ref().is_some_and(|g| g.is_software()) && !o.gpu_only.is_empty() {
         eprintln!("wgpu: a software adapter; skipping the GPU-only sizes (3M, 10M particles)");
     }
-    let mesh_scenes: Vec<&String> = o
-        .scenes
-        .iter()
-        .filter(|s| instances::instance_count(s).is_none() && !particles::is_case(s))
-        .collect();
+    // The mesh scenes in the order asked, each once: (the mesh, its recipe case, its rain
+    // case), so that a mesh asked for both is baked once.
+    let mut mesh_scenes: Vec<(&'static str, bool, bool)> = Vec::new();
+    for s in &o.scenes {
+        let (base, rain) = match s.strip_suffix(profile::RAIN) {
+            Some(b) => (b, true),
+            None => (s.as_str(), false),
+        };
+        let Some(base) = MESH_SCENES.iter().copied().find(|m| *m == base) else {
+            continue;
+        };
+        match mesh_scenes.iter_mut().find(|m| m.0 == base) {
+            Some(m) if rain => m.2 = true,
+            Some(m) => m.1 = true,
+            None => mesh_scenes.push((base, !rain, rain)),
+        }
+    }
     let pair_scenes: Vec<&String> = o.scenes.iter().filter(|s| particles::is_case(s)).collect();
     let instance_scenes: Vec<(&String, usize)> = o
         .scenes
@@ -687,7 +726,10 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
             "wgpu: a software adapter; the scene cases (instances, the scene API) run on it only with --backends wgpu"
         );
     }
-    let total_cases = mesh_scenes.len() * (o.particles.len() + gpu_extra + 2)
+    let total_cases = mesh_scenes
+        .iter()
+        .map(|m| 1 + (usize::from(m.1) + usize::from(m.2)) * (o.particles.len() + gpu_extra + 1))
+        .sum::<usize>()
         + instance_scenes.len() * (o.instance_particles.len() + 1)
         + usize::from(!instance_scenes.is_empty())
         + pair_scenes.len() * o.pair_particles.len()
@@ -695,12 +737,20 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
     // The scene API's comparison runs on one scene: nefertiti, else the run's first.
     let api_scene = mesh_scenes
         .iter()
-        .find(|s| s.as_str() == "nefertiti")
-        .or(mesh_scenes.first())
-        .map(|s| s.to_string());
+        .filter(|m| m.1)
+        .find(|m| m.0 == "nefertiti")
+        .or(mesh_scenes.iter().find(|m| m.1))
+        .map(|m| m.0.to_string());
+    // The profile of leaves per step runs at 1M particles, else at the run's largest count.
+    let profile_n = if o.particles.contains(&1_000_000) {
+        1_000_000
+    } else {
+        o.particles.iter().copied().max().unwrap_or(0)
+    };
+    let mut profiles = Vec::new();
     let bar = crate::progress::bar(total_cases as u64, "bench");
     let mut rows: Vec<Row> = Vec::new();
-    for name in mesh_scenes {
+    for (name, recipe, rain) in mesh_scenes {
         say(&bar, format!("{name}: loading"));
         let scene = load_scene(name, &o.meshes)?;
         let (positions, triangles) = (&scene.mesh.positions, &scene.mesh.triangles);
@@ -728,248 +778,315 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
         }
         bar.inc(1);
 
-        // Penetrations, per method, on a sample.
-        say(&bar, format!("{name}: penetration checks"));
         let gt = GroundTruth::new(positions, triangles);
         let tol = view.finest_leaf_size() * 3f32.sqrt();
         let all_bands: Vec<(f32, f32)> = BANDS.iter().map(|b| (b.1, b.2)).collect();
-        // The guarantee is for particles that start outside the surface shell: more than one
-        // dmax-leaf diagonal from the surface. Closer in, a particle takes the side of its
-        // leaf's mean plane, which a curved surface may contradict by a hair.
-        let mut sample = make_particles(&view, o.samples * 2, &all_bands, 99);
-        sample.retain(|p| gt.distance_capped(p.position, 2.0 * tol as f64) > tol as f64);
-        sample.truncate(o.samples);
-        let check_steps = 60;
         let lut_view = view;
         let nolut_view = view.without_lut();
-        let pen_octo =
-            octo_penetration_rate(&lut_view, &gt, scene.closed, &sample, check_steps, &params);
-        let mut pen_methods = Vec::new();
-        for (m, _) in &methods {
-            pen_methods.push(penetration_rate(
-                &gt,
-                scene.closed,
-                tol,
-                &sample,
-                check_steps,
-                m.as_ref(),
-                &params,
-            ));
-        }
-        bar.inc(1);
-
         let mut cpu = CpuBackend::new();
         cpu.upload_proxy(&words)?;
         if let Some(g) = gpu.as_mut() {
             g.upload_proxy(&words)?;
         }
-        let largest = *o.particles.iter().max().unwrap_or(&0);
-        let hardware = gpu.as_ref().is_some_and(|g| !g.is_software());
-        let gpu_only: Vec<usize> = if hardware {
-            o.gpu_only.clone()
-        } else {
-            Vec::new()
-        };
-        let counts: Vec<(usize, bool)> = o
-            .particles
-            .iter()
-            .map(|&n| (n, o.cpu))
-            .chain(gpu_only.iter().map(|&n| (n, false)))
-            .collect();
-        for (n, run_cpu) in counts {
-            say(&bar, format!("{name}: {n} particles"));
-            let steps = o
-                .steps
-                .unwrap_or(((4_000_000 / n.max(1)) as u32).clamp(2, 50));
-            // The mixed case, then (at the largest count) each speed band alone.
-            let mut cases: Vec<(&'static str, Vec<(f32, f32)>)> =
-                vec![("mixed", all_bands.clone())];
-            if n == largest && run_cpu {
-                cases.extend(BANDS.iter().map(|b| (b.0, vec![(b.1, b.2)])));
+        // Both cases step with the recipe's gravity, scaled to the scene.
+        let params = profile::recipe_params(&view);
+        for rain_case in [false, true] {
+            if !(if rain_case { rain } else { recipe }) {
+                continue;
             }
-            for (band, bands) in cases {
-                let particles = make_particles(&view, n, &bands, 7);
-                let row = |method: &str,
-                           backend: &'static str,
-                           build_ms: f64,
-                           memory: usize,
-                           ns: f64,
-                           pen: f64| Row {
-                    scene: scene.name.clone(),
-                    triangles: tris,
-                    particles: n,
-                    method: method.to_string(),
-                    backend,
-                    build_ms,
-                    memory_bytes: memory,
-                    ns_per_particle_step: ns,
-                    ratio_to_floor: f64::NAN,
-                    penetrations_per_million: pen,
-                    band,
-                    instances: 0,
-                    moving: 0,
-                    ratio_to_static: f64::NAN,
-                    ratio_to_plain: f64::NAN,
-                    substeps: 0,
-                    workgroup_size: 0,
-                    ns_min: f64::NAN,
-                    ns_max: f64::NAN,
-                    sweep: false,
+            let case_scene = if rain_case {
+                format!("{name}{}", profile::RAIN)
+            } else {
+                name.to_string()
+            };
+            let check_steps = 60;
+            // Penetrations, per method, on a sample.
+            say(&bar, format!("{case_scene}: penetration checks"));
+            // The guarantee is for particles that start outside the surface shell: more than one
+            // dmax-leaf diagonal from the surface. Closer in, a particle takes the side of its
+            // leaf's mean plane, which a curved surface may contradict by a hair.
+            let mut sample = if rain_case {
+                profile::rain_particles(&view, o.samples * 2, check_steps, 99)
+            } else {
+                make_particles(&view, o.samples * 2, &all_bands, 99)
+            };
+            sample.retain(|p| gt.distance_capped(p.position, 2.0 * tol as f64) > tol as f64);
+            sample.truncate(o.samples);
+            let pen_octo =
+                octo_penetration_rate(&lut_view, &gt, scene.closed, &sample, check_steps, &params);
+            let mut pen_methods = Vec::new();
+            for (m, _) in &methods {
+                pen_methods.push(penetration_rate(
+                    &gt,
+                    scene.closed,
+                    tol,
+                    &sample,
+                    check_steps,
+                    m.as_ref(),
+                    &params,
+                ));
+            }
+            bar.inc(1);
+
+            let largest = *o.particles.iter().max().unwrap_or(&0);
+            let hardware = gpu.as_ref().is_some_and(|g| !g.is_software());
+            let gpu_only: Vec<usize> = if hardware {
+                o.gpu_only.clone()
+            } else {
+                Vec::new()
+            };
+            let counts: Vec<(usize, bool)> = o
+                .particles
+                .iter()
+                .map(|&n| (n, o.cpu))
+                .chain(gpu_only.iter().map(|&n| (n, false)))
+                .collect();
+            for (n, run_cpu) in counts {
+                say(&bar, format!("{case_scene}: {n} particles"));
+                let steps = o
+                    .steps
+                    .unwrap_or(((4_000_000 / n.max(1)) as u32).clamp(2, 50));
+                // The mixed case, then (at the largest count) each speed band alone.
+                let mut cases: Vec<(&'static str, Vec<(f32, f32)>)> = if rain_case {
+                    vec![("rain", Vec::new())]
+                } else {
+                    vec![("mixed", all_bands.clone())]
                 };
-                let scene_api = band == "mixed"
-                    && !o.no_scene_api
-                    && api_scene.as_deref() == Some(name.as_str());
-                let mut case_rows = Vec::new();
-                if run_cpu {
-                    // Every method gets one untimed step first; octoproxy's leaf hints are
-                    // warm after it, as they are in any simulation after its first step.
-                    cpu.upload_particles(&particles)?;
-                    cpu.integrate_only(&params, 1)?;
-                    let t = Instant::now();
-                    cpu.integrate_only(&params, steps)?;
-                    let floor_ns = t.elapsed().as_secs_f64() * 1e9 / (n as f64 * steps as f64);
-                    cpu.upload_particles(&particles)?;
-                    cpu.step(&params, 1)?;
-                    let t = Instant::now();
-                    cpu.step(&params, steps)?;
-                    let octo_ns = t.elapsed().as_secs_f64() * 1e9 / (n as f64 * steps as f64);
-                    case_rows.push(row("floor", "cpu", 0.0, 0, floor_ns, f64::NAN));
-                    case_rows.push(row(
-                        "octoproxy-cpu",
-                        "cpu",
-                        bake_ms,
-                        proxy_bytes,
-                        octo_ns,
-                        pen_octo,
-                    ));
-                    if scene_api {
-                        let ns = instances::time_scene_api(
-                            &mut cpu, &words, &particles, steps, &params,
-                        )?;
-                        let mut r = row(
-                            "octoproxy-cpu-scene-api",
-                            "cpu",
-                            bake_ms,
-                            proxy_bytes,
-                            ns,
-                            f64::NAN,
-                        );
-                        r.ratio_to_plain = ns / octo_ns;
-                        case_rows.push(r);
-                    }
-                    if band == "mixed" {
-                        cpu.set_use_lut(false);
-                        cpu.upload_particles(&particles)?;
-                        cpu.step(&params, 1)?;
-                        let t = Instant::now();
-                        cpu.step(&params, steps)?;
-                        let ns = t.elapsed().as_secs_f64() * 1e9 / (n as f64 * steps as f64);
-                        cpu.set_use_lut(true);
-                        let pen = octo_penetration_rate(
-                            &nolut_view,
-                            &gt,
-                            scene.closed,
-                            &sample,
-                            check_steps,
-                            &params,
-                        );
-                        case_rows.push(row(
-                            "octoproxy-cpu-nolut",
-                            "cpu",
-                            bake_ms,
-                            proxy_bytes - view.lut_bytes(),
-                            ns,
-                            pen,
-                        ));
-                        for ((m, build_ms), pen) in methods.iter().zip(&pen_methods) {
-                            let ns = time_steps(&particles, steps, &mut |ps| {
-                                ps.par_iter_mut()
-                                    .with_min_len(256)
-                                    .for_each(|p| m.step(p, &params));
-                                Ok(())
-                            })?;
-                            case_rows.push(row(
-                                m.name(),
-                                "cpu",
-                                *build_ms,
-                                m.memory_bytes(),
-                                ns,
-                                *pen,
-                            ));
-                        }
-                    }
+                if n == largest && run_cpu && !rain_case {
+                    cases.extend(BANDS.iter().map(|b| (b.0, vec![(b.1, b.2)])));
                 }
-                let mut sweep_rows = Vec::new();
-                if let Some(g) = gpu.as_mut() {
-                    let gpu_steps = o
-                        .steps
-                        .unwrap_or(((20_000_000 / n.max(1)) as u32).clamp(10, 100));
-                    let time = |g: &mut WgpuBackend, floor| {
-                        time_gpu(g, &particles, &params, gpu_steps, o.gpu_repeats, floor)
+                for (band, bands) in cases {
+                    let particles = if rain_case {
+                        profile::rain_particles(&view, n, steps, 7)
+                    } else {
+                        make_particles(&view, n, &bands, 7)
                     };
-                    // The floor and the plain step at the kernel's workgroup size, each row
-                    // naming it.
-                    let timed = |g: &mut WgpuBackend| -> Result<[Row; 2]> {
-                        let size = g.workgroup_size();
-                        let floor = time(g, true)?.on(row("floor", "wgpu", 0.0, 0, 0.0, f64::NAN));
-                        let octo = time(g, false)?.on(row(
-                            "octoproxy-wgpu",
-                            "wgpu",
+                    // Every method's case: the recipe's mixed speeds, or the rain.
+                    let full = band == "mixed" || band == "rain";
+                    let row = |method: &str,
+                               backend: &'static str,
+                               build_ms: f64,
+                               memory: usize,
+                               ns: f64,
+                               pen: f64| Row {
+                        scene: case_scene.clone(),
+                        triangles: tris,
+                        particles: n,
+                        method: method.to_string(),
+                        backend,
+                        build_ms,
+                        memory_bytes: memory,
+                        ns_per_particle_step: ns,
+                        ratio_to_floor: f64::NAN,
+                        penetrations_per_million: pen,
+                        band,
+                        instances: 0,
+                        moving: 0,
+                        ratio_to_static: f64::NAN,
+                        ratio_to_plain: f64::NAN,
+                        substeps: 0,
+                        workgroup_size: 0,
+                        ns_min: f64::NAN,
+                        ns_max: f64::NAN,
+                        sweep: false,
+                    };
+                    let scene_api =
+                        band == "mixed" && !o.no_scene_api && api_scene.as_deref() == Some(name);
+                    let mut case_rows = Vec::new();
+                    if run_cpu {
+                        // Every method gets one untimed step first; octoproxy's leaf hints are
+                        // warm after it, as they are in any simulation after its first step. Each
+                        // time is the median of ROUNDS runs, the methods taking turns.
+                        let per_step = |t: Instant| {
+                            t.elapsed().as_secs_f64() * 1e9 / (n as f64 * steps as f64)
+                        };
+                        let others = if full { methods.len() } else { 0 };
+                        let mut times: Vec<Vec<f64>> = vec![Vec::new(); 4 + others];
+                        const FLOOR: usize = 0;
+                        const OCTO: usize = 1;
+                        const API: usize = 2;
+                        const NOLUT: usize = 3;
+                        for _ in 0..ROUNDS {
+                            cpu.upload_particles(&particles)?;
+                            cpu.integrate_only(&params, 1)?;
+                            let t = Instant::now();
+                            cpu.integrate_only(&params, steps)?;
+                            times[FLOOR].push(per_step(t));
+                            cpu.upload_particles(&particles)?;
+                            cpu.step(&params, 1)?;
+                            let t = Instant::now();
+                            cpu.step(&params, steps)?;
+                            times[OCTO].push(per_step(t));
+                            if scene_api {
+                                times[API].push(instances::time_scene_api(
+                                    &mut cpu, &words, &particles, steps, &params,
+                                )?);
+                            }
+                            if !full {
+                                continue;
+                            }
+                            cpu.set_use_lut(false);
+                            cpu.upload_particles(&particles)?;
+                            cpu.step(&params, 1)?;
+                            let t = Instant::now();
+                            cpu.step(&params, steps)?;
+                            times[NOLUT].push(per_step(t));
+                            cpu.set_use_lut(true);
+                            for (k, (m, _)) in methods.iter().enumerate() {
+                                times[4 + k].push(time_steps(&particles, steps, &mut |ps| {
+                                    ps.par_iter_mut()
+                                        .with_min_len(256)
+                                        .for_each(|p| m.step(p, &params));
+                                    Ok(())
+                                })?);
+                            }
+                        }
+                        let timing = |k: usize| Timing::of(&times[k]);
+                        case_rows.push(timing(FLOOR).on(row(
+                            "floor",
+                            "cpu",
+                            0.0,
+                            0,
+                            0.0,
+                            f64::NAN,
+                        )));
+                        let octo = timing(OCTO).on(row(
+                            "octoproxy-cpu",
+                            "cpu",
                             bake_ms,
                             proxy_bytes,
                             0.0,
                             pen_octo,
                         ));
-                        Ok([floor, octo].map(|mut r| {
-                            r.workgroup_size = size;
-                            r
-                        }))
-                    };
-                    let plain = timed(g)?;
-                    let octo_ns = plain[1].ns_per_particle_step;
-                    case_rows.extend(plain);
-                    if band == "mixed" {
-                        let default = g.workgroup_size();
-                        for &size in o.workgroup_sizes.iter().filter(|&&s| s != default) {
-                            say(&bar, format!("{name}: {n} particles, workgroups of {size}"));
-                            g.set_workgroup_size(size)?;
-                            let mut sweep = timed(g)?;
-                            set_floor_ratios(&mut sweep);
-                            sweep_rows.extend(sweep.map(|mut r| {
-                                r.sweep = true;
-                                r
-                            }));
+                        let octo_ns = octo.ns_per_particle_step;
+                        case_rows.push(octo);
+                        if scene_api {
+                            let mut r = timing(API).on(row(
+                                "octoproxy-cpu-scene-api",
+                                "cpu",
+                                bake_ms,
+                                proxy_bytes,
+                                0.0,
+                                f64::NAN,
+                            ));
+                            r.ratio_to_plain = r.ns_per_particle_step / octo_ns;
+                            case_rows.push(r);
                         }
-                        g.set_workgroup_size(default)?;
+                        if full {
+                            let pen = octo_penetration_rate(
+                                &nolut_view,
+                                &gt,
+                                scene.closed,
+                                &sample,
+                                check_steps,
+                                &params,
+                            );
+                            case_rows.push(timing(NOLUT).on(row(
+                                "octoproxy-cpu-nolut",
+                                "cpu",
+                                bake_ms,
+                                proxy_bytes - view.lut_bytes(),
+                                0.0,
+                                pen,
+                            )));
+                            for (k, ((m, build_ms), pen)) in
+                                methods.iter().zip(&pen_methods).enumerate()
+                            {
+                                case_rows.push(timing(4 + k).on(row(
+                                    m.name(),
+                                    "cpu",
+                                    *build_ms,
+                                    m.memory_bytes(),
+                                    0.0,
+                                    *pen,
+                                )));
+                            }
+                        }
+                        if full && n == profile_n {
+                            say(&bar, format!("{case_scene}: {n} particles, the profile"));
+                            profiles.push(profile::profile(
+                                &case_scene,
+                                &lut_view,
+                                &particles,
+                                &params,
+                                steps,
+                            ));
+                        }
                     }
-                    if scene_api && gpu_scenes {
-                        say(&bar, format!("{name}: {n} particles, the scene API"));
-                        let t = Instant::now();
-                        let ns = instances::time_scene_api(g, &words, &particles, steps, &params)?;
-                        say(
-                            &bar,
-                            format!(
-                                "{name}: {n} particles, the scene API took {:.1} s",
-                                t.elapsed().as_secs_f64()
-                            ),
-                        );
-                        let mut r = row(
-                            "octoproxy-wgpu-scene-api",
-                            "wgpu",
-                            bake_ms,
-                            proxy_bytes,
-                            ns,
-                            f64::NAN,
-                        );
-                        r.ratio_to_plain = ns / octo_ns;
-                        case_rows.push(r);
+                    let mut sweep_rows = Vec::new();
+                    if let Some(g) = gpu.as_mut() {
+                        let gpu_steps = o
+                            .steps
+                            .unwrap_or(((20_000_000 / n.max(1)) as u32).clamp(10, 100));
+                        let time = |g: &mut WgpuBackend, floor| {
+                            time_gpu(g, &particles, &params, gpu_steps, o.gpu_repeats, floor)
+                        };
+                        // The floor and the plain step at the kernel's workgroup size, each row
+                        // naming it.
+                        let timed = |g: &mut WgpuBackend| -> Result<[Row; 2]> {
+                            let size = g.workgroup_size();
+                            let floor =
+                                time(g, true)?.on(row("floor", "wgpu", 0.0, 0, 0.0, f64::NAN));
+                            let octo = time(g, false)?.on(row(
+                                "octoproxy-wgpu",
+                                "wgpu",
+                                bake_ms,
+                                proxy_bytes,
+                                0.0,
+                                pen_octo,
+                            ));
+                            Ok([floor, octo].map(|mut r| {
+                                r.workgroup_size = size;
+                                r
+                            }))
+                        };
+                        let plain = timed(g)?;
+                        let octo_ns = plain[1].ns_per_particle_step;
+                        case_rows.extend(plain);
+                        if band == "mixed" {
+                            let default = g.workgroup_size();
+                            for &size in o.workgroup_sizes.iter().filter(|&&s| s != default) {
+                                say(&bar, format!("{name}: {n} particles, workgroups of {size}"));
+                                g.set_workgroup_size(size)?;
+                                let mut sweep = timed(g)?;
+                                set_floor_ratios(&mut sweep);
+                                sweep_rows.extend(sweep.map(|mut r| {
+                                    r.sweep = true;
+                                    r
+                                }));
+                            }
+                            g.set_workgroup_size(default)?;
+                        }
+                        if scene_api && gpu_scenes {
+                            say(&bar, format!("{name}: {n} particles, the scene API"));
+                            let t = Instant::now();
+                            let ns =
+                                instances::time_scene_api(g, &words, &particles, steps, &params)?;
+                            say(
+                                &bar,
+                                format!(
+                                    "{name}: {n} particles, the scene API took {:.1} s",
+                                    t.elapsed().as_secs_f64()
+                                ),
+                            );
+                            let mut r = row(
+                                "octoproxy-wgpu-scene-api",
+                                "wgpu",
+                                bake_ms,
+                                proxy_bytes,
+                                ns,
+                                f64::NAN,
+                            );
+                            r.ratio_to_plain = ns / octo_ns;
+                            case_rows.push(r);
+                        }
                     }
+                    set_floor_ratios(&mut case_rows);
+                    rows.extend(case_rows);
+                    rows.extend(sweep_rows);
                 }
-                set_floor_ratios(&mut case_rows);
-                rows.extend(case_rows);
-                rows.extend(sweep_rows);
+                bar.inc(1);
             }
-            bar.inc(1);
         }
     }
     if !instance_scenes.is_empty() {
@@ -1108,6 +1225,7 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
         date: today(),
         gpu: gpu.as_ref().map(|g| g.description().to_string()),
         rows,
+        profiles,
     };
     report.write(&o.out)?;
     report.print_summary();
@@ -1138,6 +1256,9 @@ pub struct Report {
     pub date: String,
     pub gpu: Option<String>,
     pub rows: Vec<Row>,
+    /// The profiles of leaves visited per step ([`profile::profile`]; none in runs before
+    /// them).
+    pub profiles: Vec<profile::Profile>,
 }
 
 fn json_num(x: f64) -> String {
@@ -1248,7 +1369,21 @@ impl Report {
             s.push('}');
             s.push_str(if i + 1 < self.rows.len() { ",\n" } else { "\n" });
         }
-        s.push_str("  ]\n}\n");
+        s.push_str("  ]");
+        if !self.profiles.is_empty() {
+            s.push_str(",\n  \"profiles\": [\n");
+            for (i, p) in self.profiles.iter().enumerate() {
+                s.push_str("    ");
+                s.push_str(&p.json());
+                s.push_str(if i + 1 < self.profiles.len() {
+                    ",\n"
+                } else {
+                    "\n"
+                });
+            }
+            s.push_str("  ]");
+        }
+        s.push_str("\n}\n");
         s
     }
 
@@ -1267,11 +1402,11 @@ impl Report {
         let mesh_rows: Vec<&Row> = self
             .rows
             .iter()
-            .filter(|r| r.band == "mixed" && r.is_mesh_case())
+            .filter(|r| (r.band == "mixed" || r.band == "rain") && r.is_mesh_case())
             .collect();
         if !mesh_rows.is_empty() {
-            s.push_str("| scene | triangles | particles | method | build (ms) | memory | ns / particle-step | ms / step | × floor | penetrations / M steps |\n");
-            s.push_str("|---|---:|---:|---|---:|---:|---:|---:|---:|---:|\n");
+            s.push_str("| scene | triangles | particles | method | build (ms) | memory | ns / particle-step | runs (fastest–slowest) | ms / step | × floor | penetrations / M steps |\n");
+            s.push_str("|---|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|\n");
         }
         for r in mesh_rows {
             let method = if r.method == "floor" {
@@ -1281,7 +1416,7 @@ impl Report {
             };
             let _ = writeln!(
                 s,
-                "| {} | {} | {} | {} | {} | {} | {:.1} | {:.2} | {} | {} |",
+                "| {} | {} | {} | {} | {} | {} | {:.1} | {} | {:.2} | {} | {} |",
                 r.scene,
                 r.triangles,
                 r.particles,
@@ -1293,6 +1428,11 @@ impl Report {
                 },
                 human_bytes(r.memory_bytes),
                 r.ns_per_particle_step,
+                if r.ns_min.is_finite() && r.ns_max.is_finite() {
+                    format!("{:.1}–{:.1}", r.ns_min, r.ns_max)
+                } else {
+                    "–".into()
+                },
                 r.ms_per_step(),
                 fmt_opt(r.ratio_to_floor, 2),
                 fmt_opt(r.penetrations_per_million, 1)
@@ -1301,7 +1441,9 @@ impl Report {
         let bands: Vec<&Row> = self
             .rows
             .iter()
-            .filter(|r| r.band != "mixed" && r.method != "floor" && r.is_mesh_case())
+            .filter(|r| {
+                r.band != "mixed" && r.band != "rain" && r.method != "floor" && r.is_mesh_case()
+            })
             .collect();
         if !bands.is_empty() {
             s.push_str("\nBy speed band (slow 0.1–0.5, medium 0.5–2, fast 2–5 depth-8 leaves per step):\n\n");
@@ -1324,6 +1466,10 @@ impl Report {
         if !pairs.is_empty() {
             s.push('\n');
             s.push_str(&pairs);
+        }
+        if !self.profiles.is_empty() {
+            s.push('\n');
+            s.push_str(&profile::profile_tables(self));
         }
         s
     }
@@ -1696,7 +1842,7 @@ mod docs {
 
     /// Every generated region, and the file (from the repository root) that must hold it. The
     /// same region may appear in other Markdown files too.
-    pub const REGIONS: [(&str, &str); 8] = [
+    pub const REGIONS: [(&str, &str); 11] = [
         ("README.md", "table:headline"),
         ("README.md", "table:gpu"),
         ("docs/bench/README.md", "table:summary"),
@@ -1705,6 +1851,9 @@ mod docs {
         ("docs/bench/README.md", "text:targets"),
         ("docs/bench/README.md", "table:instances"),
         ("docs/bench/README.md", "table:particles"),
+        ("docs/bench/README.md", "table:rain"),
+        ("docs/bench/README.md", "table:profile"),
+        ("docs/bench/README.md", "text:speed"),
     ];
 
     /// The CPU methods in the order the tables list them; others follow as they appear.
@@ -1908,6 +2057,14 @@ mod docs {
                 table
             };
             return Ok(format!("\n{body}\n"));
+        }
+        match name {
+            "table:rain" => return Ok(format!("\n{}\n", super::profile::rain_table(report))),
+            "table:profile" => {
+                return Ok(format!("\n{}\n", super::profile::profile_tables(report)))
+            }
+            "text:speed" => return Ok(format!("\n{}\n", super::profile::speed_targets(report))),
+            _ => {}
         }
         let run = Run::new(report)?;
         let body = match name {
@@ -2841,6 +2998,7 @@ mod docs {
                 machine: "host".into(),
                 date: "2026-12-04".into(),
                 gpu: Some("NVIDIA H200 (Vulkan, DiscreteGpu)".into()),
+                profiles: Vec::new(),
                 rows: vec![
                     row("floor", 64, 0.05),
                     row("octoproxy-wgpu", 64, 0.2),
@@ -2973,7 +3131,9 @@ mod docs {
 mod json {
     use anyhow::{anyhow, bail, Context, Result};
 
+    use super::profile::{Profile, LEAF_BINS};
     use super::{Report, Row};
+    use octoproxy_core::StepKind;
 
     #[derive(Debug, PartialEq)]
     pub enum Value {
@@ -3256,6 +3416,29 @@ mod json {
         })
     }
 
+    /// A profile of leaves per step ([`Profile::json`]) back into the profile.
+    fn profile(v: &Value) -> Result<Profile> {
+        let mut leaves = [0.0; LEAF_BINS.len()];
+        for (k, x) in leaves.iter_mut().enumerate() {
+            *x = v.num(&format!("leaves_{k}"))?;
+        }
+        let mut share = [0.0; StepKind::ALL.len()];
+        let mut ns = [0.0; StepKind::ALL.len()];
+        for k in 0..StepKind::ALL.len() {
+            share[k] = v.num(&format!("share_{k}"))?;
+            ns[k] = v.num(&format!("ns_{k}"))?;
+        }
+        Ok(Profile {
+            scene: v.str("scene")?.to_string(),
+            particles: v.count("particles")?,
+            steps: v.count("steps")? as u32,
+            leaves,
+            mean_leaves: v.num("mean_leaves")?,
+            share,
+            ns,
+        })
+    }
+
     /// A `results.json` back into the report that wrote it.
     pub fn parse_report(text: &str) -> Result<Report> {
         let v = parse(text)?;
@@ -3267,7 +3450,8 @@ mod json {
         let Value::Array(items) = v.get("rows")? else {
             bail!("\"rows\" is not an array");
         };
-        let bands: Vec<&'static str> = std::iter::once("mixed")
+        let bands: Vec<&'static str> = ["mixed", "rain"]
+            .into_iter()
             .chain(super::BANDS.iter().map(|b| b.0))
             .collect();
         let rows = items
@@ -3275,11 +3459,24 @@ mod json {
             .enumerate()
             .map(|(i, r)| row(r, &bands).with_context(|| format!("row {i}")))
             .collect::<Result<Vec<_>>>()?;
+        let profiles = if v.has("profiles") {
+            let Value::Array(items) = v.get("profiles")? else {
+                bail!("\"profiles\" is not an array");
+            };
+            items
+                .iter()
+                .enumerate()
+                .map(|(i, p)| profile(p).with_context(|| format!("profile {i}")))
+                .collect::<Result<Vec<_>>>()?
+        } else {
+            Vec::new()
+        };
         Ok(Report {
             machine: v.str("machine")?.to_string(),
             date: v.str("date")?.to_string(),
             gpu,
             rows,
+            profiles,
         })
     }
 
@@ -3293,6 +3490,7 @@ mod json {
                 machine: "a \"quoted\" \\ machine\t".into(),
                 date: "2026-11-25".into(),
                 gpu: None,
+                profiles: Vec::new(),
                 rows: vec![Row {
                     scene: "bunny".into(),
                     triangles: 69_451,
@@ -3330,6 +3528,25 @@ mod json {
             assert_eq!((r.instances, r.moving), (0, 0));
             assert!(r.ratio_to_static.is_nan() && r.ratio_to_plain.is_nan());
             assert_eq!(back.json(), report.json());
+            assert!(back.profiles.is_empty());
+            // A profile of leaves per step reads back, a kind no particle took included.
+            let mut profiled = parse_report(&report.json()).unwrap();
+            profiled.profiles.push(Profile {
+                scene: "bunny-rain".into(),
+                particles: 1_000_000,
+                steps: 4,
+                leaves: [0.5, 0.25, 0.125, 0.0625, 0.03125, 0.03125, 0.0],
+                mean_leaves: 0.875,
+                share: [0.5, 0.0, 0.25, 0.125, 0.0625, 0.0625],
+                ns: [5.5, f64::NAN, 60.25, 140.5, 500.0, 300.0],
+            });
+            let p = &parse_report(&profiled.json()).unwrap().profiles[0];
+            assert_eq!(p.scene, "bunny-rain");
+            assert_eq!((p.particles, p.steps), (1_000_000, 4));
+            assert_eq!(p.leaves, profiled.profiles[0].leaves);
+            assert_eq!(p.share, profiled.profiles[0].share);
+            assert!(p.ns[1].is_nan() && p.ns[4] == 500.0);
+            assert_eq!(p.mean_leaves, 0.875);
             // A GPU row's workgroup size and the range of its runs read back too.
             let mut gpu = report.rows[0].clone();
             (gpu.backend, gpu.workgroup_size, gpu.ns_min, gpu.ns_max) = ("wgpu", 256, 1.0, 1.5);
@@ -3340,6 +3557,7 @@ mod json {
                     date: report.date.clone(),
                     gpu: Some("NVIDIA H200".into()),
                     rows: Vec::new(),
+                    profiles: Vec::new(),
                 }
             };
             let r = &parse_report(&one.json()).unwrap().rows[0];

@@ -323,8 +323,9 @@ fn settle_on_plane(p: ptr<function, Particle>, params: StepParams, hint: vec2<u3
     return true;
 }
 
-// core's `settle_leaving_root`: a particle outside the root cube, beyond one of its faces and
-// not moving back toward it, moved to its end point as the march would.
+// core's `settle_leaving_root`: a particle outside the root cube whose path stays beyond one
+// of its faces (not moving back toward it, or both ends beyond it by a margin), moved to its
+// end point as the march would.
 fn settle_leaving_root(p: ptr<function, Particle>, params: StepParams) -> bool {
     let x0 = (*p).position;
     let v = (*p).velocity + params.gravity * params.dt;
@@ -332,8 +333,13 @@ fn settle_leaving_root(p: ptr<function, Particle>, params: StepParams) -> bool {
     let root = root_aabb();
     let zero = vec3<f32>(0.0);
     let leaving = ((x0 < root.min) & (v <= zero)) | ((x0 > root.max) & (v >= zero));
-    let settled = any(leaving) & is_finite3(x0) & is_finite3(v) & is_finite3(end) & (params.dt > 0.0);
-    if !settled {
+    let valid = is_finite3(x0) & is_finite3(v) & is_finite3(end) & (params.dt > 0.0);
+    if !valid {
+        return false;
+    }
+    let margin = (abs(x0) + abs(end) + abs(root.min) + abs(root.max)) * (1.0 / 4096.0);
+    let beyond = ((x0 < root.min) & (end < root.min - margin)) | ((x0 > root.max) & (end > root.max + margin));
+    if !any(leaving | beyond) {
         return false;
     }
     (*p).position = end;

@@ -125,14 +125,16 @@ impl Profile {
             self.steps,
             json_num(self.mean_leaves)
         );
+        // Shares to 1e-9, so that one step in a million still reads back as more than none.
+        let share = |x: f64| format!("{x:.9}");
         for (k, x) in self.leaves.iter().enumerate() {
-            let _ = write!(s, ", \"leaves_{k}\": {}", json_num(*x));
+            let _ = write!(s, ", \"leaves_{k}\": {}", share(*x));
         }
         for k in 0..StepKind::ALL.len() {
             let _ = write!(
                 s,
                 ", \"share_{k}\": {}, \"ns_{k}\": {}",
-                json_num(self.share[k]),
+                share(self.share[k]),
                 json_num(self.ns[k])
             );
         }

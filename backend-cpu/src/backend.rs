@@ -100,6 +100,9 @@ pub struct CpuBackend {
     scene_slots: Vec<SceneSlots>,
     /// Each particle's last collision in its last scene step, when asked for.
     hits: Vec<Hit>,
+    /// The last collision over a step's substeps with the pass (scratch, kept so that a step
+    /// allocates nothing).
+    last_hits: Vec<Hit>,
     /// Scene steps since the particles were uploaded, and what they did since last taken.
     scene_steps: u32,
     report: SceneStepReport,
@@ -558,8 +561,10 @@ impl CpuBackend {
             })
             .collect::<Result<Vec<_>, SceneError>>()?;
         let n = self.particles.len();
-        let mut last = if hits { vec![Hit::NONE; n] } else { Vec::new() };
+        let mut last = std::mem::take(&mut self.last_hits);
         if hits {
+            last.clear();
+            last.resize(n, Hit::NONE);
             self.hits.resize(n, Hit::NONE);
         }
         for (k, scene) in scenes.iter().enumerate() {
@@ -608,8 +613,9 @@ impl CpuBackend {
             self.pair_report.substeps += 1;
         }
         if hits {
-            self.hits = last;
+            std::mem::swap(&mut self.hits, &mut last);
         }
+        self.last_hits = last;
         Ok(())
     }
 

@@ -776,7 +776,7 @@ impl WgpuBackend {
                 label: Some("octoproxy pair speed probe"),
                 timestamp_writes: None,
             });
-            self.encode_pair_speed(&mut pass, kernel, buffers);
+            self.encode_pair_speed(&mut pass, kernel, buffers, false);
         }
         self.queue.submit([encoder.finish()]);
         scope.pop().map_err(WgpuError::Gpu)?;
@@ -842,10 +842,17 @@ impl WgpuBackend {
         pass: &mut wgpu::ComputePass<'_>,
         kernel: &PairKernel,
         buffers: &PairBuffers,
+        whole_table: bool,
     ) {
         pass.set_pipeline(&kernel.reset);
         pass.set_bind_group(0, &buffers.reset_group, &[]);
-        let (x, y) = self.dispatch_size(buffers.table);
+        // The reset's first invocation resets the counts; the others, the table's ranges,
+        // which only a substep needs (one workgroup leaves the probe a few ranges reset).
+        let (x, y) = if whole_table {
+            self.dispatch_size(buffers.table)
+        } else {
+            (1, 1)
+        };
         pass.dispatch_workgroups(x, y, 1);
         pass.set_pipeline(&kernel.speed);
         for c in &self.pairs.chunk_groups {
@@ -874,7 +881,7 @@ impl WgpuBackend {
             let (x, y) = self.dispatch_size(count);
             pass.dispatch_workgroups(x, y, 1);
         };
-        self.encode_pair_speed(pass, kernel, buffers);
+        self.encode_pair_speed(pass, kernel, buffers, true);
         pass.set_pipeline(&kernel.step);
         pass.set_bind_group(0, &buffers.step_group, &[]);
         pass.dispatch_workgroups(1, 1, 1);

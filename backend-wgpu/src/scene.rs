@@ -566,8 +566,18 @@ impl WgpuBackend {
                 .iter()
                 .filter_map(|c| c.scene.as_ref()?.support_group.as_ref().map(|(_, g)| g))
                 .collect();
+            let mut last_words: Option<&[u32]> = None;
             for (words, scene_params) in &tables {
-                self.write_scene_tables(words, scene_params);
+                // A substep whose instances and broad phase are the last one's (a static
+                // scene) keeps the tables the last submission wrote; its constants change.
+                if last_words == Some(words.as_slice()) {
+                    let kernel = self.scene.kernel.as_ref().expect("built above");
+                    self.queue
+                        .write_buffer(&kernel.params, 0, bytemuck::bytes_of(scene_params));
+                } else {
+                    self.write_scene_tables(words, scene_params);
+                }
+                last_words = Some(words);
                 let mut encoder = self.device.create_command_encoder(&Default::default());
                 {
                     let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {

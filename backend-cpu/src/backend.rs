@@ -381,6 +381,9 @@ impl HitEvents for CpuEvents<'_> {
     }
 }
 
+/// Particles per task of the scene step's parallel loop.
+const SCENE_CHUNK: usize = 1024;
+
 /// One particle's scene step: the plain step where the scene is one static proxy at the
 /// identity (`plain`, `view.plain_proxy()` hoisted out of the loop) and the particle's state
 /// is that instance's, else the scene step. The counts of the report it adds to (crushed,
@@ -510,17 +513,38 @@ impl CpuBackend {
             *events_lost += lost;
             counts
         } else if hits {
-            states
-                .zip(hit_buf.par_iter_mut())
-                .with_min_len(1024)
-                .map(|(((p, sh), ss), h)| {
-                    step_one(view, plain, p, sh, ss, params, Some(h), &mut ())
+            // Chunks stepped in a plain loop, so that the step inlines into it as it does
+            // into `Backend::step`'s (a closure called per particle through rayon's map did
+            // not, and a static scene cost 1.3 times the plain step).
+            particles
+                .par_chunks_mut(SCENE_CHUNK)
+                .zip(scene_hints.par_chunks_mut(SCENE_CHUNK))
+                .zip(scene_slots.par_chunks_mut(SCENE_CHUNK))
+                .zip(hit_buf.par_chunks_mut(SCENE_CHUNK))
+                .map(|(((ps, shs), sss), hs)| {
+                    let mut counts = (0, 0);
+                    for (((p, sh), ss), h) in ps.iter_mut().zip(shs).zip(sss).zip(hs) {
+                        let c = step_one(view, plain, p, sh, ss, params, Some(h), &mut ());
+                        counts = add(counts, c);
+                    }
+                    counts
                 })
                 .reduce(|| (0, 0), add)
         } else {
-            states
-                .with_min_len(1024)
-                .map(|((p, sh), ss)| step_one(view, plain, p, sh, ss, params, None, &mut ()))
+            particles
+                .par_chunks_mut(SCENE_CHUNK)
+                .zip(scene_hints.par_chunks_mut(SCENE_CHUNK))
+                .zip(scene_slots.par_chunks_mut(SCENE_CHUNK))
+                .map(|((ps, shs), sss)| {
+                    let mut counts = (0, 0);
+                    for ((p, sh), ss) in ps.iter_mut().zip(shs).zip(sss) {
+                        counts = add(
+                            counts,
+                            step_one(view, plain, p, sh, ss, params, None, &mut ()),
+                        );
+                    }
+                    counts
+                })
                 .reduce(|| (0, 0), add)
         }
     }

@@ -231,32 +231,27 @@ fn sheets(set: &[u32], joins: &[[u32; 3]]) -> usize {
 /// from the vertex, and it ends on one of those edges.
 fn crosses_itself(list: &[u32], tris: &[Tri]) -> bool {
     // Sweep along x over the triangles' boxes: only pairs whose boxes overlap are tested.
-    let mut boxes: Vec<(f64, f64, u32)> = list
+    // Each triangle's box, found once (not once per pair).
+    let mut boxes: Vec<(DVec3, DVec3, u32)> = list
         .iter()
         .map(|&t| {
-            let v = &tris[t as usize].v;
-            (
-                v[0].x.min(v[1].x).min(v[2].x),
-                v[0].x.max(v[1].x).max(v[2].x),
-                t,
-            )
+            let (lo, hi) = bounds(&tris[t as usize].v);
+            (lo, hi, t)
         })
         .collect();
-    boxes.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
-    for (i, &(_, hi, a)) in boxes.iter().enumerate() {
+    boxes.sort_unstable_by(|a, b| a.0.x.total_cmp(&b.0.x));
+    for (i, &(alo, ahi, a)) in boxes.iter().enumerate() {
         let ta = &tris[a as usize];
-        let (alo, ahi) = bounds(&ta.v);
-        for &(lo, _, b) in &boxes[i + 1..] {
-            if lo > hi {
+        for &(blo, bhi, b) in &boxes[i + 1..] {
+            if blo.x > ahi.x {
                 break;
+            }
+            if alo.cmpgt(bhi).any() || blo.cmpgt(ahi).any() {
+                continue;
             }
             let tb = &tris[b as usize];
             let shared = ta.vid.iter().filter(|v| tb.vid.contains(v)).count();
             if shared >= 2 {
-                continue;
-            }
-            let (blo, bhi) = bounds(&tb.v);
-            if alo.cmpgt(bhi).any() || blo.cmpgt(ahi).any() {
                 continue;
             }
             // Edge k runs from vertex k to vertex k + 1; with a shared vertex, only the edge

@@ -851,7 +851,8 @@ pub fn step_particle_counted(
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum StepKind {
     /// Settled before the march: strictly inside its hinted empty leaf for the whole step, or
-    /// outside the root and moving away from it.
+    /// outside the root with a path that stays beyond one of its faces. (One settled on its
+    /// surface leaf's plane is [`StepKind::InSurface`].)
     Settled,
     /// Marched, and stayed in the leaf it started in (or outside the root: no leaf).
     OneLeaf,

@@ -790,8 +790,8 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
         }
         // Both cases step with the recipe's gravity, scaled to the scene.
         let params = profile::recipe_params(&view);
-        for rain_case in [false, true] {
-            if !(if rain_case { rain } else { recipe }) {
+        for (rain_case, asked) in [(false, recipe), (true, rain)] {
+            if !asked {
                 continue;
             }
             let case_scene = if rain_case {
@@ -2284,7 +2284,8 @@ mod docs {
         }
     }
 
-    fn penetrations(x: f64) -> String {
+    /// Penetrations per million particle-steps as the tables print them.
+    pub(super) fn penetrations(x: f64) -> String {
         if x.is_finite() {
             thousands(x.round() as u64)
         } else {

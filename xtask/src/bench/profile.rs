@@ -326,15 +326,6 @@ fn fmt_ratio((x, lo, hi): (f64, f64, f64)) -> String {
     }
 }
 
-/// Penetrations per million particle-steps as the tables print them.
-fn pens(x: f64) -> String {
-    if x == 0.0 {
-        "0".into()
-    } else {
-        super::fmt_opt(x, 1)
-    }
-}
-
 fn percent(x: f64) -> String {
     if x == 0.0 {
         "0".into()
@@ -457,7 +448,11 @@ pub fn rain_table(report: &Report) -> String {
                 None => s.push_str(" – |"),
             }
         }
-        let _ = writeln!(s, " {} |", pens(octo.penetrations_per_million));
+        let _ = writeln!(
+            s,
+            " {} |",
+            super::docs::penetrations(octo.penetrations_per_million)
+        );
     }
     s
 }
@@ -528,7 +523,10 @@ pub fn speed_targets(report: &Report) -> String {
         .filter_map(|scene| {
             let r = cpu_row(report, scene, "octoproxy-cpu", n)?;
             let p = r.penetrations_per_million;
-            Some((format!("{scene} {}", pens(p)), p == 0.0))
+            Some((
+                format!("{scene} {}", super::docs::penetrations(p)),
+                p == 0.0,
+            ))
         })
         .collect();
     line(

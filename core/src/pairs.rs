@@ -625,24 +625,37 @@ pub fn pair_cell(x: [f32; 3], s: &PairStep) -> [i32; 3] {
     c
 }
 
-/// The table index of a cell: its block of 4×4×4 cells (the coordinates shifted right by
-/// two) mixed into the high bits, its place in the block (two bits per axis, x lowest) in the
-/// low six, masked. The sort by hash keeps each block's cells together, so neighbours are
-/// mostly near each other in the sorted order (and in memory); the blocks are spread as a
-/// hash spreads cells.
+/// The table index of a cell. Cells come in blocks of 4×4×4 (the coordinates shifted right
+/// by two), blocks in regions of 8×8×8 (shifted right by three more). A region starts at a
+/// place in the table its coordinates hash to; from there its blocks follow in Morton order
+/// (three bits an axis, interleaved x, y, z from the lowest) and each block's cells in order
+/// (two bits an axis, x lowest): `(hash(region) + block · 64 + cell) & mask`. The sort by
+/// hash keeps each block's cells together and a region's blocks in a run where each block
+/// lies near those around it, so a particle's 27 cells are mostly near it and near the last
+/// particle's in the sorted order (and in memory). Regions land anywhere, with any offset, so
+/// cells of different regions share buckets as a hash would have them, whatever the table's
+/// size. Only the memory layout depends on it: a particle's candidates come in the order of
+/// its 27 cells, then by index.
 #[inline]
 pub fn pair_hash(c: [i32; 3], mask: u32) -> u32 {
     let b = [c[0] >> 2, c[1] >> 2, c[2] >> 2];
-    let mut h = (b[0] as u32).wrapping_mul(0x8da6_b343)
-        ^ (b[1] as u32).wrapping_mul(0xd816_3841)
-        ^ (b[2] as u32).wrapping_mul(0xcb1a_b31f);
+    let r = [b[0] >> 3, b[1] >> 3, b[2] >> 3];
+    let mut h = (r[0] as u32).wrapping_mul(0x8da6_b343)
+        ^ (r[1] as u32).wrapping_mul(0xd816_3841)
+        ^ (r[2] as u32).wrapping_mul(0xcb1a_b31f);
     h ^= h >> 16;
     h = h.wrapping_mul(0x7feb_352d);
     h ^= h >> 15;
     h = h.wrapping_mul(0x846c_a68b);
     h ^= h >> 16;
+    let mut block = 0u32;
+    for i in 0..3 {
+        for (a, &ba) in b.iter().enumerate() {
+            block |= ((ba >> i) as u32 & 1) << (3 * i + a);
+        }
+    }
     let local = (c[0] & 3) as u32 | ((c[1] & 3) as u32) << 2 | ((c[2] & 3) as u32) << 4;
-    (h << 6 | local) & mask
+    h.wrapping_add(block << 6 | local) & mask
 }
 
 /// Whether sorted position `k` is the first and the last entry of its bucket in `keys` (the
@@ -1327,23 +1340,39 @@ mod tests {
     }
 
     #[test]
-    fn a_block_of_cells_hashes_to_one_run_of_the_table() {
-        let mask = (1 << 20) - 1;
-        for base in [[0, 0, 0], [-4, 8, -12], [1 << 29, -(1 << 30), 4]] {
-            let high = pair_hash(base, mask) >> 6;
-            let mut seen = [false; 64];
-            for (dz, dy, dx) in (0..64).map(|i| (i / 16, i / 4 % 4, i % 4)) {
-                let h = pair_hash([base[0] + dx, base[1] + dy, base[2] + dz], mask);
-                assert_eq!(h >> 6, high, "{base:?} + {:?}", (dx, dy, dz));
-                assert_eq!(h & 63, (dx | dy << 2 | dz << 4) as u32);
-                seen[(h & 63) as usize] = true;
+    fn a_region_of_cells_hashes_to_one_run_of_the_table_in_morton_order_of_blocks() {
+        let mask = (1 << 24) - 1;
+        // Regions of 8×8×8 blocks of 4×4×4 cells: 32 cells an axis, from a multiple of 32.
+        for base in [[0, 0, 0], [-32, 64, -96], [1 << 29, -(1 << 30), 32]] {
+            let start = pair_hash(base, mask);
+            let mut seen = vec![false; 1 << 15];
+            for i in 0..1 << 15 {
+                let c = [i % 32, i / 32 % 32, i / 1024];
+                let (b, l) = (
+                    [c[0] / 4, c[1] / 4, c[2] / 4],
+                    [c[0] % 4, c[1] % 4, c[2] % 4],
+                );
+                let h = pair_hash([base[0] + c[0], base[1] + c[1], base[2] + c[2]], mask);
+                let at = h.wrapping_sub(start) & mask;
+                assert!(at < 1 << 15, "{base:?} + {c:?}");
+                // The cell's place in its block, x lowest, in the low six bits of the run.
+                assert_eq!(at & 63, (l[0] | l[1] << 2 | l[2] << 4) as u32);
+                // Morton: bit `3i + a` of the block's place is bit `i` of its coordinate on
+                // axis `a`.
+                let block = at >> 6;
+                for (a, &ba) in b.iter().enumerate() {
+                    for bit in 0..3 {
+                        assert_eq!((block >> (3 * bit + a)) & 1, (ba as u32 >> bit) & 1);
+                    }
+                }
+                seen[at as usize] = true;
             }
             assert!(seen.iter().all(|&s| s));
-            // The next block along each axis is elsewhere.
+            // The next region along each axis starts elsewhere.
             for a in 0..3 {
                 let mut next = base;
-                next[a] += 4;
-                assert_ne!(pair_hash(next, mask) >> 6, high);
+                next[a] += 32;
+                assert_ne!(pair_hash(next, mask), start);
             }
         }
     }

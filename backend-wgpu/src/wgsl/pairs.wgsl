@@ -142,20 +142,29 @@ fn pair_start_with(p: Particle, support: vec4<f32>, s: PairStep) -> PairStart {
     return PairStart(vec4<f32>(v, 0.0), support);
 }
 
-// Wrapping multiplies, as Rust's `wrapping_mul`; `>>` on `i32` is arithmetic, as Rust's: the
-// block of 4x4x4 cells in the high bits, the place in it in the low six.
+// Wrapping multiplies and adds, as Rust's `wrapping_mul` and `wrapping_add`; `>>` on `i32` is
+// arithmetic, as Rust's: the region of 8x8x8 blocks hashed to where its run starts, the
+// block's place in it in Morton order times 64, plus the cell's place in its block of 4x4x4.
 fn pair_hash(c: vec3<i32>, mask: u32) -> u32 {
     let b = c >> vec3<u32>(2u);
-    var h = (bitcast<u32>(b.x) * 0x8da6b343u) ^ (bitcast<u32>(b.y) * 0xd8163841u)
-        ^ (bitcast<u32>(b.z) * 0xcb1ab31fu);
+    let r = b >> vec3<u32>(3u);
+    var h = (bitcast<u32>(r.x) * 0x8da6b343u) ^ (bitcast<u32>(r.y) * 0xd8163841u)
+        ^ (bitcast<u32>(r.z) * 0xcb1ab31fu);
     h ^= h >> 16u;
     h = h * 0x7feb352du;
     h ^= h >> 15u;
     h = h * 0x846ca68bu;
     h ^= h >> 16u;
+    let bb = bitcast<vec3<u32>>(b);
+    var block = 0u;
+    for (var i = 0u; i < 3u; i++) {
+        for (var a = 0u; a < 3u; a++) {
+            block |= ((bb[a] >> i) & 1u) << (3u * i + a);
+        }
+    }
     let l = bitcast<vec3<u32>>(c & vec3<i32>(3));
     let local = l.x | (l.y << 2u) | (l.z << 4u);
-    return ((h << 6u) | local) & mask;
+    return (h + ((block << 6u) | local)) & mask;
 }
 
 // Whether sorted position `k` is the first and the last entry of its bucket in `pair_keys`,

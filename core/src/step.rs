@@ -522,7 +522,7 @@ impl LeafHint {
     }
 
     /// The hinted leaf, if the hint is well formed and `x` lies strictly inside its box.
-    #[inline]
+    #[inline(always)]
     pub(crate) fn leaf(self, view: &ProxyView<'_>, x: Vec3) -> Option<LeafInfo> {
         let w = self.z_depth_label;
         if w & Self::VALID == 0 {

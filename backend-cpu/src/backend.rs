@@ -11,8 +11,9 @@ use octoproxy_core::{
 
 use octoproxy_core::pairs::PairGeometry;
 use octoproxy_core::pairs::{
-    pair_candidates, pair_cell, pair_geometry, pair_hash, pair_is_fast, pair_prepare, pair_start,
-    pair_start_scene, pair_table_size, pair_velocity_listed, PAIR_HASH_NONE,
+    pair_cell, pair_geometry, pair_hash, pair_in_reach, pair_is_fast, pair_neighbourhood,
+    pair_prepare, pair_start, pair_start_scene, pair_table_size, pair_velocity_listed,
+    PAIR_HASH_NONE,
 };
 use octoproxy_core::{
     pair_probe_speed, pair_substep_range, pair_substeps_for, PairBody, PairParams, PairReport,
@@ -130,7 +131,7 @@ struct PairBuffers {
     support: Vec<[f32; 4]>,
     ranges: Vec<[u32; 2]>,
     rank: Vec<AtomicU32>,
-    /// Each chunk of the sorted order's candidates ([`pair_candidates`]), listed once a
+    /// Each chunk of the sorted order's candidates ([`pair_candidates`](octoproxy_core::pairs::pair_candidates)), listed once a
     /// substep: the iterations read them instead of searching the 27 cells again.
     lists: Vec<CandidateList>,
     /// The valid particles of the substep, and those whose candidate search stopped at the
@@ -149,6 +150,12 @@ struct CandidateList {
     /// Each candidate's contact geometry ([`pair_geometry`]): positions do not change within
     /// the substep.
     geometry: Vec<PairGeometry>,
+    /// The last cell's [`pair_neighbourhood`] (sorted position and position of each entry),
+    /// whether its visit stopped at the cap, and the cell: the particles of one cell, next to
+    /// each other in the sorted order, filter it instead of visiting the 27 cells again.
+    hood: Vec<(u32, [f32; 3])>,
+    hood_capped: bool,
+    hood_cell: Option<[i32; 3]>,
 }
 
 /// Particles (in sorted order) whose candidates one list holds.
@@ -265,17 +272,34 @@ impl PairBuffers {
                 l.offsets.clear();
                 l.list.clear();
                 l.geometry.clear();
+                l.hood_cell = None;
                 let mut capped = 0u64;
                 for k in c * LIST_CHUNK..((c + 1) * LIST_CHUNK).min(valid) {
                     l.offsets.push(l.list.len() as u32);
-                    let (list, geometry) = (&mut l.list, &mut l.geometry);
-                    capped += pair_candidates(k, bodies, ranges, s, |m| {
-                        list.push(m as u32);
-                        let (me, other) = (&bodies[k], &bodies[m]);
+                    let me = &bodies[k];
+                    // `pair_candidates`, whose neighbourhood depends on the cell alone:
+                    // gathered once for a run of particles of one cell.
+                    if l.hood_cell != Some(me.cell) {
+                        let hood = &mut l.hood;
+                        hood.clear();
+                        l.hood_capped = pair_neighbourhood(me.cell, bodies, ranges, s, |m| {
+                            hood.push((m as u32, bodies[m].position));
+                        });
+                        l.hood_cell = Some(me.cell);
+                    }
+                    let x = glam::Vec3::from_array(me.position);
+                    for &(m, position) in &l.hood {
+                        let m = m as usize;
+                        if !pair_in_reach(k, x, m, position, s) {
+                            continue;
+                        }
+                        l.list.push(m as u32);
                         let (v0, w0) = (&start[k], &start[m]);
                         let (sup_me, sup_other) = (&support[k], &support[m]);
-                        geometry.push(pair_geometry(me, other, v0, w0, sup_me, sup_other, s));
-                    }) as u64;
+                        let g = pair_geometry(me, &bodies[m], v0, w0, sup_me, sup_other, s);
+                        l.geometry.push(g);
+                    }
+                    capped += l.hood_capped as u64;
                 }
                 l.offsets.push(l.list.len() as u32);
                 capped

@@ -817,6 +817,8 @@ const HOST_ONLY: &[(&str, &str, &str)] = &[
     ("pairs.rs", "pair_max_speed", "a reduction: pair_speed_kernel's atomicMax over pair_prepare's speeds"),
     ("pairs.rs", "pair_fast_count", "a reduction: pair_speed_kernel's count over pair_is_fast"),
     ("pairs.rs", "pair_candidates", "pair_velocity's neighbour loop, which pairs.wgsl's pair_velocity inlines; the CPU backend lists a substep's candidates once with it"),
+    ("pairs.rs", "pair_neighbourhood", "pair_candidates' visit of the 27 cells, inlined in pairs.wgsl's pair_velocity; the CPU backend gathers it once per cell and filters it for each of the cell's particles"),
+    ("pairs.rs", "pair_in_reach", "pair_candidates' filter (not itself, closer than the cell edge), inlined in pairs.wgsl's pair_velocity"),
     ("pairs.rs", "pair_velocity_listed", "pair_velocity from candidates listed once a substep (the CPU backend's); the GPU searches in each iteration"),
     ("pairs.rs", "pair_geometry", "pair_impulse's first half (normal, gap, share: positions only), inlined in pairs.wgsl's pair_impulse; the CPU backend keeps it per listed candidate"),
     ("pairs.rs", "pair_response", "pair_impulse's second half (from the velocities), inlined in pairs.wgsl's pair_impulse"),

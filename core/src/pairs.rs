@@ -870,6 +870,11 @@ pub struct PairChange {
 /// visited, kept or not). The candidates depend on positions only, so they are the same in
 /// every iteration of a substep: the CPU backend lists them once.
 ///
+/// It is [`pair_neighbourhood`] of the particle's cell filtered by [`pair_in_reach`]: every
+/// particle of one cell visits the same entries, so a lister may gather a cell's
+/// neighbourhood once and filter it for each of its particles, with the same candidates in
+/// the same order (the CPU backend does).
+///
 /// A pair farther apart than the cell edge is never a candidate: whether it lies in
 /// neighbouring cells depends on where the grid falls, and it cannot close within the
 /// substep at the speeds the cells were made for ([`pair_cell_edge`]).
@@ -883,12 +888,30 @@ pub fn pair_candidates(
 ) -> bool {
     let me = &bodies[k];
     let x = Vec3::from_array(me.position);
-    let reach = s.cell * s.cell;
+    pair_neighbourhood(me.cell, bodies, ranges, s, |m| {
+        if pair_in_reach(k, x, m, bodies[m].position, s) {
+            each(m);
+        }
+    })
+}
+
+/// The entries of the 27 cells around `cell` that lie in those very cells, in
+/// [`pair_candidates`]' order, each given to `each` by its sorted position; `true` when the
+/// visit stopped at the cap ([`PairParams::max_candidates`] bucket entries visited, kept or
+/// not). What it visits depends on `cell` alone, not on which of the cell's particles asks.
+#[inline]
+pub fn pair_neighbourhood(
+    cell: [i32; 3],
+    bodies: &[PairBody],
+    ranges: &[[u32; 2]],
+    s: &PairStep,
+    mut each: impl FnMut(usize),
+) -> bool {
     let mut visited = 0u32;
     for dz in -1i32..=1 {
         for dy in -1i32..=1 {
             for dx in -1i32..=1 {
-                let c = [me.cell[0] + dx, me.cell[1] + dy, me.cell[2] + dz];
+                let c = [cell[0] + dx, cell[1] + dy, cell[2] + dz];
                 let r = ranges[pair_hash(c, s.mask) as usize];
                 for m in r[0]..r[1] {
                     if visited == s.max_candidates {
@@ -896,12 +919,7 @@ pub fn pair_candidates(
                     }
                     visited += 1;
                     let m = m as usize;
-                    let o = &bodies[m];
-                    if m == k || o.cell != c {
-                        continue;
-                    }
-                    let d = x - Vec3::from_array(o.position);
-                    if d.dot(d) >= reach {
+                    if bodies[m].cell != c {
                         continue;
                     }
                     each(m);
@@ -910,6 +928,15 @@ pub fn pair_candidates(
         }
     }
     false
+}
+
+/// Whether the entry at sorted position `m`, at `other`, is a candidate of the particle at
+/// sorted position `k`, at `x`: not itself, and closer than the cell edge
+/// ([`pair_candidates`]' filter of [`pair_neighbourhood`]).
+#[inline(always)]
+pub fn pair_in_reach(k: usize, x: Vec3, m: usize, other: [f32; 3], s: &PairStep) -> bool {
+    let d = x - Vec3::from_array(other);
+    m != k && !(d.dot(d) >= s.cell * s.cell)
 }
 
 /// A particle's contacts summed over an iteration, in its candidates' order.

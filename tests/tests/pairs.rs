@@ -628,9 +628,31 @@ fn fifty_thousand_grains_poured_on_a_shared_mesh_come_to_rest() {
 
 /// The CPU backend's parallel pass is core's one-thread pass (`collide_pairs`), the march
 /// with the substep and no gravity, and core's debiasing iterations (`debias_pairs`), bit for
-/// bit.
+/// bit: with the default cap, and with a cap of 6 bucket entries, which most particles hit
+/// part way through their 27 cells (the CPU lists each cell's neighbourhood once for all of
+/// its particles; the serial pass visits it for each particle in every iteration).
 #[test]
 fn the_parallel_pass_is_cores_serial_pass() {
+    let capped = PairParams {
+        max_candidates: 6,
+        ..PairParams::default()
+    };
+    let (mut serial_caps, mut parallel_caps) = (0u64, 0u64);
+    for pairs in [PairParams::default(), capped] {
+        let (serial, parallel) = parallel_pass_against_serial(&pairs);
+        if pairs.max_candidates == PairParams::default().max_candidates {
+            assert_eq!((serial, parallel), (0, 0));
+        }
+        serial_caps += serial;
+        parallel_caps += parallel;
+    }
+    assert!(serial_caps > 1000, "{serial_caps}");
+    assert_eq!(serial_caps, parallel_caps);
+}
+
+/// 40 steps of 300 particles in a tall box by the CPU backend and by core's serial pass,
+/// compared bit for bit after each; the particle-iterations each found capped.
+fn parallel_pass_against_serial(pairs: &PairParams) -> (u64, u64) {
     let r = 0.15;
     let baked = tall_box(r);
     let mut ps: Vec<Particle> = (0..300)
@@ -652,11 +674,12 @@ fn the_parallel_pass_is_cores_serial_pass() {
         radius: r,
         ..StepParams::default()
     };
-    let pairs = PairParams::default();
+    let pairs = *pairs;
     let mut cpu = CpuBackend::new();
     cpu.upload_proxy(&baked.words).unwrap();
     cpu.upload_particles(&ps).unwrap();
     let view = ProxyView::new(&baked.words).unwrap();
+    let mut serial_caps = 0u64;
     let n = ps.len();
     let (mut keys, mut bodies) = (
         vec![[0u32; 2]; n],
@@ -700,12 +723,20 @@ fn the_parallel_pass_is_cores_serial_pass() {
             let s0 = octoproxy_core::PairStep::new(&step, &pairs, h, n, 0.0);
             let v_max = octoproxy_core::pairs::pair_max_speed(&ps, &s0);
             let s = octoproxy_core::PairStep::new(&step, &pairs, h, n, v_max);
-            octoproxy_core::collide_pairs(&mut ps, &view, &hints, &s, pairs.iterations, scratch!())
-                .unwrap();
+            serial_caps += octoproxy_core::collide_pairs(
+                &mut ps,
+                &view,
+                &hints,
+                &s,
+                pairs.iterations,
+                scratch!(),
+            )
+            .unwrap();
             for (p, hint) in ps.iter_mut().zip(&mut hints) {
                 octoproxy_core::step_particle_hinted(&view, p, &march, hint);
             }
-            octoproxy_core::debias_pairs(&mut ps, &s, pairs.iterations, scratch!()).unwrap();
+            serial_caps +=
+                octoproxy_core::debias_pairs(&mut ps, &s, pairs.iterations, scratch!()).unwrap();
         }
         cpu.download_particles(&mut got).unwrap();
         for (a, b) in got.iter().zip(&ps) {
@@ -716,6 +747,7 @@ fn the_parallel_pass_is_cores_serial_pass() {
             );
         }
     }
+    (serial_caps, cpu.take_pair_report().unwrap().capped)
 }
 
 #[test]

@@ -132,8 +132,9 @@ struct PairBuffers {
     support: Vec<[f32; 4]>,
     ranges: Vec<[u32; 2]>,
     rank: Vec<AtomicU32>,
-    /// Each chunk of the sorted order's candidates ([`pair_candidates`](octoproxy_core::pairs::pair_candidates)), listed once a
-    /// substep: the iterations read them instead of searching the 27 cells again.
+    /// Each chunk of the sorted order's candidates
+    /// ([`pair_candidates`](octoproxy_core::pairs::pair_candidates)), listed once a substep:
+    /// the iterations read them instead of searching the 27 cells again.
     lists: Vec<CandidateList>,
     /// The valid particles of the substep, and those whose candidate search stopped at the
     /// cap: what the debiasing iterations after the march ([`PairBuffers::debias`]) reuse.

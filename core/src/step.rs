@@ -718,10 +718,12 @@ fn march_from_hint<O: MarchObserver>(
     hint: &mut LeafHint,
     obs: &mut O,
 ) -> StepOutcome {
-    if settle_on_plane(view, p, params, *hint, obs) {
+    // Decoded once, for both: `settle_on_plane` and the march's first leaf.
+    let hinted = hint.leaf(view, Vec3::from_array(p.position));
+    if settle_on_plane(p, params, hinted.as_ref(), obs) {
         return StepOutcome::Done;
     }
-    march(view, p, params, hint, obs)
+    march_hinted(view, p, params, hint, obs, NO_LEAF, hinted)
 }
 
 /// The common case of a particle in a one-sided surface leaf, settled without the march: it
@@ -735,19 +737,19 @@ fn march_from_hint<O: MarchObserver>(
 /// step marched (the bunny under the bench's gravity: 34 % more instructions per step).
 #[inline(always)]
 fn settle_on_plane<O: MarchObserver>(
-    view: &ProxyView<'_>,
     p: &mut Particle,
     params: &StepParams,
-    hint: LeafHint,
+    hinted: Option<&LeafInfo>,
     obs: &mut O,
 ) -> bool {
-    if hint.z_depth_label & LeafHint::SURFACE == 0 || p.side & !SIDE_MASK != 0 {
+    // A surface hint names only one-sided surface leaves.
+    let Some(leaf) = hinted.filter(|l| l.kind == LeafKind::Surface && !l.two_sided) else {
+        return false;
+    };
+    if p.side & !SIDE_MASK != 0 {
         return false;
     }
     let x0 = Vec3::from_array(p.position);
-    let Some(leaf) = hint.leaf(view, x0) else {
-        return false;
-    };
     let v = Vec3::from_array(p.velocity) + Vec3::from_array(params.gravity) * params.dt;
     // The march's loop condition, and a finite velocity (a finite start: it is in the box).
     if !(params.dt > 0.0) || !v.is_finite() {
@@ -1232,12 +1234,7 @@ struct NextLeaf {
 /// The march set up for a particle with a finite position and velocity: gravity integrated,
 /// the side normalised, the hinted leaf found (if the hint holds the particle).
 #[inline(always)]
-fn start_march(
-    view: &ProxyView<'_>,
-    p: &Particle,
-    params: &StepParams,
-    start_hint: LeafHint,
-) -> MarchState {
+fn start_march(p: &Particle, params: &StepParams, hinted: Option<LeafInfo>) -> MarchState {
     let x0 = Vec3::from_array(p.position);
     let v0 = Vec3::from_array(p.velocity);
     MarchState {
@@ -1255,7 +1252,7 @@ fn start_march(
         cross_axes: 0,
         cross_signs: Vec3::ZERO,
         last_leaf: None,
-        hinted: start_hint.leaf(view, x0),
+        hinted,
         exits: if p.side & SIDE_CAGED != 0 {
             p.side & SIDE_CAGE_MASK
         } else {
@@ -1978,14 +1975,30 @@ pub(crate) fn march_after<O: MarchObserver>(
     obs: &mut O,
     collided: u32,
 ) -> StepOutcome {
-    let start_hint = core::mem::take(hint);
+    let hinted = hint.leaf(view, Vec3::from_array(p.position));
+    march_hinted(view, p, params, hint, obs, collided, hinted)
+}
+
+/// [`march_after`] with the hint already decoded: `hinted` is `hint.leaf` at the particle's
+/// position (`None` for none).
+#[inline(always)]
+fn march_hinted<O: MarchObserver>(
+    view: &ProxyView<'_>,
+    p: &mut Particle,
+    params: &StepParams,
+    hint: &mut LeafHint,
+    obs: &mut O,
+    collided: u32,
+    hinted: Option<LeafInfo>,
+) -> StepOutcome {
+    *hint = LeafHint::NONE;
     if !Vec3::from_array(p.position).is_finite() || !Vec3::from_array(p.velocity).is_finite() {
         obs.branch(MarchBranch::InvalidStart);
         obs.finished(0);
         p.flags |= FLAG_INVALID;
         return StepOutcome::Invalid;
     }
-    let mut st = start_march(view, p, params, start_hint);
+    let mut st = start_march(p, params, hinted);
     st.last_collided = collided;
     if st.exits != 0 {
         // By value, in and out: a march state behind a pointer that escapes into a call out

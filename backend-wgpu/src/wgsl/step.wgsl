@@ -252,25 +252,27 @@ fn step_particle_hinted(p: ptr<function, Particle>, params: StepParams, hint: pt
     if all(*hint == vec2<u32>(0u)) && settle_leaving_root(p, params) {
         return STEP_DONE;
     }
-    if settle_on_plane(p, params, *hint) {
+    // Decoded once, for both: settle_on_plane and the march's first leaf.
+    let hinted = leaf_hint_leaf(*hint, (*p).position);
+    if settle_on_plane(p, params, hinted) {
         return STEP_DONE;
     }
-    return march(p, params, hint);
+    return march_hinted(p, params, hint, NO_LEAF, hinted);
 }
 
 // core's `settle_on_plane`: a particle in its hinted one-sided surface leaf that collides
 // with the leaf's plane at most once and ends strictly inside the leaf, settled as the march
 // would settle it; the hint stays.
-fn settle_on_plane(p: ptr<function, Particle>, params: StepParams, hint: vec2<u32>) -> bool {
-    if (hint.y & HINT_SURFACE) == 0u || ((*p).side & ~SIDE_MASK) != 0u {
+fn settle_on_plane(p: ptr<function, Particle>, params: StepParams, hinted: LeafOption) -> bool {
+    // A surface hint names only one-sided surface leaves.
+    if !hinted.some || hinted.value.kind != LEAF_SURFACE || hinted.value.two_sided {
+        return false;
+    }
+    if ((*p).side & ~SIDE_MASK) != 0u {
         return false;
     }
     let x0 = (*p).position;
-    let found = leaf_hint_leaf(hint, x0);
-    if !found.some {
-        return false;
-    }
-    let leaf = found.value;
+    let leaf = hinted.value;
     let v = (*p).velocity + params.gravity * params.dt;
     if !(params.dt > 0.0) || !is_finite3(v) {
         return false;
@@ -440,7 +442,7 @@ struct NextLeafOption {
     some: bool,
 }
 
-fn start_march(p: Particle, params: StepParams, start_hint: vec2<u32>) -> MarchState {
+fn start_march(p: Particle, params: StepParams, hinted: LeafOption) -> MarchState {
     let x0 = p.position;
     let v0 = p.velocity;
     var st: MarchState;
@@ -458,7 +460,7 @@ fn start_march(p: Particle, params: StepParams, start_hint: vec2<u32>) -> MarchS
     st.cross_axes = 0u;
     st.cross_signs = vec3<f32>(0.0);
     st.last_leaf.some = false;
-    st.hinted = leaf_hint_leaf(start_hint, x0);
+    st.hinted = hinted;
     st.exits = select(0u, p.side & SIDE_CAGE_MASK, (p.side & SIDE_CAGED) != 0u);
     st.visited = 0u;
     st.outcome = STEP_DONE;
@@ -910,23 +912,23 @@ fn finish_march(p: ptr<function, Particle>, st: ptr<function, MarchState>, cage:
     return (*st).outcome;
 }
 
-// core's `march`: leaf by leaf, each found from the last, until the time is used up, a rule
-// stops the particle, or the leaf bound is hit.
-fn march(p: ptr<function, Particle>, params: StepParams, hint: ptr<function, vec2<u32>>) -> u32 {
-    return march_after(p, params, hint, NO_LEAF);
-}
-
 // core's `march_after`: the march of a particle that has just collided in surface leaf
 // `collided` (or NO_LEAF) and has not left it; it does not collide there again before it
 // crosses a face. The scene step goes on from a contact with it.
 fn march_after(p: ptr<function, Particle>, params: StepParams, hint: ptr<function, vec2<u32>>, collided: u32) -> u32 {
-    let start_hint = *hint;
+    let hinted = leaf_hint_leaf(*hint, (*p).position);
+    return march_hinted(p, params, hint, collided, hinted);
+}
+
+// core's `march_hinted`: `march_after` with the hint already decoded (`hinted`, the hint's
+// leaf at the particle's position).
+fn march_hinted(p: ptr<function, Particle>, params: StepParams, hint: ptr<function, vec2<u32>>, collided: u32, hinted: LeafOption) -> u32 {
     *hint = vec2<u32>(0u);
     if !is_finite3((*p).position) || !is_finite3((*p).velocity) {
         (*p).flags |= FLAG_INVALID;
         return STEP_INVALID;
     }
-    var st = start_march(*p, params, start_hint);
+    var st = start_march(*p, params, hinted);
     st.last_collided = collided;
     if st.exits != 0u {
         let cage = walk_in_cage(&st, params);

@@ -861,6 +861,103 @@ impl<'a> SceneView<'a> {
             f(c);
         }
     }
+
+    /// [`Self::count_candidates`] of `b`, keeping what the walk found as [`Nearby`] for the
+    /// step's later queries.
+    #[inline(always)]
+    fn count_nearby(&self, b: &Aabb) -> (u32, u32, Nearby) {
+        let mut near = Nearby {
+            within: *b,
+            leaves: [0; NEARBY],
+            len: 0,
+        };
+        let (mut count, mut first) = (0u32, 0u32);
+        let mut walk = BroadWalk::new(self.nodes);
+        while let Some(i) = walk.next_leaf(self.nodes, b) {
+            if count == 0 {
+                first = self.nodes[i as usize].index;
+            }
+            if (count as usize) < NEARBY {
+                near.leaves[count as usize] = i;
+            }
+            count += 1;
+        }
+        near.len = count;
+        (count, first, near)
+    }
+
+    /// [`Self::for_each_candidate`], from `near` when `b` lies inside the box it was found
+    /// for and it holds every instance found there: the same instances in the same order
+    /// (see [`Nearby`]), without a walk.
+    #[inline(always)]
+    fn for_each_nearby(&self, near: &Nearby, b: &Aabb, mut f: impl FnMut(u32)) {
+        if !near.holds(b) {
+            self.for_each_candidate(b, f);
+            return;
+        }
+        for &i in &near.leaves[..near.len as usize] {
+            let node = &self.nodes[i as usize];
+            if meets(node, b) {
+                f(node.index);
+            }
+        }
+    }
+
+    /// [`Self::count_candidates`], from `near` as [`Self::for_each_nearby`] says.
+    #[inline(always)]
+    fn count_in_nearby(&self, near: &Nearby, b: &Aabb) -> (u32, u32) {
+        if !near.holds(b) {
+            return self.count_candidates(b);
+        }
+        let (mut count, mut first) = (0u32, 0u32);
+        for &i in &near.leaves[..near.len as usize] {
+            let node = &self.nodes[i as usize];
+            if meets(node, b) {
+                if count == 0 {
+                    first = node.index;
+                }
+                count += 1;
+            }
+        }
+        (count, first)
+    }
+}
+
+/// How many broad-phase leaves [`Nearby`] holds.
+const NEARBY: usize = 8;
+
+/// The broad-phase leaves whose boxes meet a box (`within`), in the walk's order: what the
+/// first query of a scene step found, kept for the step's later queries. A walk yields
+/// exactly the leaves whose boxes meet its box, in depth-first order (every node's box holds
+/// the boxes below it, as validation proved, so no leaf that meets the box is cut off above
+/// it), and a leaf meets a box inside `within` only if it meets `within`: so for a box inside
+/// `within`, these leaves filtered by the same test are the walk's answer. A particle among
+/// moving instances walked the broad phase three times a round; it now walks once a step
+/// while its queries stay inside its first. Host-only: WGSL walks each time (the same
+/// answers).
+#[derive(Clone, Copy)]
+struct Nearby {
+    within: Aabb,
+    /// The leaves' node indices: the first [`NEARBY`] of them.
+    leaves: [u32; NEARBY],
+    /// How many leaves met `within`: more than [`NEARBY`] means not all are kept.
+    len: u32,
+}
+
+impl Nearby {
+    /// Whether these are every leaf that meets `b`, and more: all that met `within` are
+    /// kept, and `b` lies inside it.
+    #[inline(always)]
+    fn holds(&self, b: &Aabb) -> bool {
+        self.len as usize <= NEARBY && contains(&self.within, b)
+    }
+}
+
+/// Whether a broad-phase node's box meets `b` (closed boxes): the walk's test.
+#[inline(always)]
+fn meets(node: &BroadNode, b: &Aabb) -> bool {
+    !(Vec3::from_array(node.min).cmpgt(b.max).any()
+        || Vec3::from_array(node.max).cmplt(b.min).any())
 }
 
 /// A walk of a validated broad phase that yields, one at a time, the instances whose swept
@@ -883,17 +980,21 @@ impl BroadWalk {
     /// The next instance whose swept box meets `b`, or `None` when the walk is over.
     #[inline(always)]
     fn next(&mut self, nodes: &[BroadNode], b: &Aabb) -> Option<u32> {
+        self.next_leaf(nodes, b).map(|i| nodes[i as usize].index)
+    }
+
+    /// [`Self::next`]'s leaf node (its index in `nodes`), not its instance.
+    #[inline(always)]
+    fn next_leaf(&mut self, nodes: &[BroadNode], b: &Aabb) -> Option<u32> {
         while self.top > 0 {
             self.top -= 1;
             let i = self.stack[self.top];
             let node = &nodes[i as usize];
-            if Vec3::from_array(node.min).cmpgt(b.max).any()
-                || Vec3::from_array(node.max).cmplt(b.min).any()
-            {
+            if !meets(node, b) {
                 continue;
             }
             if node.kind == BROAD_LEAF {
-                return Some(node.index);
+                return Some(i);
             }
             // Validation proved the depth: the stack holds every pending second child. The
             // first child is visited first.
@@ -1707,7 +1808,7 @@ fn step_particle_scene_general<T: PathTrace, E: HitEvents>(
         min: x0 - (reach + pad),
         max: x0 + (reach + pad),
     };
-    let (count, first) = scene.count_candidates(&ball);
+    let (count, first, near) = scene.count_nearby(&ball);
     let status_kept = p.flags & FLAG_STATUS_MASK & !FLAG_SCENE_STATUS;
     if count == 0 {
         // Nothing to meet: the straight path (the march's operations for a miss).
@@ -1722,7 +1823,7 @@ fn step_particle_scene_general<T: PathTrace, E: HitEvents>(
     if count == 1 && scene.instances[first as usize].is_static() {
         return step_near_one_static(scene, first, p, sides, params, hit, trace, events);
     }
-    step_in_rounds(scene, p, sides, params, hit, trace, events)
+    step_in_rounds(scene, &near, p, sides, params, hit, trace, events)
 }
 
 /// [`step_particle_scene`] for a particle that can meet one static instance only: the whole
@@ -1834,7 +1935,7 @@ fn must_keep(view: &ProxyView<'_>, lp: &Particle, hint: LeafHint) -> bool {
 /// the rest of the step (its local point held), meets no other instance's swept box. The ride
 /// strays from the straight way to its end by at most the arc its point turns through and
 /// what the change of scale moves it.
-fn ride_is_clear(scene: &SceneView<'_>, c: u32, x: Vec3, u: f32) -> bool {
+fn ride_is_clear(scene: &SceneView<'_>, near: &Nearby, c: u32, x: Vec3, u: f32) -> bool {
     let inst = &scene.instances[c as usize];
     let l = inst.pose_at(u).to_local(x);
     let end = inst.end.to_world(l);
@@ -1847,7 +1948,7 @@ fn ride_is_clear(scene: &SceneView<'_>, c: u32, x: Vec3, u: f32) -> bool {
         min: x.min(end) - pad,
         max: x.max(end) + pad,
     };
-    let (count, first) = scene.count_candidates(&ride);
+    let (count, first) = scene.count_in_nearby(near, &ride);
     count == 0 || (count == 1 && first == c)
 }
 
@@ -1864,8 +1965,10 @@ fn first_side(slots: &[u32; SIDE_SLOTS], otherwise: u32) -> u32 {
 /// chord with a collision; with several, it probes each up to its first collision, takes the
 /// earliest, and brings every other's side up to that moment. The next round goes on from
 /// there with the new velocity.
+#[allow(clippy::too_many_arguments)]
 fn step_in_rounds<T: PathTrace, E: HitEvents>(
     scene: &SceneView<'_>,
+    near: &Nearby,
     p: &mut Particle,
     sides: &mut SceneSides,
     params: &StepParams,
@@ -1904,7 +2007,7 @@ fn step_in_rounds<T: PathTrace, E: HitEvents>(
         if stalls == MAX_STALLS {
             stalls = 0;
             if let Some((c, _)) = last {
-                if ride_is_clear(scene, c, x, u) {
+                if ride_is_clear(scene, near, c, x, u) {
                     contacts = MAX_CONTACTS;
                 }
             }
@@ -1912,8 +2015,8 @@ fn step_in_rounds<T: PathTrace, E: HitEvents>(
         if rounds == MAX_ROUNDS || contacts == MAX_CONTACTS {
             // At its last contact, moving with what it touched: carried, or crushed where
             // another instance is on the way.
-            let carried =
-                rounds < MAX_ROUNDS && last.is_none_or(|(c, _)| ride_is_clear(scene, c, x, u));
+            let carried = rounds < MAX_ROUNDS
+                && last.is_none_or(|(c, _)| ride_is_clear(scene, near, c, x, u));
             status |= if carried {
                 FLAG_BOUND_HIT
             } else {
@@ -1945,17 +2048,17 @@ fn step_in_rounds<T: PathTrace, E: HitEvents>(
             min: x - reach,
             max: x + reach,
         };
-        let (near, mut only) = scene.count_candidates(&ball);
-        let one_static = near == 1 && scene.instances[only as usize].is_static();
+        let (in_reach, mut only) = scene.count_in_nearby(near, &ball);
+        let one_static = in_reach == 1 && scene.instances[only as usize].is_static();
         let seg = Aabb {
             min: x.min(end) - pad,
             max: x.max(end) + pad,
         };
         let mut count = 0u32;
         if !one_static {
-            (count, only) = scene.count_candidates(&seg);
+            (count, only) = scene.count_in_nearby(near, &seg);
         }
-        if near == 0 || (!one_static && count == 0) {
+        if in_reach == 0 || (!one_static && count == 0) {
             trace.piece(x, end, u, 1.0);
             x = end;
             break;
@@ -2031,7 +2134,7 @@ fn step_in_rounds<T: PathTrace, E: HitEvents>(
         } else {
             // The earliest first collision, ties to the first in the broad phase's order.
             let mut best: Option<(f32, u32)> = None;
-            scene.for_each_candidate(&seg, |c| {
+            scene.for_each_nearby(near, &seg, |c| {
                 let inst = &scene.instances[c as usize];
                 let view = &scene.proxies[inst.proxy as usize];
                 let side = side_for(&slots, c, x, u);
@@ -2058,7 +2161,7 @@ fn step_in_rounds<T: PathTrace, E: HitEvents>(
                 }
             });
             let until = best.map_or(1.0, |(bu, _)| bu);
-            scene.for_each_candidate(&seg, |c| {
+            scene.for_each_nearby(near, &seg, |c| {
                 let inst = &scene.instances[c as usize];
                 let view = &scene.proxies[inst.proxy as usize];
                 let side = side_for(&slots, c, x, u);
@@ -2199,5 +2302,123 @@ fn step_in_rounds<T: PathTrace, E: HitEvents>(
         StepOutcome::Blocked
     } else {
         StepOutcome::Done
+    }
+}
+
+#[cfg(test)]
+mod nearby_tests {
+    use super::*;
+
+    /// A broad phase over `items` (instance, swept box) in depth-first order, split at the
+    /// median of the boxes' centres along `x`, `y`, `z` in turn.
+    fn build(items: &mut [(u32, Aabb)], axis: usize, nodes: &mut std::vec::Vec<BroadNode>) {
+        let (min, max) = items.iter().fold(
+            (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
+            |(lo, hi), (_, b)| (lo.min(b.min), hi.max(b.max)),
+        );
+        let i = nodes.len();
+        let (index, kind) = if items.len() == 1 {
+            (items[0].0, BROAD_LEAF)
+        } else {
+            (0, BROAD_INTERNAL)
+        };
+        nodes.push(BroadNode {
+            min: min.to_array(),
+            index,
+            max: max.to_array(),
+            kind,
+        });
+        if items.len() == 1 {
+            return;
+        }
+        items.sort_by(|a, b| {
+            let (ca, cb) = (a.1.min + a.1.max, b.1.min + b.1.max);
+            ca[axis].total_cmp(&cb[axis])
+        });
+        let (first, second) = items.split_at_mut(items.len() / 2);
+        build(first, (axis + 1) % 3, nodes);
+        nodes[i].index = nodes.len() as u32;
+        build(second, (axis + 1) % 3, nodes);
+    }
+
+    fn random_box(s: &mut u64, lo: Vec3, hi: Vec3, most: f32) -> Aabb {
+        let mut r = || {
+            *s ^= *s << 13;
+            *s ^= *s >> 7;
+            *s ^= *s << 17;
+            (*s >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let a = Vec3::new(r(), r(), r());
+        let e = Vec3::new(r(), r(), r()) * most;
+        let min = lo + a * (hi - lo);
+        Aabb {
+            min,
+            max: (min + e).min(hi),
+        }
+    }
+
+    /// What a step's later queries take from [`Nearby`] is the walk's answer, in the walk's
+    /// order: for boxes inside the first query's box (the kept leaves filtered), outside it,
+    /// and after more than [`NEARBY`] leaves met the first (both walk).
+    #[test]
+    fn nearby_answers_as_the_walk_does() {
+        let w = crate::tests::tiny();
+        let views = [ProxyView::new(&w).unwrap()];
+        let mut s = 0x9e37_79b9_7f4a_7c15u64;
+        let mut instances = std::vec::Vec::new();
+        for _ in 0..60 {
+            let at = random_box(&mut s, Vec3::ZERO, Vec3::splat(12.0), 0.0).min;
+            let pose = Pose {
+                translation: at.to_array(),
+                ..Pose::IDENTITY
+            };
+            instances.push(Instance::new(0, pose, pose));
+        }
+        let mut items: std::vec::Vec<(u32, Aabb)> = instances
+            .iter()
+            .enumerate()
+            .map(|(k, inst)| (k as u32, inst.swept_box(&views[0])))
+            .collect();
+        let mut nodes = std::vec::Vec::new();
+        build(&mut items, 0, &mut nodes);
+        for (k, node) in nodes.iter().enumerate() {
+            if node.kind == BROAD_LEAF {
+                instances[node.index as usize].leaf = k as u32;
+            }
+        }
+        let scene = SceneView::new(&views, &instances, &nodes).unwrap();
+        let (mut filtered, mut overflowed, mut outside) = (0, 0, 0);
+        for _ in 0..3000 {
+            let within = random_box(&mut s, Vec3::splat(-1.0), Vec3::splat(14.0), 8.0);
+            let (count, first, near) = scene.count_nearby(&within);
+            assert_eq!((count, first), scene.count_candidates(&within));
+            for k in 0..8 {
+                // Half inside the first box, half anywhere.
+                let b = if k % 2 == 0 {
+                    random_box(&mut s, within.min, within.max, 2.0)
+                } else {
+                    random_box(&mut s, Vec3::splat(-1.0), Vec3::splat(14.0), 3.0)
+                };
+                let mut walked = std::vec::Vec::new();
+                scene.for_each_candidate(&b, |c| walked.push(c));
+                let mut kept = std::vec::Vec::new();
+                scene.for_each_nearby(&near, &b, |c| kept.push(c));
+                assert_eq!(kept, walked);
+                let expected = (walked.len() as u32, walked.first().copied().unwrap_or(0));
+                assert_eq!(scene.count_in_nearby(&near, &b), expected);
+                if near.holds(&b) {
+                    filtered += !walked.is_empty() as u32;
+                } else if count as usize > NEARBY {
+                    overflowed += 1;
+                } else {
+                    outside += 1;
+                }
+            }
+        }
+        // Every case came up: answers filtered from the kept leaves (some not empty), and
+        // walks after an overflow and for boxes outside.
+        assert!(filtered > 300, "{filtered}");
+        assert!(overflowed > 300, "{overflowed}");
+        assert!(outside > 5000, "{outside}");
     }
 }

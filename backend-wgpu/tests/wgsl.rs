@@ -786,6 +786,7 @@ const HOST_ONLY: &[(&str, &str, &str)] = &[
     ("scene.rs", "is_valid", "Pose::is_valid: SceneView::new's check, on the host"),
     ("scene.rs", "swept_box", "the host builds the broad phase's boxes"),
     ("scene.rs", "swept_box_of", "the host builds the broad phase's boxes"),
+    ("scene.rs", "chord_per_length", "swept_box_of's bound on a turn: the host builds the broad phase's boxes"),
     ("scene.rs", "aabb", "BroadNode's box, for the host's validation"),
     ("scene.rs", "max_turn", "SceneView::new's check, on the host"),
     ("scene.rs", "contains", "SceneView::new's check, on the host"),
@@ -841,7 +842,7 @@ fn rust_source(file: &str) -> &'static str {
         "format.rs" => include_str!("../../core/src/format.rs"),
         "view.rs" => include_str!("../../core/src/view.rs"),
         "particle.rs" => include_str!("../../core/src/particle.rs"),
-        "scene.rs" => include_str!("../../core/src/scene.rs"),
+        "scene.rs" => rust_code(include_str!("../../core/src/scene.rs")),
         "pairs.rs" => rust_code(include_str!("../../core/src/pairs.rs")),
         other => panic!("no core source {other} in this test"),
     }

@@ -278,6 +278,22 @@ pub fn half_turn(a: [f32; 4], b: [f32; 4]) -> f32 {
     libm::acosf(math::abs(d).min(1.0))
 }
 
+/// The most a rotation between unit quaternions `a` and `b` as slerp takes it (the shorter
+/// way) moves a point, per unit of its distance from the origin: `2 sin α` for a half angle
+/// `α` between them, at most 2. Bounded by `2 |b - a|` (with `b` on `a`'s side), since
+/// `sin α ≤ 2 sin(α/2) = |b - a|`: from the components' differences, where `2 half_turn`
+/// (an `acos` of a dot product that rounds near 1) reads a small turn as less than it is, or
+/// as none. Every rotation slerp passes through on the way is on the arc between them, and
+/// moves a point less.
+fn chord_per_length(a: [f32; 4], b: [f32; 4]) -> f32 {
+    let d = a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3];
+    let sign = if d < 0.0 { -1.0 } else { 1.0 };
+    let e: [f32; 4] = core::array::from_fn(|i| b[i] * sign - a[i]);
+    let gap = math::sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2] + e[3] * e[3]);
+    // A few ulps of the components' rounding on top.
+    (2.0 * gap * (1.0 + 1e-6) + 4.0 * f32::EPSILON).min(2.0)
+}
+
 /// Flag of [`Instance::flags`]: the instance exists (a removed one keeps its index, without
 /// this flag, so that indices stay stable).
 pub const INSTANCE_LIVE: u32 = 1 << 0;
@@ -365,10 +381,19 @@ impl Instance {
     }
 
     /// The world box that holds its proxy's root cube at every pose of the step, padded for
-    /// rounding. For a static instance, the box of the cube's eight corners; for a moving one,
-    /// the box of the cube's centre path with the rotation held at the start (a segment),
-    /// grown by the cube's radius and by how far turning can move the centre (`|c| θ`, the
-    /// arc length, for a turn of `θ`), both at the larger scale.
+    /// rounding. For a static instance, the box of the cube's eight corners. For a moving one,
+    /// where two bounds overlap, each holding the cube at every pose of the step:
+    /// - the cube's centre path with the rotation held at the start (a segment), grown by the
+    ///   cube's radius and by how far turning can move the centre (`|c|` times
+    ///   [`chord_per_length`]), both at the larger scale: a ball about the centre, whatever
+    ///   the turn;
+    /// - the box of the cube's corners with the rotation held at the start, at the start's and
+    ///   the end's translation and scale, grown by how far turning can move a corner (`|l|`
+    ///   times [`chord_per_length`] at the larger scale, `l` the corner farthest from the
+    ///   local origin). Translation and scale change linearly, so with the rotation held each
+    ///   point of the cube moves along a segment between its two ends, inside that box; the
+    ///   turn moves each point by at most that. For a slow turn this is the cube's own box
+    ///   swept, where the ball is `√3` times as wide.
     pub fn swept_box(&self, view: &ProxyView<'_>) -> Aabb {
         self.swept_box_of(&view.root_aabb())
     }
@@ -377,28 +402,18 @@ impl Instance {
     /// overlap with the boxes of their surface leaves).
     pub fn swept_box_of(&self, local: &Aabb) -> Aabb {
         let root = local;
+        let corner = |k: u32| {
+            Vec3::new(
+                if k & 1 != 0 { root.max.x } else { root.min.x },
+                if k & 2 != 0 { root.max.y } else { root.min.y },
+                if k & 4 != 0 { root.max.z } else { root.min.z },
+            )
+        };
         let (bmin, bmax) = if self.is_static() {
             let mut lo = Vec3::splat(f32::INFINITY);
             let mut hi = Vec3::splat(f32::NEG_INFINITY);
-            for corner in 0..8u32 {
-                let l = Vec3::new(
-                    if corner & 1 != 0 {
-                        root.max.x
-                    } else {
-                        root.min.x
-                    },
-                    if corner & 2 != 0 {
-                        root.max.y
-                    } else {
-                        root.min.y
-                    },
-                    if corner & 4 != 0 {
-                        root.max.z
-                    } else {
-                        root.min.z
-                    },
-                );
-                let w = self.start.to_world(l);
+            for k in 0..8u32 {
+                let w = self.start.to_world(corner(k));
                 lo = lo.min(w);
                 hi = hi.max(w);
             }
@@ -407,13 +422,28 @@ impl Instance {
             let c = (root.min + root.max) * 0.5;
             let radius = (root.max - root.min).length() * 0.5;
             let s_max = self.start.scale.max(self.end.scale);
-            let turn = (2.0 * self.half_turn).min(2.0);
+            let turn = chord_per_length(self.start.rotation, self.end.rotation);
             let c0 = Vec3::from_array(self.start.translation)
                 + rotate(self.start.rotation, c * self.start.scale);
             let c1 = Vec3::from_array(self.end.translation)
                 + rotate(self.start.rotation, c * self.end.scale);
             let grow = s_max * (radius + c.length() * turn);
-            (c0.min(c1) - grow, c0.max(c1) + grow)
+            let (ball_min, ball_max) = (c0.min(c1) - grow, c0.max(c1) + grow);
+            let mut lo = Vec3::splat(f32::INFINITY);
+            let mut hi = Vec3::splat(f32::NEG_INFINITY);
+            let mut far = 0.0f32;
+            for k in 0..8u32 {
+                let l = corner(k);
+                for pose in [&self.start, &self.end] {
+                    let w = Vec3::from_array(pose.translation)
+                        + rotate(self.start.rotation, l * pose.scale);
+                    lo = lo.min(w);
+                    hi = hi.max(w);
+                }
+                far = far.max(l.length());
+            }
+            let bend = s_max * far * turn;
+            (ball_min.max(lo - bend), ball_max.min(hi + bend))
         };
         // Rounding of the transforms: a few ulps of the largest coordinate involved.
         let mag = bmin.abs().max(bmax.abs()).max_element();
@@ -2306,7 +2336,7 @@ fn step_in_rounds<T: PathTrace, E: HitEvents>(
 }
 
 #[cfg(test)]
-mod nearby_tests {
+mod tests {
     use super::*;
 
     /// A broad phase over `items` (instance, swept box) in depth-first order, split at the
@@ -2355,6 +2385,128 @@ mod nearby_tests {
             min,
             max: (min + e).min(hi),
         }
+    }
+
+    fn quat_mul(a: [f32; 4], b: [f32; 4]) -> [f32; 4] {
+        let [ax, ay, az, aw] = a;
+        let [bx, by, bz, bw] = b;
+        [
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+            aw * bw - ax * bx - ay * by - az * bz,
+        ]
+    }
+
+    /// A moving instance's swept box holds every point of its local box at every pose of
+    /// the step (`pose_at`), whatever it does: turns from none to half a turn, scales up or
+    /// down, translates, with local boxes off the origin. With no turn it is the box swept
+    /// by translation and scale alone, not the ball about the centre.
+    #[test]
+    fn a_moving_instances_swept_box_holds_it_at_every_pose() {
+        let mut s = 0x2545_f491_4f6c_dd1du64;
+        let mut r = move || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            (s >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let mut tight = 0;
+        for case in 0..4000 {
+            let unit = |r: &mut dyn FnMut() -> f32| {
+                let v = Vec3::new(r() - 0.5, r() - 0.5, r() - 0.5);
+                if v.length() < 1e-3 {
+                    Vec3::X
+                } else {
+                    v.normalize()
+                }
+            };
+            let axis = unit(&mut r);
+            let a = r() * core::f32::consts::TAU;
+            let q0 = glam::Quat::from_axis_angle(axis, a).to_array();
+            // No turn in a quarter of the cases; else up to half a turn, mostly small.
+            let turn = if case % 4 == 0 {
+                0.0
+            } else {
+                core::f32::consts::PI * r() * r() * r()
+            };
+            let q1 = if turn == 0.0 {
+                q0
+            } else {
+                let d = glam::Quat::from_axis_angle(unit(&mut r), turn).to_array();
+                glam::Quat::from_array(quat_mul(d, q0))
+                    .normalize()
+                    .to_array()
+            };
+            let t0 = Vec3::new(r(), r(), r()) * 100.0 - 50.0;
+            let t1 = t0 + (Vec3::new(r(), r(), r()) - 0.5) * 4.0 * r();
+            let s0 = 0.2 + 2.8 * r();
+            let s1 = if case % 3 == 0 { s0 } else { 0.2 + 2.8 * r() };
+            let lo = Vec3::new(r(), r(), r()) * 6.0 - 3.0;
+            let local = Aabb {
+                min: lo,
+                max: lo + Vec3::new(0.1, 0.1, 0.1) + Vec3::new(r(), r(), r()) * 4.0,
+            };
+            let pose = |t: Vec3, sc: f32, q: [f32; 4]| Pose {
+                translation: t.to_array(),
+                scale: sc,
+                rotation: q,
+            };
+            let inst = Instance::new(0, pose(t0, s0, q0), pose(t1, s1, q1));
+            if inst.is_static() {
+                continue;
+            }
+            let b = inst.swept_box_of(&local);
+            for k in 0..64 {
+                let u = match k {
+                    0 => 0.0,
+                    1 => 1.0,
+                    _ => r(),
+                };
+                let p = inst.pose_at(u);
+                for c in 0..12u32 {
+                    let f = if c < 8 {
+                        Vec3::new((c & 1) as f32, ((c >> 1) & 1) as f32, ((c >> 2) & 1) as f32)
+                    } else {
+                        Vec3::new(r(), r(), r())
+                    };
+                    let l = local.min + f * (local.max - local.min);
+                    let w = p.to_world(l);
+                    assert!(
+                        w.cmpge(b.min).all() && w.cmple(b.max).all(),
+                        "case {case}: {w} at u = {u} outside {b:?}"
+                    );
+                }
+            }
+            if turn == 0.0 {
+                // The box of the local box's corners at both ends, and rounding's pad.
+                let mut lo = Vec3::splat(f32::INFINITY);
+                let mut hi = Vec3::splat(f32::NEG_INFINITY);
+                for c in 0..8u32 {
+                    let f = Vec3::new((c & 1) as f32, ((c >> 1) & 1) as f32, ((c >> 2) & 1) as f32);
+                    let l = local.min + f * (local.max - local.min);
+                    for p in [inst.start, inst.end] {
+                        lo = lo.min(p.to_world(l));
+                        hi = hi.max(p.to_world(l));
+                    }
+                }
+                // A rotation equal at both ends can still read as a turn of a few 1e-4
+                // (`half_turn` of a quaternion with itself, rounded): that much bend.
+                let far = [local.min, local.max]
+                    .iter()
+                    .map(|v| v.abs())
+                    .fold(Vec3::ZERO, Vec3::max)
+                    .length();
+                let bend = s0.max(s1) * far * 2.0 * inst.half_turn;
+                let slack = (b.max - b.min) - (hi - lo);
+                assert!(
+                    slack.max_element() <= 2.0 * bend + 1e-3,
+                    "case {case}: {slack}"
+                );
+                tight += 1;
+            }
+        }
+        assert!(tight > 900, "{tight}");
     }
 
     /// What a step's later queries take from [`Nearby`] is the walk's answer, in the walk's

@@ -284,14 +284,14 @@ pub fn half_turn(a: [f32; 4], b: [f32; 4]) -> f32 {
 /// `sin α ≤ 2 sin(α/2) = |b - a|`: from the components' differences, where `2 half_turn`
 /// (an `acos` of a dot product that rounds near 1) reads a small turn as less than it is, or
 /// as none. Every rotation slerp passes through on the way is on the arc between them, and
-/// moves a point less.
+/// moves a point less. WGSL's `chord_per_length` mirrors it (`ride_is_clear`).
 fn chord_per_length(a: [f32; 4], b: [f32; 4]) -> f32 {
     let d = a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3];
     let sign = if d < 0.0 { -1.0 } else { 1.0 };
     let e: [f32; 4] = core::array::from_fn(|i| b[i] * sign - a[i]);
     let gap = math::sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2] + e[3] * e[3]);
     // A few ulps of the components' rounding on top.
-    (2.0 * gap * (1.0 + 1e-6) + 4.0 * f32::EPSILON).min(2.0)
+    min_of(2.0 * gap * (1.0 + 1e-6) + 4.0 * f32::EPSILON, 2.0)
 }
 
 /// Flag of [`Instance::flags`]: the instance exists (a removed one keeps its index, without
@@ -1970,7 +1970,7 @@ fn ride_is_clear(scene: &SceneView<'_>, near: &Nearby, c: u32, x: Vec3, u: f32) 
     let l = inst.pose_at(u).to_local(x);
     let end = inst.end.to_world(l);
     let r = l.length();
-    let turn = min_of(2.0 * inst.half_turn, 2.0);
+    let turn = chord_per_length(inst.start.rotation, inst.end.rotation);
     let stray = r * max_of(inst.start.scale, inst.end.scale) * turn
         + r * math::abs(inst.end.scale - inst.start.scale);
     let pad = 4.0 * ulp(x.abs().max(end.abs()).max_element()) + PATH_PAD + stray;

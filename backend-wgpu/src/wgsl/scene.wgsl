@@ -492,13 +492,26 @@ fn step_near_one_static(c: u32, p: ptr<function, Particle>, sides: ptr<function,
     return outcome;
 }
 
+// core's `chord_per_length`: the most a turn from `a` to `b` (slerp's, the shorter way) moves
+// a point per unit of its distance from the origin, from the quaternions' difference.
+fn chord_per_length(a: vec4<f32>, b: vec4<f32>) -> f32 {
+    let d = a.x * b.x + a.y * b.y + a.z * b.z + a.w * b.w;
+    var sign = 1.0;
+    if d < 0.0 {
+        sign = -1.0;
+    }
+    let e = b * sign - a;
+    let gap = sqrt(e.x * e.x + e.y * e.y + e.z * e.z + e.w * e.w);
+    return min_of(2.0 * gap * (1.0 + 1e-6) + 4.0 * 1.1920929e-7, 2.0);
+}
+
 // core's `ride_is_clear`: riding with instance `c` for the rest of the step meets no other.
 fn ride_is_clear(c: u32, x: vec3<f32>, u: f32) -> bool {
     let inst = load_instance(c);
     let l = pose_to_local(instance_pose_at(inst, u), x);
     let end = pose_to_world(inst.end, l);
     let r = length3(l);
-    let turn = min_of(2.0 * inst.half_turn, 2.0);
+    let turn = chord_per_length(inst.start.rotation, inst.end.rotation);
     let stray = r * max_of(inst.start.scale, inst.end.scale) * turn + r * abs(inst.end.scale - inst.start.scale);
     let pad = 4.0 * ulp(max_element(vmax(abs(x), abs(end)))) + PATH_PAD + stray;
     let found = count_candidates(Aabb(vmin(x, end) - pad, vmax(x, end) + pad));

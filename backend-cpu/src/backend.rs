@@ -96,6 +96,10 @@ pub struct CpuBackend {
     /// A scene's proxies ([`Backend::upload_scene_proxies`]) and their key.
     scene_proxies: Vec<OwnedProxy>,
     scene_key: Option<u64>,
+    /// The grid over a scene step's broad phase (core's `SceneView::with_grid`): its cell
+    /// starts and entries, rebuilt every step, kept for their allocations.
+    grid_starts: Vec<u32>,
+    grid_entries: Vec<u32>,
     /// Each particle's sides for the instances of a scene, in core's two parts: the hint and
     /// first slot every step reads, and the other slots.
     scene_hints: Vec<SceneHint>,
@@ -809,6 +813,8 @@ impl Backend for CpuBackend {
     ) -> Result<(), CpuError> {
         params.validate()?;
         let proxies = std::mem::take(&mut self.scene_proxies);
+        let mut starts = std::mem::take(&mut self.grid_starts);
+        let mut entries = std::mem::take(&mut self.grid_entries);
         let views: Vec<ProxyView<'_>> = proxies.iter().map(|p| p.view()).collect();
         let result = SceneView::new(&views, instances, broad)
             .and_then(|view| view.check_radius(params.radius).map(|()| view))
@@ -816,10 +822,19 @@ impl Backend for CpuBackend {
                 if hits {
                     self.hits.resize(self.particles.len(), Hit::NONE);
                 }
+                let view = match view.grid_sizes() {
+                    Some((s, e)) => {
+                        starts.resize(s, 0);
+                        entries.resize(e, 0);
+                        view.with_grid(&mut starts, &mut entries)
+                    }
+                    None => view,
+                };
                 self.step_scene_with(&view, params, hits)
             });
         drop(views);
         self.scene_proxies = proxies;
+        (self.grid_starts, self.grid_entries) = (starts, entries);
         let (crushed, sides_lost) = result?;
         self.report.crushed += crushed;
         self.report.sides_lost += sides_lost;

@@ -651,6 +651,8 @@ pub struct SceneView<'a> {
     /// The one active instance, when the scene is one static instance at the identity pose:
     /// the plain step.
     plain: Option<u32>,
+    /// The grid over the broad phase ([`SceneView::with_grid`]), if one was built.
+    grid: Option<BroadGrid<'a>>,
 }
 
 impl core::fmt::Debug for SceneView<'_> {
@@ -762,6 +764,7 @@ impl<'a> SceneView<'a> {
                 instances,
                 nodes,
                 plain: None,
+                grid: None,
             });
         }
         // Depth first, with an explicit stack of (node, end of its range, depth).
@@ -842,7 +845,59 @@ impl<'a> SceneView<'a> {
             instances,
             nodes,
             plain,
+            grid: None,
         })
+    }
+
+    /// The words a grid over this scene's broad phase takes ([`Self::with_grid`]): its cell
+    /// starts and its entries; `None` when no grid is built for it (fewer than two active
+    /// instances, or cells too small for the coordinates' rounding).
+    pub fn grid_sizes(&self) -> Option<(usize, usize)> {
+        let shape = GridShape::of(self.nodes)?;
+        let mut entries = 0usize;
+        shape.for_each_entry(self.nodes, |_, _| entries += 1);
+        Some((shape.cells() + 1, entries))
+    }
+
+    /// This view with a uniform grid over its broad phase, built into `starts` and `entries`
+    /// (sized by [`Self::grid_sizes`]; otherwise, or with no grid for the scene, the view is
+    /// returned as it is). Each cell lists the broad phase's leaves whose boxes meet it grown
+    /// by a quarter cell, in the walk's order; a step's first query whose box lies inside one
+    /// grown cell filters that list instead of walking the tree: the walk's answer in its
+    /// order (see [`Nearby`]), where most particles of a scene of many instances find an
+    /// empty list at once. Built from the validated broad phase, so it holds every leaf it
+    /// must. Host-only: WGSL walks (the same answers). Allocates nothing.
+    pub fn with_grid(mut self, starts: &'a mut [u32], entries: &'a mut [u32]) -> Self {
+        let Some((n_starts, n_entries)) = self.grid_sizes() else {
+            return self;
+        };
+        let Some(shape) = GridShape::of(self.nodes) else {
+            return self;
+        };
+        if starts.len() != n_starts || entries.len() != n_entries {
+            return self;
+        }
+        // A counting sort by cell: counts, then each cell's start as a cursor, then shifted
+        // back to starts. Leaves come in node order, the walk's, within each cell.
+        starts.fill(0);
+        shape.for_each_entry(self.nodes, |k, _| starts[k + 1] += 1);
+        for k in 1..starts.len() {
+            starts[k] += starts[k - 1];
+        }
+        shape.for_each_entry(self.nodes, |k, leaf| {
+            entries[starts[k] as usize] = leaf;
+            starts[k] += 1;
+        });
+        for k in (1..starts.len()).rev() {
+            starts[k] = starts[k - 1];
+        }
+        starts[0] = 0;
+        self.grid = Some(BroadGrid {
+            shape,
+            starts,
+            entries,
+        });
+        self
     }
 
     /// The one instance and its proxy when the scene is one static instance at the identity
@@ -893,7 +948,7 @@ impl<'a> SceneView<'a> {
     }
 
     /// [`Self::count_candidates`] of `b`, keeping what the walk found as [`Nearby`] for the
-    /// step's later queries.
+    /// step's later queries; from the grid's cell when `b` lies inside one (the same answer).
     #[inline(always)]
     fn count_nearby(&self, b: &Aabb) -> (u32, u32, Nearby) {
         let mut near = Nearby {
@@ -902,8 +957,7 @@ impl<'a> SceneView<'a> {
             len: 0,
         };
         let (mut count, mut first) = (0u32, 0u32);
-        let mut walk = BroadWalk::new(self.nodes);
-        while let Some(i) = walk.next_leaf(self.nodes, b) {
+        let mut keep = |i: u32| {
             if count == 0 {
                 first = self.nodes[i as usize].index;
             }
@@ -911,6 +965,18 @@ impl<'a> SceneView<'a> {
                 near.leaves[count as usize] = i;
             }
             count += 1;
+        };
+        if let Some(list) = self.grid.as_ref().and_then(|g| g.cell_holding(b)) {
+            for &i in list {
+                if meets(&self.nodes[i as usize], b) {
+                    keep(i);
+                }
+            }
+        } else {
+            let mut walk = BroadWalk::new(self.nodes);
+            while let Some(i) = walk.next_leaf(self.nodes, b) {
+                keep(i);
+            }
         }
         near.len = count;
         (count, first, near)
@@ -950,6 +1016,141 @@ impl<'a> SceneView<'a> {
             }
         }
         (count, first)
+    }
+}
+
+/// The most cells a [`BroadGrid`] has.
+pub const GRID_MAX_CELLS: usize = 1 << 18;
+
+/// Where a grid's cells are: `dims` cubes of edge `cell` from `origin`, each grown by a
+/// quarter of its edge on every side.
+#[derive(Clone, Copy, Debug)]
+struct GridShape {
+    origin: Vec3,
+    cell: f32,
+    dims: [u32; 3],
+}
+
+impl GridShape {
+    /// The grid for a validated broad phase: about 8 cells a leaf over the root's box, or
+    /// `None` for fewer than two leaves or cells under 1024 ulps of the coordinates (where
+    /// the rounding of a cell's planes would matter when enumerating the cells a box meets).
+    fn of(nodes: &[BroadNode]) -> Option<GridShape> {
+        let root = nodes.first()?;
+        let leaves = nodes.iter().filter(|n| n.kind == BROAD_LEAF).count();
+        if leaves < 2 {
+            return None;
+        }
+        let (lo, hi) = (Vec3::from_array(root.min), Vec3::from_array(root.max));
+        let ext = hi - lo;
+        let target = (8 * leaves).min(GRID_MAX_CELLS / 2) as f32;
+        let volume = ext.x * ext.y * ext.z;
+        let cell = libm::cbrtf(volume / target).max(ext.max_element() / 64.0);
+        let mag = lo.abs().max(hi.abs()).max_element();
+        if !(cell.is_finite() && cell > 0.0 && cell >= 1024.0 * ulp(mag)) {
+            return None;
+        }
+        let mut dims = [1u32; 3];
+        for (a, d) in dims.iter_mut().enumerate() {
+            *d = (math::floor(ext[a] / cell) as u32).saturating_add(1);
+        }
+        let cells = dims.iter().map(|&d| d as usize).product::<usize>();
+        (cells <= GRID_MAX_CELLS).then_some(GridShape {
+            origin: lo,
+            cell,
+            dims,
+        })
+    }
+
+    fn cells(&self) -> usize {
+        self.dims.iter().map(|&d| d as usize).product()
+    }
+
+    /// Cell `k`'s box, grown by a quarter cell.
+    #[inline(always)]
+    fn grown(&self, k: [u32; 3]) -> Aabb {
+        let m = self.cell * 0.25;
+        let kf = Vec3::new(k[0] as f32, k[1] as f32, k[2] as f32);
+        Aabb {
+            min: self.origin + kf * self.cell - m,
+            max: self.origin + (kf + 1.0) * self.cell + m,
+        }
+    }
+
+    #[inline(always)]
+    fn index(&self, k: [u32; 3]) -> usize {
+        (k[2] as usize * self.dims[1] as usize + k[1] as usize) * self.dims[0] as usize
+            + k[0] as usize
+    }
+
+    /// The cell whose lower corner `x` is nearest below, if it is in the grid (truncation is
+    /// the floor of a coordinate not below the origin; `libm`'s `floorf` is a call).
+    #[inline(always)]
+    fn cell_of(&self, x: Vec3) -> Option<[u32; 3]> {
+        let q = (x - self.origin) / self.cell;
+        let dims = Vec3::new(
+            self.dims[0] as f32,
+            self.dims[1] as f32,
+            self.dims[2] as f32,
+        );
+        if !(q.cmpge(Vec3::ZERO) & q.cmplt(dims)).all() {
+            return None;
+        }
+        Some([q.x as u32, q.y as u32, q.z as u32])
+    }
+
+    /// Calls `f(cell index, leaf node)` for every cell whose grown box a leaf's box meets,
+    /// leaves in node order. The cells are looked for one beyond the range its box's corners
+    /// fall in on each axis, which holds every cell whose grown box it meets: the rounding of
+    /// those corners' cells is far below the three quarters of a cell that separate the next
+    /// one's grown box from them (cells of 1024 ulps at least).
+    fn for_each_entry(&self, nodes: &[BroadNode], mut f: impl FnMut(usize, u32)) {
+        for (i, node) in nodes.iter().enumerate() {
+            if node.kind != BROAD_LEAF {
+                continue;
+            }
+            let mut lo = [0u32; 3];
+            let mut hi = [0u32; 3];
+            for a in 0..3 {
+                let last = self.dims[a] as f32 - 1.0;
+                let at = |x: f32| math::floor((x - self.origin[a]) / self.cell);
+                lo[a] = (at(node.min[a]) - 1.0).clamp(0.0, last) as u32;
+                hi[a] = (at(node.max[a]) + 1.0).clamp(0.0, last) as u32;
+            }
+            for z in lo[2]..=hi[2] {
+                for y in lo[1]..=hi[1] {
+                    for x in lo[0]..=hi[0] {
+                        if meets(node, &self.grown([x, y, z])) {
+                            f(self.index([x, y, z]), i as u32);
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// A uniform grid over a scene's broad phase ([`SceneView::with_grid`]): each cell's list of
+/// the leaves whose boxes meet it grown by a quarter cell, in node order.
+#[derive(Clone, Copy, Debug)]
+struct BroadGrid<'a> {
+    shape: GridShape,
+    starts: &'a [u32],
+    entries: &'a [u32],
+}
+
+impl<'a> BroadGrid<'a> {
+    /// The list of the grown cell that holds `b`, if one does: every leaf whose box meets
+    /// `b` meets that cell, so it is in the list.
+    #[inline(always)]
+    fn cell_holding(&self, b: &Aabb) -> Option<&'a [u32]> {
+        let k = self.shape.cell_of(b.min)?;
+        if !contains(&self.shape.grown(k), b) {
+            return None;
+        }
+        let i = self.shape.index(k);
+        let (s, e) = (*self.starts.get(i)?, *self.starts.get(i + 1)?);
+        self.entries.get(s as usize..e as usize)
     }
 }
 
@@ -2507,6 +2708,70 @@ mod tests {
             }
         }
         assert!(tight > 900, "{tight}");
+    }
+
+    /// A grid over the broad phase gives the step's first query the walk's answer in the
+    /// walk's order, for boxes of every size (inside one cell, across cells, outside the
+    /// grid), and a grid not sized as `grid_sizes` says is not used.
+    #[test]
+    fn the_grid_answers_as_the_walk_does() {
+        let w = crate::tests::tiny();
+        let views = [ProxyView::new(&w).unwrap()];
+        let mut s = 0x5851_f42d_4c95_7f2du64;
+        let mut instances = std::vec::Vec::new();
+        for k in 0..80 {
+            let at = random_box(&mut s, Vec3::ZERO, Vec3::splat(8.0), 0.0).min;
+            let start = Pose {
+                translation: at.to_array(),
+                ..Pose::IDENTITY
+            };
+            // Every other one moving: their boxes are larger.
+            let end = Pose {
+                translation: (at + Vec3::new(0.3, -0.2, 0.1) * (k % 2) as f32).to_array(),
+                ..start
+            };
+            instances.push(Instance::new(0, start, end));
+        }
+        let mut items: std::vec::Vec<(u32, Aabb)> = instances
+            .iter()
+            .enumerate()
+            .map(|(k, inst)| (k as u32, inst.swept_box(&views[0])))
+            .collect();
+        let mut nodes = std::vec::Vec::new();
+        build(&mut items, 0, &mut nodes);
+        for (k, node) in nodes.iter().enumerate() {
+            if node.kind == BROAD_LEAF {
+                instances[node.index as usize].leaf = k as u32;
+            }
+        }
+        let plain = SceneView::new(&views, &instances, &nodes).unwrap();
+        let (n_starts, n_entries) = plain.grid_sizes().unwrap();
+        let (mut starts, mut entries) = (vec![0u32; n_starts], vec![0u32; n_entries]);
+        let grid = plain.with_grid(&mut starts, &mut entries);
+        let mut wrong = vec![0u32; n_starts + 1];
+        let mut entries2 = vec![0u32; n_entries];
+        assert!(plain.with_grid(&mut wrong, &mut entries2).grid.is_none());
+        let g = grid.grid.unwrap();
+        let (mut from_cells, mut found, mut walked) = (0, 0, 0);
+        for k in 0..20000 {
+            let most = [0.05, 0.3, 1.5, 6.0][k % 4];
+            let b = random_box(&mut s, Vec3::splat(-1.0), Vec3::splat(10.0), most);
+            let (count, first, near) = grid.count_nearby(&b);
+            let (count0, first0, near0) = plain.count_nearby(&b);
+            assert_eq!((count, first), (count0, first0), "{b:?}");
+            let kept = count.min(NEARBY as u32) as usize;
+            assert_eq!(near.leaves[..kept], near0.leaves[..kept], "{b:?}");
+            if g.cell_holding(&b).is_some() {
+                from_cells += 1;
+                found += (count > 0) as u32;
+            } else {
+                walked += 1;
+            }
+        }
+        // Answers from a cell (some finding instances) and walks both came up.
+        assert!(from_cells > 4000, "{from_cells}");
+        assert!(found > 500, "{found}");
+        assert!(walked > 4000, "{walked}");
     }
 
     /// What a step's later queries take from [`Nearby`] is the walk's answer, in the walk's

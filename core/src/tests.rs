@@ -1071,3 +1071,40 @@ fn a_profiled_step_is_the_step_and_names_its_kind() {
         );
     }
 }
+
+/// `math::floor` is `libm::floorf`, bit for bit: every float whose bits are a multiple of a
+/// stride (a million of them, both signs, every exponent), and the edges.
+#[test]
+fn inline_floor_is_floorf() {
+    let edges = [
+        0.0f32,
+        -0.0,
+        0.5,
+        -0.5,
+        1.0,
+        -1.0,
+        0.999_999_94,
+        -0.999_999_94,
+        8_388_607.5,
+        -8_388_607.5,
+        8_388_608.0,
+        -8_388_609.0,
+        2_147_483_600.0,
+        -2_147_483_600.0,
+        f32::MIN_POSITIVE,
+        -f32::MIN_POSITIVE,
+        f32::MAX,
+        f32::MIN,
+        f32::INFINITY,
+        f32::NEG_INFINITY,
+        f32::NAN,
+    ];
+    let strided = (0..u32::MAX / 4093).map(|k| f32::from_bits(k * 4093));
+    for x in edges.into_iter().chain(strided) {
+        let (a, b) = (crate::math::floor(x), libm::floorf(x));
+        assert!(
+            a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan()),
+            "{x:e}: {a:e} {b:e}"
+        );
+    }
+}

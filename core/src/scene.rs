@@ -382,15 +382,15 @@ impl Instance {
 
     /// The world box that holds its proxy's root cube at every pose of the step, padded for
     /// rounding. For a static instance, the box of the cube's eight corners. For a moving one,
-    /// where two bounds overlap, each holding the cube at every pose of the step:
+    /// where two bounds overlap, each holding the cube at every pose of the step, with `k` the
+    /// most the turn moves a point per unit of its distance from the local origin
+    /// (`min(2 |b − a|, 2)` for the rotations `a` and `b`, `b` on `a`'s side):
     /// - the cube's centre path with the rotation held at the start (a segment), grown by the
-    ///   cube's radius and by how far turning can move the centre (`|c|` times
-    ///   [`chord_per_length`]), both at the larger scale: a ball about the centre, whatever
-    ///   the turn;
+    ///   cube's radius and by how far turning can move the centre (`|c| k`), both at the
+    ///   larger scale: a ball about the centre, whatever the turn;
     /// - the box of the cube's corners with the rotation held at the start, at the start's and
-    ///   the end's translation and scale, grown by how far turning can move a corner (`|l|`
-    ///   times [`chord_per_length`] at the larger scale, `l` the corner farthest from the
-    ///   local origin). Translation and scale change linearly, so with the rotation held each
+    ///   the end's translation and scale, grown by how far turning can move a corner (`|l| k`
+    ///   at the larger scale, `l` the corner farthest from the local origin). Translation and scale change linearly, so with the rotation held each
     ///   point of the cube moves along a segment between its two ends, inside that box; the
     ///   turn moves each point by at most that. For a slow turn this is the cube's own box
     ///   swept, where the ball is `√3` times as wide.
@@ -864,7 +864,7 @@ impl<'a> SceneView<'a> {
     /// returned as it is). Each cell lists the broad phase's leaves whose boxes meet it grown
     /// by a quarter cell, in the walk's order; a step's first query whose box lies inside one
     /// grown cell filters that list instead of walking the tree: the walk's answer in its
-    /// order (see [`Nearby`]), where most particles of a scene of many instances find an
+    /// order (a leaf's box meets a box inside a larger one only if it meets the larger), where most particles of a scene of many instances find an
     /// empty list at once. Built from the validated broad phase, so it holds every leaf it
     /// must. Host-only: WGSL walks (the same answers). Allocates nothing.
     pub fn with_grid(mut self, starts: &'a mut [u32], entries: &'a mut [u32]) -> Self {
@@ -1019,7 +1019,7 @@ impl<'a> SceneView<'a> {
     }
 }
 
-/// The most cells a [`BroadGrid`] has.
+/// The most cells the grid over a broad phase has ([`SceneView::with_grid`]).
 pub const GRID_MAX_CELLS: usize = 1 << 18;
 
 /// Where a grid's cells are: `dims` cubes of edge `cell` from `origin`, each grown by a

@@ -2572,13 +2572,30 @@ mod tests {
         build(second, (axis + 1) % 3, nodes);
     }
 
+    /// A uniform value in `[0, 1)` from the tests' xorshift generator.
+    fn unit(s: &mut u64) -> f32 {
+        (crate::tests::xorshift(s) >> 40) as f32 / (1u64 << 24) as f32
+    }
+
+    /// A broad phase over `instances` (all of `view`'s proxy), each told its leaf.
+    fn broad_phase(instances: &mut [Instance], view: &ProxyView<'_>) -> std::vec::Vec<BroadNode> {
+        let mut items: std::vec::Vec<(u32, Aabb)> = instances
+            .iter()
+            .enumerate()
+            .map(|(k, inst)| (k as u32, inst.swept_box(view)))
+            .collect();
+        let mut nodes = std::vec::Vec::new();
+        build(&mut items, 0, &mut nodes);
+        for (k, node) in nodes.iter().enumerate() {
+            if node.kind == BROAD_LEAF {
+                instances[node.index as usize].leaf = k as u32;
+            }
+        }
+        nodes
+    }
+
     fn random_box(s: &mut u64, lo: Vec3, hi: Vec3, most: f32) -> Aabb {
-        let mut r = || {
-            *s ^= *s << 13;
-            *s ^= *s >> 7;
-            *s ^= *s << 17;
-            (*s >> 40) as f32 / (1u64 << 24) as f32
-        };
+        let mut r = || unit(s);
         let a = Vec3::new(r(), r(), r());
         let e = Vec3::new(r(), r(), r()) * most;
         let min = lo + a * (hi - lo);
@@ -2606,12 +2623,7 @@ mod tests {
     #[test]
     fn a_moving_instances_swept_box_holds_it_at_every_pose() {
         let mut s = 0x2545_f491_4f6c_dd1du64;
-        let mut r = move || {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            (s >> 40) as f32 / (1u64 << 24) as f32
-        };
+        let mut r = move || unit(&mut s);
         let mut tight = 0;
         for case in 0..4000 {
             let unit = |r: &mut dyn FnMut() -> f32| {
@@ -2732,18 +2744,7 @@ mod tests {
             };
             instances.push(Instance::new(0, start, end));
         }
-        let mut items: std::vec::Vec<(u32, Aabb)> = instances
-            .iter()
-            .enumerate()
-            .map(|(k, inst)| (k as u32, inst.swept_box(&views[0])))
-            .collect();
-        let mut nodes = std::vec::Vec::new();
-        build(&mut items, 0, &mut nodes);
-        for (k, node) in nodes.iter().enumerate() {
-            if node.kind == BROAD_LEAF {
-                instances[node.index as usize].leaf = k as u32;
-            }
-        }
+        let nodes = broad_phase(&mut instances, &views[0]);
         let plain = SceneView::new(&views, &instances, &nodes).unwrap();
         let (n_starts, n_entries) = plain.grid_sizes().unwrap();
         let (mut starts, mut entries) = (vec![0u32; n_starts], vec![0u32; n_entries]);
@@ -2791,18 +2792,7 @@ mod tests {
             };
             instances.push(Instance::new(0, pose, pose));
         }
-        let mut items: std::vec::Vec<(u32, Aabb)> = instances
-            .iter()
-            .enumerate()
-            .map(|(k, inst)| (k as u32, inst.swept_box(&views[0])))
-            .collect();
-        let mut nodes = std::vec::Vec::new();
-        build(&mut items, 0, &mut nodes);
-        for (k, node) in nodes.iter().enumerate() {
-            if node.kind == BROAD_LEAF {
-                instances[node.index as usize].leaf = k as u32;
-            }
-        }
+        let nodes = broad_phase(&mut instances, &views[0]);
         let scene = SceneView::new(&views, &instances, &nodes).unwrap();
         let (mut filtered, mut overflowed, mut outside) = (0, 0, 0);
         for _ in 0..3000 {

@@ -7,7 +7,7 @@ use crate::format::*;
 use crate::*;
 
 /// The next value of a xorshift generator: the tests' reproducible randomness.
-fn xorshift(s: &mut u64) -> u64 {
+pub(crate) fn xorshift(s: &mut u64) -> u64 {
     *s ^= *s << 13;
     *s ^= *s >> 7;
     *s ^= *s << 17;

@@ -390,10 +390,11 @@ impl Instance {
     ///   larger scale: a ball about the centre, whatever the turn;
     /// - the box of the cube's corners with the rotation held at the start, at the start's and
     ///   the end's translation and scale, grown by how far turning can move a corner (`|l| k`
-    ///   at the larger scale, `l` the corner farthest from the local origin). Translation and scale change linearly, so with the rotation held each
-    ///   point of the cube moves along a segment between its two ends, inside that box; the
-    ///   turn moves each point by at most that. For a slow turn this is the cube's own box
-    ///   swept, where the ball is `√3` times as wide.
+    ///   at the larger scale, `l` the corner farthest from the local origin). Translation and
+    ///   scale change linearly, so with the rotation held each point of the cube moves along
+    ///   a segment between its two ends, inside that box; the turn moves each point by at most
+    ///   that. For a slow turn this is the cube's own box swept, where the ball is `√3` times
+    ///   as wide.
     pub fn swept_box(&self, view: &ProxyView<'_>) -> Aabb {
         self.swept_box_of(&view.root_aabb())
     }
@@ -864,17 +865,15 @@ impl<'a> SceneView<'a> {
     /// returned as it is). Each cell lists the broad phase's leaves whose boxes meet it grown
     /// by a quarter cell, in the walk's order; a step's first query whose box lies inside one
     /// grown cell filters that list instead of walking the tree: the walk's answer in its
-    /// order (a leaf's box meets a box inside a larger one only if it meets the larger), where most particles of a scene of many instances find an
-    /// empty list at once. Built from the validated broad phase, so it holds every leaf it
-    /// must. Host-only: WGSL walks (the same answers). Allocates nothing.
+    /// order (a leaf's box meets a box inside a larger one only if it meets the larger), where
+    /// most particles of a scene of many instances find an empty list at once. Built from the
+    /// validated broad phase, so it holds every leaf it must. Host-only: WGSL walks (the same
+    /// answers). Allocates nothing.
     pub fn with_grid(mut self, starts: &'a mut [u32], entries: &'a mut [u32]) -> Self {
-        let Some((n_starts, n_entries)) = self.grid_sizes() else {
-            return self;
-        };
         let Some(shape) = GridShape::of(self.nodes) else {
             return self;
         };
-        if starts.len() != n_starts || entries.len() != n_entries {
+        if starts.len() != shape.cells() + 1 {
             return self;
         }
         // A counting sort by cell: counts, then each cell's start as a cursor, then shifted
@@ -883,6 +882,9 @@ impl<'a> SceneView<'a> {
         shape.for_each_entry(self.nodes, |k, _| starts[k + 1] += 1);
         for k in 1..starts.len() {
             starts[k] += starts[k - 1];
+        }
+        if starts[starts.len() - 1] as usize != entries.len() {
+            return self;
         }
         shape.for_each_entry(self.nodes, |k, leaf| {
             entries[starts[k] as usize] = leaf;
@@ -2605,17 +2607,6 @@ mod tests {
         }
     }
 
-    fn quat_mul(a: [f32; 4], b: [f32; 4]) -> [f32; 4] {
-        let [ax, ay, az, aw] = a;
-        let [bx, by, bz, bw] = b;
-        [
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-            aw * bw - ax * bx - ay * by - az * bz,
-        ]
-    }
-
     /// A moving instance's swept box holds every point of its local box at every pose of
     /// the step (`pose_at`), whatever it does: turns from none to half a turn, scales up or
     /// down, translates, with local boxes off the origin. With no turn it is the box swept
@@ -2626,7 +2617,7 @@ mod tests {
         let mut r = move || unit(&mut s);
         let mut tight = 0;
         for case in 0..4000 {
-            let unit = |r: &mut dyn FnMut() -> f32| {
+            let direction = |r: &mut dyn FnMut() -> f32| {
                 let v = Vec3::new(r() - 0.5, r() - 0.5, r() - 0.5);
                 if v.length() < 1e-3 {
                     Vec3::X
@@ -2634,7 +2625,7 @@ mod tests {
                     v.normalize()
                 }
             };
-            let axis = unit(&mut r);
+            let axis = direction(&mut r);
             let a = r() * core::f32::consts::TAU;
             let q0 = glam::Quat::from_axis_angle(axis, a).to_array();
             // No turn in a quarter of the cases; else up to half a turn, mostly small.
@@ -2646,10 +2637,8 @@ mod tests {
             let q1 = if turn == 0.0 {
                 q0
             } else {
-                let d = glam::Quat::from_axis_angle(unit(&mut r), turn).to_array();
-                glam::Quat::from_array(quat_mul(d, q0))
-                    .normalize()
-                    .to_array()
+                let d = glam::Quat::from_axis_angle(direction(&mut r), turn);
+                (d * glam::Quat::from_array(q0)).normalize().to_array()
             };
             let t0 = Vec3::new(r(), r(), r()) * 100.0 - 50.0;
             let t1 = t0 + (Vec3::new(r(), r(), r()) - 0.5) * 4.0 * r();
@@ -2703,14 +2692,13 @@ mod tests {
                         hi = hi.max(p.to_world(l));
                     }
                 }
-                // A rotation equal at both ends can still read as a turn of a few 1e-4
-                // (`half_turn` of a quaternion with itself, rounded): that much bend.
+                // The bound's bend: for a rotation equal at both ends, a few ulps.
                 let far = [local.min, local.max]
                     .iter()
                     .map(|v| v.abs())
                     .fold(Vec3::ZERO, Vec3::max)
                     .length();
-                let bend = s0.max(s1) * far * 2.0 * inst.half_turn;
+                let bend = s0.max(s1) * far * chord_per_length(q0, q1);
                 let slack = (b.max - b.min) - (hi - lo);
                 assert!(
                     slack.max_element() <= 2.0 * bend + 1e-3,

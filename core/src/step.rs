@@ -1232,7 +1232,8 @@ struct NextLeaf {
 }
 
 /// The march set up for a particle with a finite position and velocity: gravity integrated,
-/// the side normalised, the hinted leaf found (if the hint holds the particle).
+/// the side normalised, and `hinted` (its hint's leaf, if the hint holds the particle) as the
+/// first leaf.
 #[inline(always)]
 fn start_march(p: &Particle, params: &StepParams, hinted: Option<LeafInfo>) -> MarchState {
     let x0 = Vec3::from_array(p.position);

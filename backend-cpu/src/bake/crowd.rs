@@ -39,6 +39,9 @@ type LeafKey = (u32, [u32; 3]);
 /// very same (their keys, in the order met).
 pub(crate) struct Crowding {
     joins: Vec<[u32; 3]>,
+    /// Each triangle's box in `f32`, rounded outward: a cheap first test of whether it can
+    /// meet a grown box, before the exact one reads the triangle.
+    boxes: Vec<[f32; 6]>,
     crosses: HashMap<LeafKey, bool>,
     sheets: HashMap<LeafKey, (Vec<LeafKey>, bool)>,
 }
@@ -47,6 +50,7 @@ impl Crowding {
     pub(crate) fn new(tris: &[Tri]) -> Self {
         Crowding {
             joins: manifold_edges(tris),
+            boxes: tris.par_iter().map(|t| outward_box(&t.v)).collect(),
             crosses: HashMap::new(),
             sheets: HashMap::new(),
         }
@@ -98,51 +102,62 @@ impl Crowding {
         }
         let grow = UVec3::splat(1 << (MAX_DEPTH - dmax));
         let end = UVec3::splat(1 << MAX_DEPTH);
-        let (joins, known) = (&self.joins, &self.sheets);
+        let (joins, known, boxes) = (&self.joins, &self.sheets, &self.boxes);
         // `Some(sheets > 1)` where it was asked, `None` where a crossing leaf nearby decides.
         let flags: Vec<(u32, Option<bool>, Vec<LeafKey>)> = tree
             .surface
             .par_iter()
-            .map_init(Vec::new, |set, &leaf| {
-                let (lo, hi) = tree.nodes[leaf as usize].range();
-                let (qlo, qhi) = (lo.saturating_sub(grow), (hi + grow).min(end));
-                let mut near_crossing = false;
-                let mut around = Vec::new();
-                tree.for_each_touching_surface(qlo, qhi, |n| {
-                    near_crossing |= crossing[n as usize];
-                    if heavy(leaf) {
-                        around.push(key(n));
+            .map_init(
+                || (Vec::new(), Marks::new()),
+                |(set, marks), &leaf| {
+                    let (lo, hi) = tree.nodes[leaf as usize].range();
+                    let (qlo, qhi) = (lo.saturating_sub(grow), (hi + grow).min(end));
+                    let mut near_crossing = false;
+                    let mut around = Vec::new();
+                    tree.for_each_touching_surface(qlo, qhi, |n| {
+                        near_crossing |= crossing[n as usize];
+                        if heavy(leaf) {
+                            around.push(key(n));
+                        }
+                    });
+                    if near_crossing {
+                        return (leaf, None, around);
                     }
-                });
-                if near_crossing {
-                    return (leaf, None, around);
-                }
-                let was = heavy(leaf).then(|| known.get(&key(leaf))).flatten();
-                if let Some((_, many)) = was.filter(|(keys, _)| *keys == around) {
-                    return (leaf, Some(*many), around);
-                }
-                let (wlo, whi) = (grid.point(qlo), grid.point(qhi));
-                set.clear();
-                tree.for_each_touching_surface(qlo, qhi, |n| {
-                    let node = &tree.nodes[n as usize];
-                    let Kind::Surface(s) = &node.kind else {
-                        return;
-                    };
-                    // A leaf inside the grown box brings all its triangles (each meets it); one
-                    // across its boundary, those that meet the box; one beside it, none.
-                    let (nlo, nhi) = node.range();
-                    if nlo.cmpge(qlo).all() && nhi.cmple(qhi).all() {
-                        set.extend_from_slice(&s.tris);
-                    } else if nlo.cmplt(qhi).all() && nhi.cmpgt(qlo).all() {
-                        set.extend(s.tris.iter().copied().filter(|&t| {
-                            geom::triangle_overlaps_box(&tris[t as usize].v, wlo, whi)
-                        }));
+                    let was = heavy(leaf).then(|| known.get(&key(leaf))).flatten();
+                    if let Some((_, many)) = was.filter(|(keys, _)| *keys == around) {
+                        return (leaf, Some(*many), around);
                     }
-                });
-                set.sort_unstable();
-                set.dedup();
-                (leaf, Some(sheets(set, joins) > 1), around)
-            })
+                    let (wlo, whi) = (grid.point(qlo), grid.point(qhi));
+                    let far = BoxFilter::new(wlo, whi);
+                    set.clear();
+                    marks.clear();
+                    tree.for_each_touching_surface(qlo, qhi, |n| {
+                        let node = &tree.nodes[n as usize];
+                        let Kind::Surface(s) = &node.kind else {
+                            return;
+                        };
+                        // A leaf inside the grown box brings all its triangles (each meets
+                        // it); one across its boundary, those that meet the box; one beside
+                        // it, none. Each triangle once (a triangle is in every leaf it meets).
+                        let (nlo, nhi) = node.range();
+                        if nlo.cmpge(qlo).all() && nhi.cmple(qhi).all() {
+                            for &t in &s.tris {
+                                marks.add(t, set);
+                            }
+                        } else if nlo.cmplt(qhi).all() && nhi.cmpgt(qlo).all() {
+                            for &t in &s.tris {
+                                if !far.misses(&boxes[t as usize])
+                                    && !marks.has(t)
+                                    && geom::triangle_overlaps_box(&tris[t as usize].v, wlo, whi)
+                                {
+                                    marks.add(t, set);
+                                }
+                            }
+                        }
+                    });
+                    (leaf, Some(sheets(set, joins, marks) > 1), around)
+                },
+            )
             .collect();
         let mut out = vec![false; tree.nodes.len()];
         for (leaf, many, around) in flags {
@@ -193,9 +208,9 @@ fn manifold_edges(tris: &[Tri]) -> Vec<[u32; 3]> {
     joins
 }
 
-/// How many sheets (sets joined by manifold edges, `joins`) the triangles `set` (sorted, no
-/// repeats) make.
-fn sheets(set: &[u32], joins: &[[u32; 3]]) -> usize {
+/// How many sheets (sets joined by manifold edges, `joins`) the triangles `set` (no repeats,
+/// each marked in `marks` with its place in `set`) make.
+fn sheets(set: &[u32], joins: &[[u32; 3]], marks: &Marks) -> usize {
     let mut parent: Vec<u32> = (0..set.len() as u32).collect();
     fn find(p: &mut [u32], mut x: u32) -> u32 {
         while p[x as usize] != x {
@@ -211,8 +226,8 @@ fn sheets(set: &[u32], joins: &[[u32; 3]]) -> usize {
             if n == NONE || n < t {
                 continue;
             }
-            if let Ok(j) = set.binary_search(&n) {
-                let (a, b) = (find(&mut parent, i as u32), find(&mut parent, j as u32));
+            if let Some(j) = marks.place(n) {
+                let (a, b) = (find(&mut parent, i as u32), find(&mut parent, j));
                 if a != b {
                     parent[a as usize] = b;
                     roots -= 1;
@@ -221,6 +236,154 @@ fn sheets(set: &[u32], joins: &[[u32; 3]]) -> usize {
         }
     }
     roots
+}
+
+/// The triangles gathered for one grown box, each with its place in the gathered list: an
+/// open-addressing table (linear probing), sized to the set, so that membership is one probe
+/// or a few instead of a sort and a binary search. A new number per gathering empties it at
+/// once; it doubles when half full.
+struct Marks {
+    current: u32,
+    /// Per slot: the gathering that filled it (`current` when filled now).
+    stamp: Vec<u32>,
+    keys: Vec<u32>,
+    place: Vec<u32>,
+    len: usize,
+}
+
+impl Marks {
+    fn new() -> Self {
+        let slots = 1024;
+        Marks {
+            current: 1,
+            stamp: vec![0; slots],
+            keys: vec![0; slots],
+            place: vec![0; slots],
+            len: 0,
+        }
+    }
+
+    /// Empties it for the next gathering.
+    fn clear(&mut self) {
+        if self.current == u32::MAX {
+            self.stamp.fill(0);
+            self.current = 0;
+        }
+        self.current += 1;
+        self.len = 0;
+    }
+
+    /// The slot of `t`, or the empty slot where it would go.
+    #[inline]
+    fn slot(&self, t: u32) -> usize {
+        let mask = self.keys.len() - 1;
+        let mut i = (t.wrapping_mul(0x9e37_79b1) >> 8) as usize & mask;
+        while self.stamp[i] == self.current && self.keys[i] != t {
+            i = (i + 1) & mask;
+        }
+        i
+    }
+
+    #[inline]
+    fn has(&self, t: u32) -> bool {
+        self.stamp[self.slot(t)] == self.current
+    }
+
+    /// Adds `t` to `set` unless it is there.
+    #[inline]
+    fn add(&mut self, t: u32, set: &mut Vec<u32>) {
+        let i = self.slot(t);
+        if self.stamp[i] == self.current {
+            return;
+        }
+        self.stamp[i] = self.current;
+        self.keys[i] = t;
+        self.place[i] = set.len() as u32;
+        set.push(t);
+        self.len += 1;
+        if 2 * self.len > self.keys.len() {
+            self.grow(set);
+        }
+    }
+
+    /// Twice the slots, holding `set` (every triangle added since the last clear, in order).
+    fn grow(&mut self, set: &[u32]) {
+        let slots = 2 * self.keys.len();
+        *self = Marks {
+            current: 1,
+            stamp: vec![0; slots],
+            keys: vec![0; slots],
+            place: vec![0; slots],
+            len: 0,
+        };
+        for (k, &t) in set.iter().enumerate() {
+            let i = self.slot(t);
+            self.stamp[i] = self.current;
+            self.keys[i] = t;
+            self.place[i] = k as u32;
+        }
+        self.len = set.len();
+    }
+
+    #[inline]
+    fn place(&self, t: u32) -> Option<u32> {
+        let i = self.slot(t);
+        (self.stamp[i] == self.current).then(|| self.place[i])
+    }
+}
+
+/// A triangle's box in `f32`, each bound rounded outward (the `f64` box lies inside it).
+fn outward_box(v: &[DVec3; 3]) -> [f32; 6] {
+    let (lo, hi) = bounds(v);
+    let down = |x: f64| {
+        let f = x as f32;
+        if f as f64 > x {
+            f.next_down()
+        } else {
+            f
+        }
+    };
+    let up = |x: f64| {
+        let f = x as f32;
+        if (f as f64) < x {
+            f.next_up()
+        } else {
+            f
+        }
+    };
+    [
+        down(lo.x),
+        down(lo.y),
+        down(lo.z),
+        up(hi.x),
+        up(hi.y),
+        up(hi.z),
+    ]
+}
+
+/// The first test of whether a triangle can meet the box `[lo, hi]`: its outward `f32` box
+/// ([`outward_box`]) beyond the box grown by a millionth of the sizes involved on some axis.
+/// [`geom::triangle_overlaps_box`] separates such a triangle on that axis too (its rounding is
+/// about 10⁻¹⁶ of those sizes), so the set gathered is the same.
+struct BoxFilter {
+    lo: [f64; 3],
+    hi: [f64; 3],
+}
+
+impl BoxFilter {
+    fn new(lo: DVec3, hi: DVec3) -> Self {
+        let margin =
+            1e-6 * (lo.abs().max_element() + hi.abs().max_element() + (hi - lo).max_element());
+        BoxFilter {
+            lo: (lo - DVec3::splat(margin)).to_array(),
+            hi: (hi + DVec3::splat(margin)).to_array(),
+        }
+    }
+
+    #[inline]
+    fn misses(&self, b: &[f32; 6]) -> bool {
+        (0..3).any(|a| (b[a] as f64) > self.hi[a] || (b[a + 3] as f64) < self.lo[a])
+    }
 }
 
 /// Whether two of the triangles `list` cross or touch each other away from a shared vertex:
@@ -308,6 +471,14 @@ mod tests {
     use super::*;
     use crate::bake::{gather, BuildReport, MeshRef};
 
+    fn sheets_of(set: &[u32], joins: &[[u32; 3]]) -> usize {
+        let (mut marks, mut gathered) = (Marks::new(), Vec::new());
+        for &t in set {
+            marks.add(t, &mut gathered);
+        }
+        sheets(&gathered, joins, &marks)
+    }
+
     fn tris(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Vec<Tri> {
         let mesh = MeshRef {
             positions,
@@ -358,10 +529,101 @@ mod tests {
         let t = tris(&quad, &[[0, 2, 1], [0, 3, 2]]);
         assert!(!crosses_itself(&[0, 1], &t));
         let joins = manifold_edges(&t);
-        assert_eq!(sheets(&[0, 1], &joins), 1);
+        assert_eq!(sheets_of(&[0, 1], &joins), 1);
         // Wound the same way across the shared edge: not joined there, two sheets.
         let t = tris(&quad, &[[0, 2, 1], [0, 2, 3]]);
         let joins = manifold_edges(&t);
-        assert_eq!(sheets(&[0, 1], &joins), 2);
+        assert_eq!(sheets_of(&[0, 1], &joins), 2);
+    }
+
+    /// A grid of `w × w` quads (two triangles each), wound alike: one sheet.
+    fn sheet(w: u32, y: f32) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
+        let mut positions = Vec::new();
+        for j in 0..=w {
+            for i in 0..=w {
+                positions.push([i as f32, y, j as f32]);
+            }
+        }
+        let at = |i: u32, j: u32| j * (w + 1) + i;
+        let mut triangles = Vec::new();
+        for j in 0..w {
+            for i in 0..w {
+                let (a, b, c, d) = (at(i, j), at(i + 1, j), at(i + 1, j + 1), at(i, j + 1));
+                triangles.push([a, c, b]);
+                triangles.push([a, d, c]);
+            }
+        }
+        (positions, triangles)
+    }
+
+    #[test]
+    fn sheets_are_counted_in_sets_larger_than_the_marks_first_table() {
+        // 2 × 30 × 30 = 1,800 triangles: the table (1,024 slots) doubles twice.
+        let (mut positions, mut triangles) = sheet(30, 0.0);
+        let (p2, t2) = sheet(30, 1.0);
+        let base = positions.len() as u32;
+        positions.extend(p2);
+        triangles.extend(t2.iter().map(|t| t.map(|i| i + base)));
+        let t = tris(&positions, &triangles);
+        let joins = manifold_edges(&t);
+        let one: Vec<u32> = (0..1800).collect();
+        assert_eq!(sheets_of(&one, &joins), 1);
+        // Out of order and with repeats: the marks keep each triangle once.
+        let mut shuffled: Vec<u32> = (0..1800).rev().collect();
+        shuffled.extend(0..100);
+        assert_eq!(sheets_of(&shuffled, &joins), 1);
+        let both: Vec<u32> = (0..3600).collect();
+        assert_eq!(sheets_of(&both, &joins), 2);
+        // A row of quads cut out of the middle of the first sheet splits it in two.
+        let cut: Vec<u32> = (0..1800).filter(|&k| k / 60 != 15).collect();
+        assert_eq!(sheets_of(&cut, &joins), 2);
+        let (mut marks, mut set) = (Marks::new(), Vec::new());
+        for &k in &shuffled {
+            marks.add(k, &mut set);
+        }
+        assert_eq!(set.len(), 1800);
+        for (place, &k) in set.iter().enumerate() {
+            assert_eq!(marks.place(k), Some(place as u32));
+        }
+        assert_eq!(marks.place(5000), None);
+        marks.clear();
+        assert!(!marks.has(0) && marks.place(1799).is_none());
+    }
+
+    #[test]
+    fn the_box_filter_passes_every_triangle_the_exact_test_keeps() {
+        let mut rng = crate::emit::Rng::new(3);
+        let mut kept = 0;
+        let mut filtered = 0;
+        for round in 0..20_000 {
+            // Boxes far from the origin too, where the f32 box rounds coarsely.
+            let offset = if round % 2 == 0 { 0.0 } else { 1.0e5 };
+            let c = DVec3::new(
+                rng.range(-1.0, 1.0) as f64,
+                rng.range(-1.0, 1.0) as f64,
+                rng.range(-1.0, 1.0) as f64,
+            ) + offset;
+            let h = rng.range(0.01, 0.5) as f64;
+            let (lo, hi) = (c - DVec3::splat(h), c + DVec3::splat(h));
+            // A small triangle about a point near the box's faces, where the two tests could
+            // disagree: inside, outside, or across them.
+            let mut near = || rng.range(-1.3, 1.3) as f64;
+            let at = c + DVec3::new(near(), near(), near()) * h;
+            let mut jitter = || {
+                DVec3::new(
+                    rng.range(-0.1, 0.1) as f64,
+                    rng.range(-0.1, 0.1) as f64,
+                    rng.range(-0.1, 0.1) as f64,
+                ) * h
+            };
+            let v = [at + jitter(), at + jitter(), at + jitter()];
+            let exact = geom::triangle_overlaps_box(&v, lo, hi);
+            let misses = BoxFilter::new(lo, hi).misses(&outward_box(&v));
+            assert!(!(misses && exact), "filtered a triangle that meets the box: {v:?}");
+            kept += exact as u32;
+            filtered += misses as u32;
+        }
+        // Both outcomes are exercised.
+        assert!(kept > 1000 && filtered > 1000, "{kept} kept, {filtered} filtered");
     }
 }

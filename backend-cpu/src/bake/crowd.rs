@@ -289,7 +289,8 @@ impl Marks {
         self.stamp[self.slot(t)] == self.current
     }
 
-    /// Adds `t` to `set` unless it is there.
+    /// Adds `t` to `set` unless it is there. `set` holds exactly the triangles added since
+    /// the last [`Marks::clear`] (a growth refills the table from it).
     #[inline]
     fn add(&mut self, t: u32, set: &mut Vec<u32>) {
         let i = self.slot(t);
@@ -619,11 +620,17 @@ mod tests {
             let v = [at + jitter(), at + jitter(), at + jitter()];
             let exact = geom::triangle_overlaps_box(&v, lo, hi);
             let misses = BoxFilter::new(lo, hi).misses(&outward_box(&v));
-            assert!(!(misses && exact), "filtered a triangle that meets the box: {v:?}");
+            assert!(
+                !(misses && exact),
+                "filtered a triangle that meets the box: {v:?}"
+            );
             kept += exact as u32;
             filtered += misses as u32;
         }
         // Both outcomes are exercised.
-        assert!(kept > 1000 && filtered > 1000, "{kept} kept, {filtered} filtered");
+        assert!(
+            kept > 1000 && filtered > 1000,
+            "{kept} kept, {filtered} filtered"
+        );
     }
 }

@@ -107,57 +107,53 @@ impl Crowding {
         let flags: Vec<(u32, Option<bool>, Vec<LeafKey>)> = tree
             .surface
             .par_iter()
-            .map_init(
-                || (Vec::new(), Marks::new()),
-                |(set, marks), &leaf| {
-                    let (lo, hi) = tree.nodes[leaf as usize].range();
-                    let (qlo, qhi) = (lo.saturating_sub(grow), (hi + grow).min(end));
-                    let mut near_crossing = false;
-                    let mut around = Vec::new();
-                    tree.for_each_touching_surface(qlo, qhi, |n| {
-                        near_crossing |= crossing[n as usize];
-                        if heavy(leaf) {
-                            around.push(key(n));
+            .map_init(Marks::new, |marks, &leaf| {
+                let (lo, hi) = tree.nodes[leaf as usize].range();
+                let (qlo, qhi) = (lo.saturating_sub(grow), (hi + grow).min(end));
+                let mut near_crossing = false;
+                let mut around = Vec::new();
+                tree.for_each_touching_surface(qlo, qhi, |n| {
+                    near_crossing |= crossing[n as usize];
+                    if heavy(leaf) {
+                        around.push(key(n));
+                    }
+                });
+                if near_crossing {
+                    return (leaf, None, around);
+                }
+                let was = heavy(leaf).then(|| known.get(&key(leaf))).flatten();
+                if let Some((_, many)) = was.filter(|(keys, _)| *keys == around) {
+                    return (leaf, Some(*many), around);
+                }
+                let (wlo, whi) = (grid.point(qlo), grid.point(qhi));
+                let far = BoxFilter::new(wlo, whi);
+                marks.clear();
+                tree.for_each_touching_surface(qlo, qhi, |n| {
+                    let node = &tree.nodes[n as usize];
+                    let Kind::Surface(s) = &node.kind else {
+                        return;
+                    };
+                    // A leaf inside the grown box brings all its triangles (each meets
+                    // it); one across its boundary, those that meet the box; one beside
+                    // it, none. Each triangle once (a triangle is in every leaf it meets).
+                    let (nlo, nhi) = node.range();
+                    if nlo.cmpge(qlo).all() && nhi.cmple(qhi).all() {
+                        for &t in &s.tris {
+                            marks.add(t);
                         }
-                    });
-                    if near_crossing {
-                        return (leaf, None, around);
-                    }
-                    let was = heavy(leaf).then(|| known.get(&key(leaf))).flatten();
-                    if let Some((_, many)) = was.filter(|(keys, _)| *keys == around) {
-                        return (leaf, Some(*many), around);
-                    }
-                    let (wlo, whi) = (grid.point(qlo), grid.point(qhi));
-                    let far = BoxFilter::new(wlo, whi);
-                    set.clear();
-                    marks.clear();
-                    tree.for_each_touching_surface(qlo, qhi, |n| {
-                        let node = &tree.nodes[n as usize];
-                        let Kind::Surface(s) = &node.kind else {
-                            return;
-                        };
-                        // A leaf inside the grown box brings all its triangles (each meets
-                        // it); one across its boundary, those that meet the box; one beside
-                        // it, none. Each triangle once (a triangle is in every leaf it meets).
-                        let (nlo, nhi) = node.range();
-                        if nlo.cmpge(qlo).all() && nhi.cmple(qhi).all() {
-                            for &t in &s.tris {
-                                marks.add(t, set);
-                            }
-                        } else if nlo.cmplt(qhi).all() && nhi.cmpgt(qlo).all() {
-                            for &t in &s.tris {
-                                if !far.misses(&boxes[t as usize])
-                                    && !marks.has(t)
-                                    && geom::triangle_overlaps_box(&tris[t as usize].v, wlo, whi)
-                                {
-                                    marks.add(t, set);
-                                }
+                    } else if nlo.cmplt(qhi).all() && nhi.cmpgt(qlo).all() {
+                        for &t in &s.tris {
+                            if !far.misses(&boxes[t as usize])
+                                && !marks.has(t)
+                                && geom::triangle_overlaps_box(&tris[t as usize].v, wlo, whi)
+                            {
+                                marks.add(t);
                             }
                         }
-                    });
-                    (leaf, Some(sheets(set, joins, marks) > 1), around)
-                },
-            )
+                    }
+                });
+                (leaf, Some(sheets(marks, joins) > 1), around)
+            })
             .collect();
         let mut out = vec![false; tree.nodes.len()];
         for (leaf, many, around) in flags {
@@ -208,9 +204,10 @@ fn manifold_edges(tris: &[Tri]) -> Vec<[u32; 3]> {
     joins
 }
 
-/// How many sheets (sets joined by manifold edges, `joins`) the triangles `set` (no repeats,
-/// each marked in `marks` with its place in `set`) make.
-fn sheets(set: &[u32], joins: &[[u32; 3]], marks: &Marks) -> usize {
+/// How many sheets (sets joined by manifold edges, `joins`) the triangles gathered in `marks`
+/// make.
+fn sheets(marks: &Marks, joins: &[[u32; 3]]) -> usize {
+    let set = &marks.list;
     let mut parent: Vec<u32> = (0..set.len() as u32).collect();
     fn find(p: &mut [u32], mut x: u32) -> u32 {
         while p[x as usize] != x {
@@ -238,29 +235,39 @@ fn sheets(set: &[u32], joins: &[[u32; 3]], marks: &Marks) -> usize {
     roots
 }
 
-/// The triangles gathered for one grown box, each with its place in the gathered list: an
-/// open-addressing table (linear probing), sized to the set, so that membership is one probe
-/// or a few instead of a sort and a binary search. A new number per gathering empties it at
-/// once; it doubles when half full.
+/// The triangles gathered for one grown box, in the order added, each once, with an
+/// open-addressing table (linear probing) from a triangle to its place in that list, so that
+/// membership is one probe or a few instead of a sort and a binary search. A new number per
+/// gathering empties the table at once; it doubles when half full.
 struct Marks {
     current: u32,
     /// Per slot: the gathering that filled it (`current` when filled now).
     stamp: Vec<u32>,
     keys: Vec<u32>,
     place: Vec<u32>,
-    len: usize,
+    /// The triangles added since the last [`Marks::clear`], in order.
+    list: Vec<u32>,
 }
 
 impl Marks {
     fn new() -> Self {
-        let slots = 1024;
-        Marks {
+        Self::with_slots(1024, Vec::new())
+    }
+
+    /// A table of `slots` (a power of two) holding `list`.
+    fn with_slots(slots: usize, list: Vec<u32>) -> Self {
+        let mut m = Marks {
             current: 1,
             stamp: vec![0; slots],
             keys: vec![0; slots],
             place: vec![0; slots],
-            len: 0,
+            list,
+        };
+        for k in 0..m.list.len() {
+            let t = m.list[k];
+            m.fill(m.slot(t), t, k as u32);
         }
+        m
     }
 
     /// Empties it for the next gathering.
@@ -270,7 +277,7 @@ impl Marks {
             self.current = 0;
         }
         self.current += 1;
-        self.len = 0;
+        self.list.clear();
     }
 
     /// The slot of `t`, or the empty slot where it would go.
@@ -285,47 +292,33 @@ impl Marks {
     }
 
     #[inline]
-    fn has(&self, t: u32) -> bool {
-        self.stamp[self.slot(t)] == self.current
+    fn fill(&mut self, i: usize, t: u32, place: u32) {
+        self.stamp[i] = self.current;
+        self.keys[i] = t;
+        self.place[i] = place;
     }
 
-    /// Adds `t` to `set` unless it is there. `set` holds exactly the triangles added since
-    /// the last [`Marks::clear`] (a growth refills the table from it).
     #[inline]
-    fn add(&mut self, t: u32, set: &mut Vec<u32>) {
+    fn has(&self, t: u32) -> bool {
+        self.place(t).is_some()
+    }
+
+    /// Adds `t` unless it is there.
+    #[inline]
+    fn add(&mut self, t: u32) {
         let i = self.slot(t);
         if self.stamp[i] == self.current {
             return;
         }
-        self.stamp[i] = self.current;
-        self.keys[i] = t;
-        self.place[i] = set.len() as u32;
-        set.push(t);
-        self.len += 1;
-        if 2 * self.len > self.keys.len() {
-            self.grow(set);
+        self.fill(i, t, self.list.len() as u32);
+        self.list.push(t);
+        if 2 * self.list.len() > self.keys.len() {
+            let list = core::mem::take(&mut self.list);
+            *self = Self::with_slots(2 * self.keys.len(), list);
         }
     }
 
-    /// Twice the slots, holding `set` (every triangle added since the last clear, in order).
-    fn grow(&mut self, set: &[u32]) {
-        let slots = 2 * self.keys.len();
-        *self = Marks {
-            current: 1,
-            stamp: vec![0; slots],
-            keys: vec![0; slots],
-            place: vec![0; slots],
-            len: 0,
-        };
-        for (k, &t) in set.iter().enumerate() {
-            let i = self.slot(t);
-            self.stamp[i] = self.current;
-            self.keys[i] = t;
-            self.place[i] = k as u32;
-        }
-        self.len = set.len();
-    }
-
+    /// The place of `t` in [`Marks::list`], if it was added.
     #[inline]
     fn place(&self, t: u32) -> Option<u32> {
         let i = self.slot(t);
@@ -473,11 +466,11 @@ mod tests {
     use crate::bake::{gather, BuildReport, MeshRef};
 
     fn sheets_of(set: &[u32], joins: &[[u32; 3]]) -> usize {
-        let (mut marks, mut gathered) = (Marks::new(), Vec::new());
+        let mut marks = Marks::new();
         for &t in set {
-            marks.add(t, &mut gathered);
+            marks.add(t);
         }
-        sheets(&gathered, joins, &marks)
+        sheets(&marks, joins)
     }
 
     fn tris(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Vec<Tri> {
@@ -578,12 +571,12 @@ mod tests {
         // A row of quads cut out of the middle of the first sheet splits it in two.
         let cut: Vec<u32> = (0..1800).filter(|&k| k / 60 != 15).collect();
         assert_eq!(sheets_of(&cut, &joins), 2);
-        let (mut marks, mut set) = (Marks::new(), Vec::new());
+        let mut marks = Marks::new();
         for &k in &shuffled {
-            marks.add(k, &mut set);
+            marks.add(k);
         }
-        assert_eq!(set.len(), 1800);
-        for (place, &k) in set.iter().enumerate() {
+        assert_eq!(marks.list.len(), 1800);
+        for (place, &k) in marks.list.iter().enumerate() {
             assert_eq!(marks.place(k), Some(place as u32));
         }
         assert_eq!(marks.place(5000), None);

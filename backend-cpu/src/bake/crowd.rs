@@ -25,7 +25,7 @@ use octoproxy_core::MAX_DEPTH;
 use rayon::prelude::*;
 
 use super::flat::{Flat, Kind};
-use super::{geom, Grid, Tri, REUSE_TRIANGLES};
+use super::{geom, DirectedEdge, Grid, Tri, REUSE_TRIANGLES};
 
 /// A leaf's key across the bake's passes: its depth and cell. A leaf's triangles are those
 /// that meet its box, whatever the tree around it, so what is found for a leaf in one pass
@@ -166,13 +166,6 @@ impl Crowding {
     }
 }
 
-/// An edge's key: its two vertex ids, the smaller first.
-#[inline]
-fn edge_key(a: u32, b: u32) -> u64 {
-    let (a, b) = if a < b { (a, b) } else { (b, a) };
-    (a as u64) << 32 | b as u64
-}
-
 /// No neighbour across an edge.
 const NONE: u32 = u32::MAX;
 
@@ -180,24 +173,13 @@ const NONE: u32 = u32::MAX;
 /// across the whole scene: used by exactly two triangles, once in each direction; [`NONE`]
 /// elsewhere.
 fn manifold_edges(tris: &[Tri]) -> Vec<[u32; 3]> {
-    let mut edges: Vec<(u64, bool, u32, u8)> = tris
-        .par_iter()
-        .enumerate()
-        .flat_map_iter(|(t, tri)| {
-            let v = tri.vid;
-            (0..3u8).map(move |k| {
-                let (a, b) = (v[k as usize], v[(k as usize + 1) % 3]);
-                (edge_key(a, b), a < b, t as u32, k)
-            })
-        })
-        .collect();
-    edges.par_sort_unstable();
+    let edges = DirectedEdge::sorted(tris.len(), |t| Some(tris[t].vid));
     let mut joins = vec![[NONE; 3]; tris.len()];
-    for group in edges.chunk_by(|x, y| x.0 == y.0) {
+    for group in edges.chunk_by(|x, y| x.key == y.key) {
         if let [a, b] = group {
-            if a.1 != b.1 {
-                joins[a.2 as usize][a.3 as usize] = b.2;
-                joins[b.2 as usize][b.3 as usize] = a.2;
+            if a.forward() != b.forward() {
+                joins[a.triangle() as usize][a.edge() as usize] = b.triangle();
+                joins[b.triangle() as usize][b.edge() as usize] = a.triangle();
             }
         }
     }

@@ -476,7 +476,9 @@ pub(crate) fn bake_reusing(
     // leaf is then solid and coarse (`coarse_solid_leaves` counts what rounding at extreme
     // magnitudes still leaves), at the cost of a larger proxy for that scene.
     let mut force = Forced::default();
+    let t = Instant::now();
     let mut crowding = crowd::Crowding::new(&tris);
+    report.timings.push(("sheet edges", t.elapsed()));
     // The last pass's tree: a node that overlaps no forced cell comes out the same again.
     let mut last_flat: Option<flat::Flat> = None;
     let mut votes = label::VoteCache::default();
@@ -639,38 +641,48 @@ fn gather(meshes: &[MeshRef<'_>], report: &mut BuildReport) -> Result<Vec<Tri>, 
     let vids = weld(meshes);
     let mut tris = Vec::new();
     for (m, vid) in meshes.iter().zip(&vids) {
-        let (closed, rim, component) = edge_classes(m);
+        let (closed, rim, component) = edge_classes_welded(m, vid);
         let base = report.triangles_in as u32;
         report.triangles_in += m.triangles.len();
-        let made: Vec<Tri> = m
-            .triangles
-            .par_iter()
-            .enumerate()
-            .filter_map(|(ti, t)| {
-                let v = t.map(|i| {
-                    let p = m.positions[i as usize];
-                    DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)
-                });
-                let c = (v[1] - v[0]).cross(v[2] - v[0]);
-                let len = c.length();
-                (len > 0.0 && len.is_finite()).then(|| Tri {
-                    v,
-                    n: c / len,
-                    area: len * 0.5,
-                    closed: closed[ti],
-                    rim: rim[ti],
-                    component: base + component[ti],
-                    vid: t.map(|i| vid[i as usize]),
-                })
-            })
-            .collect();
-        report.degenerate_skipped += m.triangles.len() - made.len();
-        report.closed_triangles += made.par_iter().filter(|t| t.closed).count();
-        if tris.is_empty() {
-            tris = made;
+        let normal = |t: &[u32; 3]| {
+            let v = t.map(|i| {
+                let p = m.positions[i as usize];
+                DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)
+            });
+            let c = (v[1] - v[0]).cross(v[2] - v[0]);
+            let len = c.length();
+            (v, c, len, len > 0.0 && len.is_finite())
+        };
+        let make = |(ti, t): (usize, &[u32; 3])| {
+            let (v, c, len, _) = normal(t);
+            Tri {
+                v,
+                n: c / len,
+                area: len * 0.5,
+                closed: closed[ti],
+                rim: rim[ti],
+                component: base + component[ti],
+                vid: t.map(|i| vid[i as usize]),
+            }
+        };
+        let degenerate = m.triangles.par_iter().filter(|t| !normal(t).3).count();
+        // Without degenerate triangles, each goes straight to its place in `tris`: no list
+        // of pieces to join, no second copy (at 6.4M triangles, 0.8 GB).
+        let before = tris.len();
+        if degenerate == 0 {
+            tris.par_extend(m.triangles.par_iter().enumerate().map(make));
         } else {
+            let made: Vec<Tri> = m
+                .triangles
+                .par_iter()
+                .enumerate()
+                .filter(|(_, t)| normal(t).3)
+                .map(make)
+                .collect();
             tris.extend(made);
         }
+        report.degenerate_skipped += degenerate;
+        report.closed_triangles += tris[before..].par_iter().filter(|t| t.closed).count();
     }
     if tris.is_empty() {
         return Err(BuildError::Empty {
@@ -708,40 +720,23 @@ fn weld(meshes: &[MeshRef<'_>]) -> Vec<Vec<u32>> {
 
 /// Classifies triangles by their edges: those of closed components (components joined by
 /// shared edges in which every edge is used exactly once in each direction), and their rim
-/// edges (not used exactly once in each direction; bit `k` for the edge from vertex `k`). Vertices are welded by position first,
-/// so seams of duplicated vertices do not open a mesh.
+/// edges (not used exactly once in each direction; bit `k` for the edge from vertex `k`).
+/// Vertices are welded by position first (as [`weld`] does: `-0.0` is `0.0`), so seams of
+/// duplicated vertices do not open a mesh. Components are numbered by one of their triangles.
 pub(crate) fn edge_classes(m: &MeshRef<'_>) -> (Vec<bool>, Vec<u8>, Vec<u32>) {
+    let vid = weld(&[*m]).pop().unwrap_or_default();
+    edge_classes_welded(m, &vid)
+}
+
+/// [`edge_classes`] of a mesh whose vertices are welded already: `vid[i] == vid[j]` when
+/// vertices `i` and `j` are at the same position ([`weld`]'s ids for this mesh).
+fn edge_classes_welded(m: &MeshRef<'_>, vid: &[u32]) -> (Vec<bool>, Vec<u8>, Vec<u32>) {
     let n = m.triangles.len();
-    // Weld: canonical vertex id per position bit pattern.
-    let mut order: Vec<u32> = (0..m.positions.len() as u32).collect();
-    let key = |i: u32| m.positions[i as usize].map(f32::to_bits);
-    order.par_sort_unstable_by_key(|&i| key(i));
-    let mut canon = vec![0u32; m.positions.len()];
-    for w in 0..order.len() {
-        let i = order[w];
-        canon[i as usize] = if w > 0 && key(order[w - 1]) == key(i) {
-            canon[order[w - 1] as usize]
-        } else {
-            i
-        };
-    }
     let valid = |t: &[u32; 3]| t.iter().all(|&i| (i as usize) < m.positions.len());
-    // Directed edges (a, b, triangle, edge of the triangle), sorted by undirected key.
-    let mut edges: Vec<(u64, bool, u32, u8)> = m
-        .triangles
-        .par_iter()
-        .enumerate()
-        .filter(|(_, t)| valid(t))
-        .flat_map_iter(|(ti, t)| {
-            let c = t.map(|i| canon[i as usize]);
-            (0..3).filter_map(move |k| {
-                let (a, b) = (c[k], c[(k + 1) % 3]);
-                let (lo, hi, fwd) = if a < b { (a, b, true) } else { (b, a, false) };
-                (a != b).then_some(((lo as u64) << 32 | hi as u64, fwd, ti as u32, k as u8))
-            })
-        })
-        .collect();
-    edges.par_sort_unstable();
+    let edges = DirectedEdge::sorted(n, |t| {
+        let t = &m.triangles[t];
+        valid(t).then(|| t.map(|i| vid[i as usize]))
+    });
     let mut parent: Vec<u32> = (0..n as u32).collect();
     fn find(p: &mut [u32], mut x: u32) -> u32 {
         while p[x as usize] != x {
@@ -751,26 +746,22 @@ pub(crate) fn edge_classes(m: &MeshRef<'_>) -> (Vec<bool>, Vec<u8>, Vec<u32>) {
         x
     }
     let mut open = vec![0u8; n];
-    let mut i = 0;
-    while i < edges.len() {
-        let mut j = i;
-        while j < edges.len() && edges[j].0 == edges[i].0 {
-            j += 1;
-        }
-        let group = &edges[i..j];
-        let good = group.len() == 2 && group[0].1 != group[1].1;
+    for group in edges.chunk_by(|a, b| a.key == b.key) {
+        let good = group.len() == 2 && group[0].forward() != group[1].forward();
         if !good {
             for e in group {
-                open[e.2 as usize] |= 1 << e.3;
+                open[e.triangle() as usize] |= 1 << e.edge();
             }
         }
         for e in &group[1..] {
-            let (a, b) = (find(&mut parent, group[0].2), find(&mut parent, e.2));
+            let (a, b) = (
+                find(&mut parent, group[0].triangle()),
+                find(&mut parent, e.triangle()),
+            );
             if a != b {
                 parent[a as usize] = b;
             }
         }
-        i = j;
     }
     let mut comp_open = vec![false; n];
     for (t, &is_open) in open.iter().enumerate() {
@@ -782,6 +773,63 @@ pub(crate) fn edge_classes(m: &MeshRef<'_>) -> (Vec<bool>, Vec<u8>, Vec<u32>) {
     let component: Vec<u32> = (0..n).map(|t| find(&mut parent, t as u32)).collect();
     let closed = component.iter().map(|&c| !comp_open[c as usize]).collect();
     (closed, open, component)
+}
+
+/// A triangle's edge from its vertex `k` to vertex `k + 1`, by welded vertex ids, with the
+/// edge's undirected key (the smaller id above the larger).
+#[derive(Clone, Copy)]
+pub(crate) struct DirectedEdge {
+    pub key: u64,
+    /// `triangle << 3 | k << 1 | forward` (forward: from the smaller id to the larger).
+    code: u64,
+}
+
+impl DirectedEdge {
+    /// Every edge of `n` triangles, sorted by key (in no order within a key), where `ids(t)`
+    /// gives triangle `t`'s welded vertex ids, `None` for a triangle left out. Edges between
+    /// two equal ids are left out: they join nothing.
+    pub fn sorted(n: usize, ids: impl Fn(usize) -> Option<[u32; 3]> + Sync) -> Vec<Self> {
+        // A real key has the smaller id first, so is below `u64::MAX`: left-out edges take
+        // that key, sort last and are cut off. Each edge is made in its place (an indexed
+        // map), with no list of pieces to join: at 6.4M triangles there are 19M.
+        const OUT: DirectedEdge = DirectedEdge {
+            key: u64::MAX,
+            code: 0,
+        };
+        let mut edges: Vec<Self> = (0..3 * n)
+            .into_par_iter()
+            .map(|e| {
+                let (t, k) = (e / 3, e % 3);
+                let Some(v) = ids(t) else { return OUT };
+                let (a, b) = (v[k], v[(k + 1) % 3]);
+                if a == b {
+                    return OUT;
+                }
+                let (lo, hi) = (a.min(b), a.max(b));
+                DirectedEdge {
+                    key: (lo as u64) << 32 | hi as u64,
+                    code: (t as u64) << 3 | (k as u64) << 1 | (a < b) as u64,
+                }
+            })
+            .collect();
+        edges.par_sort_unstable_by_key(|e| e.key);
+        edges.truncate(edges.partition_point(|e| e.key != u64::MAX));
+        edges
+    }
+
+    pub fn triangle(&self) -> u32 {
+        (self.code >> 3) as u32
+    }
+
+    /// `k`: the edge goes from the triangle's vertex `k` to vertex `k + 1`.
+    pub fn edge(&self) -> u32 {
+        (self.code >> 1) as u32 & 3
+    }
+
+    /// Whether it goes from the smaller id to the larger.
+    pub fn forward(&self) -> bool {
+        self.code & 1 != 0
+    }
 }
 
 /// The root cube: the scene box grown so that every triangle stays more than one `dmax`

@@ -85,6 +85,34 @@ fn cube_is_closed_and_outward() {
     }
 }
 
+/// A seam of duplicated vertices where one copy says `-0.0` and the other `0.0` (what a
+/// mirror modifier writes on its plane) is one position: the mesh stays closed, as `weld`
+/// (the scene's vertex ids) already had it.
+#[test]
+fn a_seam_of_minus_zero_and_zero_is_welded() {
+    let (mut p, mut t) = cube([0.0; 3], [1.0; 3]);
+    // The faces of the box that touch x = 0 use copies of their vertices with x = -0.0.
+    let base = p.len() as u32;
+    for i in 0..8 {
+        let mut q = p[i];
+        q[0] = -q[0];
+        p.push(q);
+    }
+    let on_plane = |i: u32| p[i as usize][0] == 0.0;
+    for tri in t.iter_mut().filter(|tri| tri.iter().all(|&i| on_plane(i))) {
+        *tri = tri.map(|i| i + base);
+    }
+    assert!(p.iter().any(|q| q[0].to_bits() == (-0.0f32).to_bits()));
+    let mesh = MeshRef {
+        positions: &p,
+        triangles: &t,
+    };
+    let (closed, rim, component) = edge_classes(&mesh);
+    assert!(closed.iter().all(|&c| c), "{closed:?}");
+    assert!(rim.iter().all(|&r| r == 0), "{rim:?}");
+    assert!(component.iter().all(|&c| c == component[0]));
+}
+
 #[test]
 fn variance_metric_is_area_normalised() {
     let (p, t) = cube([0.0; 3], [1.0; 3]);

@@ -221,6 +221,8 @@ fn leaf_votes(
     let (lo, hi) = node.range();
     let mut out = Vec::new();
     let mut pairs = Vec::new();
+    // The leaf's triangles' boxes, found once for all its pairs' segments.
+    let mut boxes = None;
     tree.for_each_touching_empty(lo, hi, |empty, elo, ehi| {
         let centre = DVec3::new(
             (grid.plane(0, elo.x) + grid.plane(0, ehi.x)) * 0.5,
@@ -233,7 +235,10 @@ fn leaf_votes(
                 .ok()
                 .map(|i| w[i])
         });
-        let pair = found.unwrap_or_else(|| pair_votes(surface, lo, hi, elo, ehi, tris, grid));
+        let pair = found.unwrap_or_else(|| {
+            let boxes = boxes.get_or_insert_with(|| boxes_of(&surface.tris, tris));
+            pair_votes(surface, boxes, (lo, hi), (elo, ehi), tris, grid)
+        });
         out.extend(
             pair.votes[..pair.len as usize]
                 .iter()
@@ -255,14 +260,24 @@ fn leaf_votes(
     (out, heavy.then_some((key, pairs)))
 }
 
-/// The votes of a surface leaf (`lo..hi`) with an empty leaf (`elo..ehi`) it touches: up to
-/// [`SAMPLES`] segments from the centre of their shared boundary to the nearest anchors.
+/// The boxes of the triangles `list`, in its order.
+fn boxes_of(list: &[u32], tris: &[Tri]) -> Vec<(DVec3, DVec3)> {
+    list.iter()
+        .map(|&t| {
+            let v = &tris[t as usize].v;
+            (v[0].min(v[1]).min(v[2]), v[0].max(v[1]).max(v[2]))
+        })
+        .collect()
+}
+
+/// The votes of a surface leaf (`lo..hi`; `boxes`: its triangles' boxes) with an empty leaf
+/// (`elo..ehi`) it touches: up to [`SAMPLES`] segments from the centre of their shared
+/// boundary to the nearest anchors.
 fn pair_votes(
     surface: &Surface,
-    lo: UVec3,
-    hi: UVec3,
-    elo: UVec3,
-    ehi: UVec3,
+    boxes: &[(DVec3, DVec3)],
+    (lo, hi): (UVec3, UVec3),
+    (elo, ehi): (UVec3, UVec3),
     tris: &[Tri],
     grid: &Grid,
 ) -> PairVotes {
@@ -290,7 +305,7 @@ fn pair_votes(
     };
     for &(_, i) in best.iter().filter(|b| b.1 != usize::MAX) {
         let (pb, own) = surface.anchors[i];
-        if let Some((front, closed, n)) = view_visible(pe, pb, own, &surface.tris, tris) {
+        if let Some((front, closed, n)) = view_visible(pe, pb, own, (&surface.tris, boxes), tris) {
             let against = !surface.two_sided && n.dot(surface.normal) < 0.0;
             out.votes[out.len as usize] = (front, closed, against);
             out.len += 1;
@@ -302,12 +317,12 @@ fn pair_votes(
 /// The vote of one segment from `pe` to `pb` (a point on triangle `own`): the triangle hit
 /// nearest `pe` faces `pe` (front) or not (back), whether it is closed, and its normal.
 /// Hits within a hair of the nearest are summed, so a segment through an edge sees both
-/// triangles. `None` when undecided.
+/// triangles. `None` when undecided. `list` comes with its triangles' boxes ([`boxes_of`]).
 fn view_visible(
     pe: DVec3,
     pb: DVec3,
     own: u32,
-    list: &[u32],
+    (list, boxes): (&[u32], &[(DVec3, DVec3)]),
     tris: &[Tri],
 ) -> Option<(bool, bool, DVec3)> {
     let dir = pb - pe;
@@ -323,15 +338,11 @@ fn view_visible(
     // The segment's box: a triangle whose box misses it cannot be hit (a conservative
     // filter, so the votes are exactly those of testing every triangle).
     let (slo, shi) = (pe.min(pb), pe.max(pb));
-    for &t in list {
-        let tri = &tris[t as usize];
-        let misses = (0..3).any(|a| {
-            let (x, y, z) = (tri.v[0][a], tri.v[1][a], tri.v[2][a]);
-            x.min(y).min(z) > shi[a] || x.max(y).max(z) < slo[a]
-        });
-        if misses && t != own {
+    for (&t, (lo, hi)) in list.iter().zip(boxes) {
+        if (lo.cmpgt(shi) | hi.cmplt(slo)).any() && t != own {
             continue;
         }
+        let tri = &tris[t as usize];
         let Some(s) = geom::segment_triangle(pe, pb, &tri.v).or((t == own).then_some(1.0)) else {
             continue;
         };

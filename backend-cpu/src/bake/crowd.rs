@@ -39,9 +39,6 @@ type LeafKey = (u32, [u32; 3]);
 /// very same (their keys, in the order met).
 pub(crate) struct Crowding {
     joins: Vec<[u32; 3]>,
-    /// Each triangle's box in `f32`, rounded outward: a cheap first test of whether it can
-    /// meet a grown box, before the exact one reads the triangle.
-    boxes: Vec<[f32; 6]>,
     crosses: HashMap<LeafKey, bool>,
     sheets: HashMap<LeafKey, (Vec<LeafKey>, bool)>,
 }
@@ -50,7 +47,6 @@ impl Crowding {
     pub(crate) fn new(tris: &[Tri]) -> Self {
         Crowding {
             joins: manifold_edges(tris),
-            boxes: tris.par_iter().map(|t| outward_box(&t.v)).collect(),
             crosses: HashMap::new(),
             sheets: HashMap::new(),
         }
@@ -62,11 +58,14 @@ impl Crowding {
         self.sheets.clear();
     }
 
-    /// Per flat node: whether it is a crowded surface leaf.
+    /// Per flat node: whether it is a crowded surface leaf. `boxes`: each triangle's
+    /// [`outward_box`], a cheap first test of whether it can meet a grown box, before the
+    /// exact one reads the triangle.
     pub(crate) fn crowded(
         &mut self,
         tree: &Flat,
         tris: &[Tri],
+        boxes: &[[f32; 6]],
         grid: &Grid,
         dmax: u32,
     ) -> Vec<bool> {
@@ -102,7 +101,7 @@ impl Crowding {
         }
         let grow = UVec3::splat(1 << (MAX_DEPTH - dmax));
         let end = UVec3::splat(1 << MAX_DEPTH);
-        let (joins, known, boxes) = (&self.joins, &self.sheets, &self.boxes);
+        let (joins, known) = (&self.joins, &self.sheets);
         // `Some(sheets > 1)` where it was asked, `None` where a crossing leaf nearby decides.
         let flags: Vec<(u32, Option<bool>, Vec<LeafKey>)> = tree
             .surface
@@ -309,7 +308,7 @@ impl Marks {
 }
 
 /// A triangle's box in `f32`, each bound rounded outward (the `f64` box lies inside it).
-fn outward_box(v: &[DVec3; 3]) -> [f32; 6] {
+pub(crate) fn outward_box(v: &[DVec3; 3]) -> [f32; 6] {
     let (lo, hi) = bounds(v);
     let down = |x: f64| {
         let f = x as f32;

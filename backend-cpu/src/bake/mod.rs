@@ -477,6 +477,7 @@ pub(crate) fn bake_reusing(
     // magnitudes still leaves), at the cost of a larger proxy for that scene.
     let mut force = Forced::default();
     let t = Instant::now();
+    let boxes: Vec<[f32; 6]> = tris.par_iter().map(|t| crowd::outward_box(&t.v)).collect();
     let mut crowding = crowd::Crowding::new(&tris);
     report.timings.push(("sheet edges", t.elapsed()));
     // The last pass's tree: a node that overlaps no forced cell comes out the same again.
@@ -490,6 +491,7 @@ pub(crate) fn bake_reusing(
         progress.begin("subdivide", 1 << (3 * PROGRESS_DEPTH));
         let ctx = Subdiv {
             tris: &tris,
+            boxes: &boxes,
             grid,
             params: *params,
             force: &force,
@@ -517,7 +519,7 @@ pub(crate) fn bake_reusing(
         report.timings.push(("label", t.elapsed()));
 
         let t = Instant::now();
-        let crowded = crowding.crowded(&tree, &tris, &grid, params.dmax);
+        let crowded = crowding.crowded(&tree, &tris, &boxes, &grid, params.dmax);
         report.timings.push(("crowded", t.elapsed()));
 
         let big: Vec<(u32, UVec3)> = tree
@@ -941,6 +943,8 @@ impl Forced {
 
 struct Subdiv<'a> {
     tris: &'a [Tri],
+    /// Each triangle's [`crowd::outward_box`].
+    boxes: &'a [[f32; 6]],
     grid: Grid,
     params: BuildParams,
     /// Regions that must be subdivided to `dmax`.
@@ -1074,12 +1078,26 @@ impl Subdiv<'_> {
         });
         let mut subs: [Vec<u32>; 8] = Default::default();
         for &t in list {
+            // Per axis: bit 0 = may touch the lower half, bit 1 = the upper half. First from
+            // the box in `f32`, rounded outward: where it lies strictly on one side of a
+            // mid-plane, the exact box does too. Most triangles of a fine mesh lie so on
+            // every axis, and the triangle itself is not read.
+            let b = &self.boxes[t as usize];
+            let mut sides = [0u32; 3];
+            for a in 0..3 {
+                if (b[a + 3] as f64) < mid[a] {
+                    sides[a] = 1;
+                } else if (b[a] as f64) > mid[a] {
+                    sides[a] = 2;
+                }
+            }
             let v = &self.tris[t as usize].v;
-            let lo = v[0].min(v[1]).min(v[2]);
-            let hi = v[0].max(v[1]).max(v[2]);
-            // Per axis: bit 0 = may touch the lower half, bit 1 = the upper half.
-            let sides =
-                [0, 1, 2].map(|a| (lo[a] <= mid[a]) as u32 | ((hi[a] >= mid[a]) as u32) << 1);
+            if sides.contains(&0) {
+                let lo = v[0].min(v[1]).min(v[2]);
+                let hi = v[0].max(v[1]).max(v[2]);
+                sides =
+                    [0, 1, 2].map(|a| (lo[a] <= mid[a]) as u32 | ((hi[a] >= mid[a]) as u32) << 1);
+            }
             let straddles = sides.contains(&3);
             for o in 0..8u32 {
                 let fits = (0..3).all(|a| sides[a] & (1 << ((o >> a) & 1)) != 0);

@@ -125,8 +125,10 @@ fn variance_metric_is_area_normalised() {
     )
     .unwrap();
     let grid = root_grid(&tris, 6).unwrap();
+    let boxes: Vec<[f32; 6]> = tris.iter().map(|t| crowd::outward_box(&t.v)).collect();
     let ctx = Subdiv {
         tris: &tris,
+        boxes: &boxes,
         grid,
         params: BuildParams::default(),
         force: &Forced::default(),
@@ -557,8 +559,10 @@ fn a_flat_patch_stops_early_only_where_it_spans_the_leaf() {
             &mut BuildReport::default(),
         )
         .unwrap();
+        let boxes: Vec<[f32; 6]> = tris.iter().map(|t| crowd::outward_box(&t.v)).collect();
         let ctx = Subdiv {
             tris: &tris,
+            boxes: &boxes,
             grid,
             params,
             force: &Forced::default(),

@@ -106,53 +106,57 @@ impl Crowding {
         let flags: Vec<(u32, Option<bool>, Vec<LeafKey>)> = tree
             .surface
             .par_iter()
-            .map_init(Marks::new, |marks, &leaf| {
-                let (lo, hi) = tree.nodes[leaf as usize].range();
-                let (qlo, qhi) = (lo.saturating_sub(grow), (hi + grow).min(end));
-                let mut near_crossing = false;
-                let mut around = Vec::new();
-                tree.for_each_touching_surface(qlo, qhi, |n| {
-                    near_crossing |= crossing[n as usize];
-                    if heavy(leaf) {
-                        around.push(key(n));
-                    }
-                });
-                if near_crossing {
-                    return (leaf, None, around);
-                }
-                let was = heavy(leaf).then(|| known.get(&key(leaf))).flatten();
-                if let Some((_, many)) = was.filter(|(keys, _)| *keys == around) {
-                    return (leaf, Some(*many), around);
-                }
-                let (wlo, whi) = (grid.point(qlo), grid.point(qhi));
-                let far = BoxFilter::new(wlo, whi);
-                marks.clear();
-                tree.for_each_touching_surface(qlo, qhi, |n| {
-                    let node = &tree.nodes[n as usize];
-                    let Kind::Surface(s) = &node.kind else {
-                        return;
+            .map_init(
+                || (Marks::new(), Vec::new()),
+                |(marks, near), &leaf| {
+                    let (lo, hi) = tree.nodes[leaf as usize].range();
+                    let (qlo, qhi) = (lo.saturating_sub(grow), (hi + grow).min(end));
+                    // The surface leaves that touch the grown box, found once for both uses.
+                    near.clear();
+                    tree.for_each_touching_surface(qlo, qhi, |n| near.push(n));
+                    let near_crossing = near.iter().any(|&n| crossing[n as usize]);
+                    let around: Vec<LeafKey> = if heavy(leaf) {
+                        near.iter().map(|&n| key(n)).collect()
+                    } else {
+                        Vec::new()
                     };
-                    // A leaf inside the grown box brings all its triangles (each meets
-                    // it); one across its boundary, those that meet the box; one beside
-                    // it, none. Each triangle once (a triangle is in every leaf it meets).
-                    let (nlo, nhi) = node.range();
-                    if nlo.cmpge(qlo).all() && nhi.cmple(qhi).all() {
-                        for &t in &s.tris {
-                            marks.add(t);
-                        }
-                    } else if nlo.cmplt(qhi).all() && nhi.cmpgt(qlo).all() {
-                        for &t in &s.tris {
-                            if !far.misses(&boxes[t as usize])
-                                && !marks.has(t)
-                                && geom::triangle_overlaps_box(&tris[t as usize].v, wlo, whi)
-                            {
+                    if near_crossing {
+                        return (leaf, None, around);
+                    }
+                    let was = heavy(leaf).then(|| known.get(&key(leaf))).flatten();
+                    if let Some((_, many)) = was.filter(|(keys, _)| *keys == around) {
+                        return (leaf, Some(*many), around);
+                    }
+                    let (wlo, whi) = (grid.point(qlo), grid.point(qhi));
+                    let far = BoxFilter::new(wlo, whi);
+                    marks.clear();
+                    for &n in near.iter() {
+                        let node = &tree.nodes[n as usize];
+                        let Kind::Surface(s) = &node.kind else {
+                            continue;
+                        };
+                        // A leaf inside the grown box brings all its triangles (each meets
+                        // it); one across its boundary, those that meet the box; one beside
+                        // it, none. Each triangle once (a triangle is in every leaf it meets).
+                        let (nlo, nhi) = node.range();
+                        if nlo.cmpge(qlo).all() && nhi.cmple(qhi).all() {
+                            for &t in &s.tris {
                                 marks.add(t);
+                            }
+                        } else if nlo.cmplt(qhi).all() && nhi.cmpgt(qlo).all() {
+                            for &t in &s.tris {
+                                if !far.misses(&boxes[t as usize])
+                                    && !marks.has(t)
+                                    && geom::triangle_overlaps_box(&tris[t as usize].v, wlo, whi)
+                                {
+                                    marks.add(t);
+                                }
                             }
                         }
                     }
-                });
-                (leaf, Some(sheets(marks, joins) > 1), around)
-            })
+                    (leaf, Some(sheets(marks, joins) > 1), around)
+                },
+            )
             .collect();
         let mut out = vec![false; tree.nodes.len()];
         for (leaf, many, around) in flags {

@@ -479,7 +479,7 @@ pub(crate) fn bake_reusing(
     let t = Instant::now();
     let boxes: Vec<[f32; 6]> = tris.par_iter().map(|t| crowd::outward_box(&t.v)).collect();
     let mut crowding = crowd::Crowding::new(&tris);
-    report.timings.push(("sheet edges", t.elapsed()));
+    report.timings.push(("edges and boxes", t.elapsed()));
     // The last pass's tree: a node that overlaps no forced cell comes out the same again.
     let mut last_flat: Option<flat::Flat> = None;
     let mut votes = label::VoteCache::default();

@@ -393,7 +393,7 @@ fn crosses_itself(list: &[u32], tris: &[Tri]) -> bool {
             }
             let tb = &tris[b as usize];
             let shared = ta.vid.iter().filter(|v| tb.vid.contains(v)).count();
-            if shared >= 2 {
+            if shared >= 2 || (shared == 1 && fan_apart(ta, tb)) {
                 continue;
             }
             // Edge k runs from vertex k to vertex k + 1; with a shared vertex, only the edge
@@ -413,6 +413,73 @@ fn crosses_itself(list: &[u32], tris: &[Tri]) -> bool {
         }
     }
     false
+}
+
+/// Whether two triangles that share one vertex `V` clearly do not cross, as two triangles of
+/// a fan around `V` that lies flat do not: seen along `d = n_p + n_q` (both triangles face
+/// `d`, each by at least half), the two are wedges at `V`, and a line through `V` (along one
+/// of their four sides, or through a gap between two) has one wedge on each side of it, one of
+/// them away from it by a sine of 10⁻⁶. Then the projections meet only at `V`, and the edge of
+/// one opposite `V`, which is at least a thousandth of the pair's longest edge from `V`
+/// (neither is a needle seen from `V`), misses the other by far more than the rounding of
+/// [`geom::segment_triangle`], which would miss too. `false` leaves the pair to that test: a
+/// folded fan, a needle, triangles facing apart, or a wedge near another's side.
+#[inline]
+fn fan_apart(p: &Tri, q: &Tri) -> bool {
+    let (Some(i), Some(j)) = (
+        p.vid.iter().position(|v| q.vid.contains(v)),
+        q.vid.iter().position(|v| p.vid.contains(v)),
+    ) else {
+        return false;
+    };
+    if p.n.dot(q.n) < -0.5 {
+        return false;
+    }
+    let d = p.n + q.n;
+    // The wedges' sides, from `V`, in each triangle's winding order: `orient(a, b) > 0`.
+    let vertex = p.v[i];
+    let (a, b) = (p.v[(i + 1) % 3] - vertex, p.v[(i + 2) % 3] - vertex);
+    let (c, e) = (q.v[(j + 1) % 3] - vertex, q.v[(j + 2) % 3] - vertex);
+    let (la, lb, lc, le) = (a.length(), b.length(), c.length(), e.length());
+    let longest = la
+        .max(lb)
+        .max(lc)
+        .max(le)
+        .max((b - a).length())
+        .max((e - c).length());
+    // Twice each area is its height over the opposite edge times that edge (at most
+    // `longest`): heights of at least a thousandth of `longest`.
+    let stout = |area: f64| 2.0 * area >= 1e-3 * longest * longest;
+    if !(stout(p.area) && stout(q.area)) {
+        return false;
+    }
+    let m = 1e-6 * d.length();
+    // A line through `V` along `s` separates the wedges when one lies on one side of it (or
+    // on it) and the other strictly on the other side, by a sine of more than 10⁻⁶ seen along
+    // `d`. Lines along the four sides, then through the gaps between them.
+    let (sides, lengths) = ([a, b, c, e], [la, lb, lc, le]);
+    let separates = |s: DVec3| {
+        let ls = s.length();
+        let o = sides.map(|x| s.cross(x).dot(d));
+        // On side `sign` of the line (or on it); strictly on that side.
+        let on = |k: usize, sign: f64| o[k] * sign >= 0.0;
+        let beyond = |k: usize, sign: f64| o[k] * sign > m * ls * lengths[k];
+        [1.0, -1.0].iter().any(|&sign| {
+            (on(0, -sign) && on(1, -sign) && beyond(2, sign) && beyond(3, sign))
+                || (on(2, -sign) && on(3, -sign) && beyond(0, sign) && beyond(1, sign))
+        })
+    };
+    let unit = |x: DVec3, l: f64| x / l;
+    [
+        a,
+        b,
+        c,
+        e,
+        unit(b, lb) + unit(c, lc),
+        unit(e, le) + unit(a, la),
+    ]
+    .into_iter()
+    .any(separates)
 }
 
 /// Whether the segment `a`–`b` lies clearly on one side of the plane of `q`: both ends
@@ -609,6 +676,102 @@ mod tests {
         assert!(
             kept > 1000 && filtered > 1000,
             "{kept} kept, {filtered} filtered"
+        );
+    }
+
+    /// Whether the exact test finds a pair sharing one vertex crossing (the edge of either
+    /// opposite the shared vertex meets the other), as `crosses_itself` asks it.
+    fn fan_crosses(p: &Tri, q: &Tri) -> bool {
+        let meets = |p: &Tri, q: &Tri| {
+            (0..3).any(|k| {
+                let (i, j) = (k, (k + 1) % 3);
+                !(q.vid.contains(&p.vid[i]) || q.vid.contains(&p.vid[j]))
+                    && geom::segment_triangle(p.v[i], p.v[j], &q.v).is_some()
+            })
+        };
+        meets(p, q) || meets(q, p)
+    }
+
+    #[test]
+    fn a_fan_is_apart_only_where_the_exact_test_finds_no_crossing() {
+        // A flat fan of six around the origin: every pair apart, none crossing.
+        let mut positions = vec![[0.0f32; 3]];
+        for k in 0..6 {
+            let a = k as f32 * std::f32::consts::TAU / 6.0;
+            positions.push([a.cos(), 0.1 * (3.0 * a).sin(), a.sin()]);
+        }
+        let triangles: Vec<[u32; 3]> = (0..6).map(|k| [0, 1 + (k + 1) % 6, 1 + k]).collect();
+        let t = tris(&positions, &triangles);
+        for a in 0..6 {
+            for b in 0..6 {
+                if (a as i32 - b as i32).rem_euclid(6) > 1
+                    && (b as i32 - a as i32).rem_euclid(6) > 1
+                {
+                    assert!(fan_apart(&t[a], &t[b]), "{a} and {b}");
+                    assert!(!fan_crosses(&t[a], &t[b]));
+                }
+            }
+        }
+        // The folded fan of the test above crosses, and is not apart.
+        let fan = [
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [0.3, 0.3, -0.5],
+            [0.3, 0.3, 0.5],
+        ];
+        let t = tris(&fan, &[[0, 1, 2], [0, 3, 4]]);
+        assert!(fan_crosses(&t[0], &t[1]) && !fan_apart(&t[0], &t[1]));
+        // Random pairs around one vertex, many nearly touching: apart never where the exact
+        // test finds a crossing, and both outcomes exercised.
+        let mut rng = crate::emit::Rng::new(11);
+        let (mut apart, mut crossing) = (0, 0);
+        for round in 0..20_000 {
+            let offset = if round % 2 == 0 { 0.0 } else { 1.0e4 };
+            let point = |rng: &mut crate::emit::Rng| {
+                [
+                    offset + rng.range(-1.0, 1.0),
+                    rng.range(-0.3, 0.3),
+                    rng.range(-1.0, 1.0),
+                ]
+            };
+            let v = [offset, 0.0, 0.0];
+            let mut positions = vec![v, point(&mut rng), point(&mut rng), point(&mut rng)];
+            // Half the rounds: the third point on the first triangle's plane, near its far
+            // edge, where the two nearly touch.
+            if round % 4 < 2 {
+                let (a, b) = (positions[1], positions[2]);
+                let w = rng.range(-0.05, 1.05);
+                let u = rng.range(-0.01, 0.01);
+                positions[3] = std::array::from_fn(|k| {
+                    v[k] + (a[k] - v[k]) * w + (b[k] - v[k]) * (1.0 - w) + u * (b[k] - a[k])
+                });
+            }
+            positions.push(point(&mut rng));
+            let t = [[0, 1, 2], [0, 3, 4]].map(|ids: [u32; 3]| {
+                let v = ids.map(|i| DVec3::from(positions[i as usize].map(f64::from)));
+                let c = (v[1] - v[0]).cross(v[2] - v[0]);
+                Tri {
+                    v,
+                    n: c / c.length(),
+                    area: 0.5 * c.length(),
+                    closed: false,
+                    rim: 0,
+                    component: 0,
+                    vid: ids,
+                }
+            });
+            if !(t[0].area > 0.0 && t[1].area > 0.0) {
+                continue;
+            }
+            let (is_apart, crosses) = (fan_apart(&t[0], &t[1]), fan_crosses(&t[0], &t[1]));
+            assert!(!(is_apart && crosses), "apart but crossing: {positions:?}");
+            apart += is_apart as u32;
+            crossing += crosses as u32;
+        }
+        assert!(
+            apart > 2_000 && crossing > 2_000,
+            "{apart} apart, {crossing} crossing"
         );
     }
 }

@@ -533,6 +533,17 @@ mod tests {
         gather(&[mesh], &mut BuildReport::default()).unwrap()
     }
 
+    /// Two triangles around the origin, `[0, 1, 2]` and `[0, 3, 4]`, the second folded
+    /// through the first; `[0, 4, 5]` folded up and away from it.
+    const FOLDED_FAN: [[f32; 3]; 6] = [
+        [0.0, 0.0, 0.0],
+        [1.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0],
+        [0.3, 0.3, -0.5],
+        [0.3, 0.3, 0.5],
+        [0.6, 0.0, 0.5],
+    ];
+
     #[test]
     fn triangles_crossing_each_other_are_found_and_neighbours_are_not() {
         let flat = [[-1.0, 0.0, -1.0], [1.0, 0.0, -1.0], [0.0, 0.0, 1.0]];
@@ -552,14 +563,7 @@ mod tests {
         assert!(!crosses_itself(&[0, 1], &t));
         // Sharing one vertex: a fan folded through itself crosses (the far edge of the second
         // goes through the first at (0.3, 0.3, 0)); folded up and away, it only touches there.
-        let fan = [
-            [0.0, 0.0, 0.0],
-            [1.0, 0.0, 0.0],
-            [0.0, 1.0, 0.0],
-            [0.3, 0.3, -0.5],
-            [0.3, 0.3, 0.5],
-            [0.6, 0.0, 0.5],
-        ];
+        let fan = FOLDED_FAN;
         let t = tris(&fan, &[[0, 1, 2], [0, 3, 4]]);
         assert!(crosses_itself(&[0, 1], &t));
         assert!(crosses_itself(&[1, 0], &t));
@@ -712,15 +716,8 @@ mod tests {
                 }
             }
         }
-        // The folded fan of the test above crosses, and is not apart.
-        let fan = [
-            [0.0, 0.0, 0.0],
-            [1.0, 0.0, 0.0],
-            [0.0, 1.0, 0.0],
-            [0.3, 0.3, -0.5],
-            [0.3, 0.3, 0.5],
-        ];
-        let t = tris(&fan, &[[0, 1, 2], [0, 3, 4]]);
+        // The folded fan crosses, and is not apart.
+        let t = tris(&FOLDED_FAN, &[[0, 1, 2], [0, 3, 4]]);
         assert!(fan_crosses(&t[0], &t[1]) && !fan_apart(&t[0], &t[1]));
         // Random pairs around one vertex, many nearly touching: apart never where the exact
         // test finds a crossing, and both outcomes exercised.

@@ -1365,6 +1365,15 @@ fn crowd_with_pairs(u: &mut Unstructured<'_>, mesh: &Mesh, scene: f32) -> Result
         ));
     }
     surface.place(&mut ps, Some(&view));
+    // Grains `place` could not move out of the band (a start inside a part thinner than 2R,
+    // or wedged where bands meet) stay behind the offset surface, inside the band, as the
+    // rule for starts says: nearer the mesh than the radius from the start, they are not the
+    // guarantee's. The others are.
+    ps.retain(|p| surface.outside(p.position));
+    if ps.len() < 2 {
+        return Ok(());
+    }
+    let n = ps.len();
     let offset = [surface.mesh_ref()];
     let sides = Sides::new(&offset);
     sides.assign(&mut ps, false);

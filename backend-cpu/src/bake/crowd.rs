@@ -440,46 +440,40 @@ fn fan_apart(p: &Tri, q: &Tri) -> bool {
     let vertex = p.v[i];
     let (a, b) = (p.v[(i + 1) % 3] - vertex, p.v[(i + 2) % 3] - vertex);
     let (c, e) = (q.v[(j + 1) % 3] - vertex, q.v[(j + 2) % 3] - vertex);
-    let (la, lb, lc, le) = (a.length(), b.length(), c.length(), e.length());
-    let longest = la
-        .max(lb)
-        .max(lc)
-        .max(le)
-        .max((b - a).length())
-        .max((e - c).length());
-    // Twice each area is its height over the opposite edge times that edge (at most
-    // `longest`): heights of at least a thousandth of `longest`.
-    let stout = |area: f64| 2.0 * area >= 1e-3 * longest * longest;
+    // Squared lengths: the tests below compare squares, with no square root until a line
+    // through a gap is needed.
+    let sides = [a, b, c, e];
+    let len2 = sides.map(|x| x.length_squared());
+    let longest2 = len2.into_iter().fold(
+        (b - a).length_squared().max((e - c).length_squared()),
+        f64::max,
+    );
+    // Twice each area is its height over the opposite edge times that edge (at most the
+    // longest edge): heights of at least a thousandth of the longest.
+    let stout = |area: f64| 2.0 * area >= 1e-3 * longest2;
     if !(stout(p.area) && stout(q.area)) {
         return false;
     }
-    let m = 1e-6 * d.length();
+    let m2 = 1e-12 * d.length_squared();
     // A line through `V` along `s` separates the wedges when one lies on one side of it (or
     // on it) and the other strictly on the other side, by a sine of more than 10⁻⁶ seen along
     // `d`. Lines along the four sides, then through the gaps between them.
-    let (sides, lengths) = ([a, b, c, e], [la, lb, lc, le]);
     let separates = |s: DVec3| {
-        let ls = s.length();
+        let ls2 = s.length_squared();
         let o = sides.map(|x| s.cross(x).dot(d));
         // On side `sign` of the line (or on it); strictly on that side.
         let on = |k: usize, sign: f64| o[k] * sign >= 0.0;
-        let beyond = |k: usize, sign: f64| o[k] * sign > m * ls * lengths[k];
+        let beyond = |k: usize, sign: f64| o[k] * sign > 0.0 && o[k] * o[k] > m2 * ls2 * len2[k];
         [1.0, -1.0].iter().any(|&sign| {
             (on(0, -sign) && on(1, -sign) && beyond(2, sign) && beyond(3, sign))
                 || (on(2, -sign) && on(3, -sign) && beyond(0, sign) && beyond(1, sign))
         })
     };
-    let unit = |x: DVec3, l: f64| x / l;
-    [
-        a,
-        b,
-        c,
-        e,
-        unit(b, lb) + unit(c, lc),
-        unit(e, le) + unit(a, la),
-    ]
-    .into_iter()
-    .any(separates)
+    if sides.into_iter().any(separates) {
+        return true;
+    }
+    let unit = |k: usize| sides[k] / len2[k].sqrt();
+    separates(unit(1) + unit(2)) || separates(unit(3) + unit(0))
 }
 
 /// Whether the segment `a`–`b` lies clearly on one side of the plane of `q`: both ends

@@ -396,23 +396,27 @@ fn crosses_itself(list: &[u32], tris: &[Tri]) -> bool {
             if shared >= 2 || (shared == 1 && fan_apart(ta, tb)) {
                 continue;
             }
-            // Edge k runs from vertex k to vertex k + 1; with a shared vertex, only the edge
-            // opposite it.
-            let edge_meets = |p: &Tri, q: &Tri| {
-                (0..3).any(|k| {
-                    let (i, j) = (k, (k + 1) % 3);
-                    let away =
-                        shared == 0 || !(q.vid.contains(&p.vid[i]) || q.vid.contains(&p.vid[j]));
-                    away && !apart(p.v[i], p.v[j], q)
-                        && geom::segment_triangle(p.v[i], p.v[j], &q.v).is_some()
-                })
-            };
-            if edge_meets(ta, tb) || edge_meets(tb, ta) {
+            if edges_meet(ta, tb, shared) {
                 return true;
             }
         }
     }
     false
+}
+
+/// Whether an edge of either of two triangles that share `shared` (0 or 1) vertices meets the
+/// other: with a shared vertex, only the edge opposite it. Edge k runs from vertex k to vertex
+/// k + 1.
+fn edges_meet(a: &Tri, b: &Tri, shared: usize) -> bool {
+    let meets = |p: &Tri, q: &Tri| {
+        (0..3).any(|k| {
+            let (i, j) = (k, (k + 1) % 3);
+            let away = shared == 0 || !(q.vid.contains(&p.vid[i]) || q.vid.contains(&p.vid[j]));
+            away && !apart(p.v[i], p.v[j], q)
+                && geom::segment_triangle(p.v[i], p.v[j], &q.v).is_some()
+        })
+    };
+    meets(a, b) || meets(b, a)
 }
 
 /// Whether two triangles that share one vertex `V` clearly do not cross, as two triangles of
@@ -677,17 +681,10 @@ mod tests {
         );
     }
 
-    /// Whether the exact test finds a pair sharing one vertex crossing (the edge of either
-    /// opposite the shared vertex meets the other), as `crosses_itself` asks it.
+    /// Whether the crossing test finds a pair sharing one vertex crossing, as
+    /// `crosses_itself` asks it when `fan_apart` lets the pair through.
     fn fan_crosses(p: &Tri, q: &Tri) -> bool {
-        let meets = |p: &Tri, q: &Tri| {
-            (0..3).any(|k| {
-                let (i, j) = (k, (k + 1) % 3);
-                !(q.vid.contains(&p.vid[i]) || q.vid.contains(&p.vid[j]))
-                    && geom::segment_triangle(p.v[i], p.v[j], &q.v).is_some()
-            })
-        };
-        meets(p, q) || meets(q, p)
+        edges_meet(p, q, 1)
     }
 
     #[test]

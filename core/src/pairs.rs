@@ -638,24 +638,39 @@ pub fn pair_cell(x: [f32; 3], s: &PairStep) -> [i32; 3] {
 /// its 27 cells, then by index.
 #[inline]
 pub fn pair_hash(c: [i32; 3], mask: u32) -> u32 {
-    let b = [c[0] >> 2, c[1] >> 2, c[2] >> 2];
-    let r = [b[0] >> 3, b[1] >> 3, b[2] >> 3];
-    let mut h = (r[0] as u32).wrapping_mul(0x8da6_b343)
-        ^ (r[1] as u32).wrapping_mul(0xd816_3841)
-        ^ (r[2] as u32).wrapping_mul(0xcb1a_b31f);
+    let r = [c[0] >> 5, c[1] >> 5, c[2] >> 5];
+    let region = region_mix(
+        (r[0] as u32).wrapping_mul(HASH_X)
+            ^ (r[1] as u32).wrapping_mul(HASH_Y)
+            ^ (r[2] as u32).wrapping_mul(HASH_Z),
+    );
+    region.wrapping_add(cell_place(c[0], 0) | cell_place(c[1], 1) | cell_place(c[2], 2)) & mask
+}
+
+/// The multipliers of a region's coordinates in [`pair_hash`], x, y, z.
+const HASH_X: u32 = 0x8da6_b343;
+const HASH_Y: u32 = 0xd816_3841;
+const HASH_Z: u32 = 0xcb1a_b31f;
+
+/// The mix of a region's combined coordinates ([`pair_hash`]): where its run starts.
+#[inline(always)]
+fn region_mix(mut h: u32) -> u32 {
     h ^= h >> 16;
     h = h.wrapping_mul(0x7feb_352d);
     h ^= h >> 15;
     h = h.wrapping_mul(0x846c_a68b);
-    h ^= h >> 16;
-    let mut block = 0u32;
-    for i in 0..3 {
-        for (a, &ba) in b.iter().enumerate() {
-            block |= ((ba >> i) as u32 & 1) << (3 * i + a);
-        }
-    }
-    let local = (c[0] & 3) as u32 | ((c[1] & 3) as u32) << 2 | ((c[2] & 3) as u32) << 4;
-    h.wrapping_add(block << 6 | local) & mask
+    h ^ h >> 16
+}
+
+/// Axis `a`'s bits of a cell's place in its region's run ([`pair_hash`]): its block
+/// coordinate's three bits (`x >> 2`, within the region) at bits `6 + 3i + a`, its
+/// coordinate within the block (two bits) at bits `2a`. The three axes' bits are disjoint:
+/// a cell's place is their union.
+#[inline(always)]
+fn cell_place(x: i32, a: u32) -> u32 {
+    let b = (x >> 2) as u32;
+    let spread = (b & 1) | (b & 2) << 2 | (b & 4) << 4;
+    (spread << (6 + a)) | ((x & 3) as u32) << (2 * a)
 }
 
 /// Whether sorted position `k` is the first and the last entry of its bucket in `keys` (the
@@ -908,11 +923,13 @@ pub fn pair_neighbourhood(
     mut each: impl FnMut(usize),
 ) -> bool {
     let mut visited = 0u32;
+    let hashes = neighbourhood_hashes(cell, s.mask);
     for dz in -1i32..=1 {
         for dy in -1i32..=1 {
             for dx in -1i32..=1 {
                 let c = [cell[0] + dx, cell[1] + dy, cell[2] + dz];
-                let r = ranges[pair_hash(c, s.mask) as usize];
+                let h = hashes[(9 * (dz + 1) + 3 * (dy + 1) + dx + 1) as usize];
+                let r = ranges[h as usize];
                 for m in r[0]..r[1] {
                     if visited == s.max_candidates {
                         return true;
@@ -928,6 +945,23 @@ pub fn pair_neighbourhood(
         }
     }
     false
+}
+
+/// [`pair_hash`] of the 27 cells around `cell`, in [`pair_neighbourhood`]'s order (z, then
+/// y, then x, from −1 to 1), from parts per axis: a region's combined coordinates and a
+/// cell's place in its run are unions of one part per axis, so only the region's mix is
+/// done per cell.
+#[inline(always)]
+fn neighbourhood_hashes(cell: [i32; 3], mask: u32) -> [u32; 27] {
+    let region =
+        |a: usize, mul: u32| [-1, 0, 1].map(|d| (((cell[a] + d) >> 5) as u32).wrapping_mul(mul));
+    let place = |a: usize| [-1, 0, 1].map(|d| cell_place(cell[a] + d, a as u32));
+    let (rx, ry, rz) = (region(0, HASH_X), region(1, HASH_Y), region(2, HASH_Z));
+    let (px, py, pz) = (place(0), place(1), place(2));
+    core::array::from_fn(|i| {
+        let (x, y, z) = (i % 3, i / 3 % 3, i / 9);
+        region_mix(rx[x] ^ ry[y] ^ rz[z]).wrapping_add(px[x] | py[y] | pz[z]) & mask
+    })
 }
 
 /// Whether the entry at sorted position `m`, at `other`, is a candidate of the particle at
@@ -1402,6 +1436,68 @@ mod tests {
                 assert_ne!(pair_hash(next, mask), start);
             }
         }
+    }
+
+    /// `pair_hash` as first written (one mix per cell, the Morton code bit by bit): the
+    /// definition the per-axis parts of `pair_hash` and `neighbourhood_hashes` must keep.
+    fn pair_hash_by_bits(c: [i32; 3], mask: u32) -> u32 {
+        let b = [c[0] >> 2, c[1] >> 2, c[2] >> 2];
+        let r = [b[0] >> 3, b[1] >> 3, b[2] >> 3];
+        let mut h = (r[0] as u32).wrapping_mul(0x8da6_b343)
+            ^ (r[1] as u32).wrapping_mul(0xd816_3841)
+            ^ (r[2] as u32).wrapping_mul(0xcb1a_b31f);
+        h ^= h >> 16;
+        h = h.wrapping_mul(0x7feb_352d);
+        h ^= h >> 15;
+        h = h.wrapping_mul(0x846c_a68b);
+        h ^= h >> 16;
+        let mut block = 0u32;
+        for i in 0..3 {
+            for (a, &ba) in b.iter().enumerate() {
+                block |= ((ba >> i) as u32 & 1) << (3 * i + a);
+            }
+        }
+        let local = (c[0] & 3) as u32 | ((c[1] & 3) as u32) << 2 | ((c[2] & 3) as u32) << 4;
+        h.wrapping_add(block << 6 | local) & mask
+    }
+
+    #[test]
+    fn a_cell_and_its_neighbourhood_hash_as_the_bitwise_definition_says() {
+        let limit = PAIR_CELL_LIMIT as i32;
+        let mut rng = 0x2545_f491_4f6c_dd1du64;
+        let mut next = move || {
+            rng ^= rng << 13;
+            rng ^= rng >> 7;
+            rng ^= rng << 17;
+            rng
+        };
+        let mut differs = 0;
+        for i in 0..20_000 {
+            // Near the origin, across region and block edges, and at the cell limits.
+            let c: [i32; 3] = core::array::from_fn(|_| {
+                let r = next();
+                match i % 3 {
+                    0 => (r % 200) as i32 - 100,
+                    1 => (r % (2 * limit as u64 + 1)) as i32 - limit,
+                    _ => [-limit, limit, -32, 31, 0][(r % 5) as usize] + (r >> 8) as i32 % 2,
+                }
+            });
+            let c = c.map(|x| x.clamp(-limit, limit));
+            let mask = [(1u32 << 20) - 1, (1 << 3) - 1, u32::MAX >> 1][i % 3];
+            assert_eq!(pair_hash(c, mask), pair_hash_by_bits(c, mask), "{c:?}");
+            let hashes = neighbourhood_hashes(c, mask);
+            for (k, &h) in hashes.iter().enumerate() {
+                let d = [
+                    (k % 3) as i32 - 1,
+                    (k / 3 % 3) as i32 - 1,
+                    (k / 9) as i32 - 1,
+                ];
+                let n = [c[0] + d[0], c[1] + d[1], c[2] + d[2]];
+                assert_eq!(h, pair_hash_by_bits(n, mask), "{c:?} + {d:?}");
+                differs += (h != hashes[13]) as u32;
+            }
+        }
+        assert!(differs > 0);
     }
 
     #[test]

@@ -147,7 +147,7 @@ impl Crowding {
                             for &t in &s.tris {
                                 if !far.misses(&boxes[t as usize])
                                     && !marks.has(t)
-                                    && geom::triangle_overlaps_box(&tris[t as usize].v, wlo, whi)
+                                    && geom::triangle_overlaps_box(&tris[t as usize].v(), wlo, whi)
                                 {
                                     marks.add(t);
                                 }
@@ -377,7 +377,7 @@ fn crosses_itself(list: &[u32], tris: &[Tri]) -> bool {
     let mut boxes: Vec<(DVec3, DVec3, u32)> = list
         .iter()
         .map(|&t| {
-            let (lo, hi) = bounds(&tris[t as usize].v);
+            let (lo, hi) = bounds(&tris[t as usize].v());
             (lo, hi, t)
         })
         .collect();
@@ -412,8 +412,8 @@ fn edges_meet(a: &Tri, b: &Tri, shared: usize) -> bool {
         (0..3).any(|k| {
             let (i, j) = (k, (k + 1) % 3);
             let away = shared == 0 || !(q.vid.contains(&p.vid[i]) || q.vid.contains(&p.vid[j]));
-            away && !apart(p.v[i], p.v[j], q)
-                && geom::segment_triangle(p.v[i], p.v[j], &q.v).is_some()
+            away && !apart(p.v()[i], p.v()[j], q)
+                && geom::segment_triangle(p.v()[i], p.v()[j], &q.v()).is_some()
         })
     };
     meets(a, b) || meets(b, a)
@@ -441,9 +441,9 @@ fn fan_apart(p: &Tri, q: &Tri) -> bool {
     }
     let d = p.n + q.n;
     // The wedges' sides, from `V`, in each triangle's winding order: `orient(a, b) > 0`.
-    let vertex = p.v[i];
-    let (a, b) = (p.v[(i + 1) % 3] - vertex, p.v[(i + 2) % 3] - vertex);
-    let (c, e) = (q.v[(j + 1) % 3] - vertex, q.v[(j + 2) % 3] - vertex);
+    let vertex = p.v()[i];
+    let (a, b) = (p.v()[(i + 1) % 3] - vertex, p.v()[(i + 2) % 3] - vertex);
+    let (c, e) = (q.v()[(j + 1) % 3] - vertex, q.v()[(j + 2) % 3] - vertex);
     // Squared lengths: the tests below compare squares, with no square root until a line
     // through a gap is needed.
     let sides = [a, b, c, e];
@@ -489,18 +489,18 @@ fn fan_apart(p: &Tri, q: &Tri) -> bool {
 fn apart(a: DVec3, b: DVec3, q: &Tri) -> bool {
     // A needle's normal is good only to about ε over the sine of its angle: leave it to the
     // exact test.
-    let (e1, e2) = (q.v[1] - q.v[0], q.v[2] - q.v[0]);
+    let (e1, e2) = (q.v()[1] - q.v()[0], q.v()[2] - q.v()[0]);
     let twice_area = 2.0 * q.area;
     if twice_area * twice_area < 1e-12 * e1.length_squared() * e2.length_squared() {
         return false;
     }
-    let (da, db) = ((a - q.v[0]).dot(q.n), (b - q.v[0]).dot(q.n));
+    let (da, db) = ((a - q.v()[0]).dot(q.n), (b - q.v()[0]).dot(q.n));
     if !(da * db > 0.0) {
         return false;
     }
     let near = da.abs().min(db.abs());
-    let size2 = (a - q.v[0]).length_squared()
-        + (b - q.v[0]).length_squared()
+    let size2 = (a - q.v()[0]).length_squared()
+        + (b - q.v()[0]).length_squared()
         + e1.length_squared()
         + e2.length_squared();
     near * near > 1e-18 * size2 && near > 1e-9 * (da - db).abs()
@@ -740,7 +740,7 @@ mod tests {
                 let v = ids.map(|i| DVec3::from(positions[i as usize].map(f64::from)));
                 let c = (v[1] - v[0]).cross(v[2] - v[0]);
                 Tri {
-                    v,
+                    p: ids.map(|i| glam::Vec3::from_array(positions[i as usize])),
                     n: c / c.length(),
                     area: 0.5 * c.length(),
                     closed: false,

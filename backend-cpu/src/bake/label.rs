@@ -264,7 +264,7 @@ fn leaf_votes(
 fn boxes_of(list: &[u32], tris: &[Tri]) -> Vec<(DVec3, DVec3)> {
     list.iter()
         .map(|&t| {
-            let v = &tris[t as usize].v;
+            let v = &tris[t as usize].v();
             (v[0].min(v[1]).min(v[2]), v[0].max(v[1]).max(v[2]))
         })
         .collect()
@@ -343,7 +343,7 @@ fn view_visible(
             continue;
         }
         let tri = &tris[t as usize];
-        let Some(s) = geom::segment_triangle(pe, pb, &tri.v).or((t == own).then_some(1.0)) else {
+        let Some(s) = geom::segment_triangle(pe, pb, &tri.v()).or((t == own).then_some(1.0)) else {
             continue;
         };
         if s < best - TIE {

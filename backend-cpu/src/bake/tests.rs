@@ -61,7 +61,7 @@ fn cube_is_closed_and_outward() {
     )
     .unwrap();
     for tri in &tris {
-        let c = (tri.v[0] + tri.v[1] + tri.v[2]) / 3.0 - DVec3::splat(0.5);
+        let c = (tri.v()[0] + tri.v()[1] + tri.v()[2]) / 3.0 - DVec3::splat(0.5);
         assert!(tri.n.dot(c) > 0.0, "normals point out");
     }
     // Dropping one triangle opens it.
@@ -125,7 +125,7 @@ fn variance_metric_is_area_normalised() {
     )
     .unwrap();
     let grid = root_grid(&tris, 6).unwrap();
-    let boxes: Vec<[f32; 6]> = tris.iter().map(|t| crowd::outward_box(&t.v)).collect();
+    let boxes: Vec<[f32; 6]> = tris.iter().map(|t| crowd::outward_box(&t.v())).collect();
     let ctx = Subdiv {
         tris: &tris,
         boxes: &boxes,
@@ -559,7 +559,7 @@ fn a_flat_patch_stops_early_only_where_it_spans_the_leaf() {
             &mut BuildReport::default(),
         )
         .unwrap();
-        let boxes: Vec<[f32; 6]> = tris.iter().map(|t| crowd::outward_box(&t.v)).collect();
+        let boxes: Vec<[f32; 6]> = tris.iter().map(|t| crowd::outward_box(&t.v())).collect();
         let ctx = Subdiv {
             tris: &tris,
             boxes: &boxes,
@@ -571,7 +571,7 @@ fn a_flat_patch_stops_early_only_where_it_spans_the_leaf() {
             progress: &(),
         };
         let list: Vec<u32> = (0..tris.len() as u32)
-            .filter(|&i| geom::triangle_overlaps_box(&tris[i as usize].v, lo, hi))
+            .filter(|&i| geom::triangle_overlaps_box(&tris[i as usize].v(), lo, hi))
             .collect();
         assert!(!list.is_empty());
         ctx.thickness(&list, cell, depth)

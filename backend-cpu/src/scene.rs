@@ -649,7 +649,8 @@ pub fn starting_scene_sides(
                     .locate_leaf(l)
                     .is_some_and(|leaf| leaf.kind == LeafKind::Surface);
                 if in_surface {
-                    let side = mesh.side(l.to_array()) | mesh.cage(view, l.to_array());
+                    let side = mesh.side(l.to_array());
+                    let side = side | mesh.cage(view, l.to_array(), side);
                     if s.set_side(k as u32, side) {
                         from_mesh += 1;
                     }

@@ -37,7 +37,7 @@
 use glam::DVec3;
 use glam::Vec3;
 use octoproxy_core::{
-    side_exit, LeafKind, Particle, ProxyView, SIDE_BACK, SIDE_CAGED, SIDE_FRONT, SIDE_MASK,
+    side_exit, Aabb, LeafKind, Particle, ProxyView, SIDE_BACK, SIDE_CAGED, SIDE_FRONT, SIDE_MASK,
 };
 use rayon::prelude::*;
 
@@ -323,7 +323,12 @@ impl Sides {
     /// [`CAGE_SAMPLES`]² points of the face, crossing no triangle (exactly,
     /// [`GroundTruth::segment_crossings`]). An empty leaf holds no surface, so all of it is
     /// where that segment ends: on the particle's side of every surface in the cage.
-    pub fn cage(&self, view: &ProxyView<'_>, p: [f32; 3]) -> u32 {
+    ///
+    /// A particle exactly on the surface is on neither side of it: a segment from there
+    /// crosses nothing whichever way it leaves. It is on its `side` (bit 0), so the segments
+    /// start a hair from it on that side (`origin_on_side`); where no such point is sure, it
+    /// has no exit.
+    pub fn cage(&self, view: &ProxyView<'_>, p: [f32; 3], side: u32) -> u32 {
         let x = Vec3::from_array(p);
         if !x.is_finite() {
             return 0;
@@ -342,6 +347,9 @@ impl Sides {
         if self.rims.touch(b.min.as_dvec3(), b.max.as_dvec3()) {
             return bits;
         }
+        let Some(from) = self.origin_on_side(p, side & SIDE_MASK, &b) else {
+            return bits;
+        };
         for axis in 0..3 {
             let (u, w) = ((axis + 1) % 3, (axis + 2) % 3);
             for upper in [false, true] {
@@ -366,7 +374,7 @@ impl Sides {
                     let mut q = centre;
                     q[u] = b.min[u] + (b.max[u] - b.min[u]) * f(k % CAGE_SAMPLES);
                     q[w] = b.min[w] + (b.max[w] - b.min[w]) * f(k / CAGE_SAMPLES);
-                    self.truths[0].segment_crossings(p, q.to_array()) == 0
+                    self.truths[0].segment_crossings(from, q.to_array()) == 0
                 });
                 if reachable {
                     bits |= side_exit(axis as u32, upper);
@@ -374,6 +382,31 @@ impl Sides {
             }
         }
         bits
+    }
+
+    /// Where a cage's segments start for a particle at `p` on `side` in the cage `b`: `p`
+    /// itself when it is off the surface by more than a hair (a thousandth of the cage's
+    /// size). On it (exactly on a triangle, where a segment from `p` crosses that triangle or
+    /// not depending only on which way it leaves; its distance in `f64` may round to a
+    /// little more than zero) or within a hair of it, the point a hair from the nearest
+    /// point of the surface along the angle-weighted pseudo-normal of the triangles there
+    /// (Bærentzen and Aanæs 2005), forward for the front and backward for the back, if that
+    /// point is strictly inside the cage, more than half a hair from the surface, and on
+    /// `side` by [the rule](self); `None` otherwise.
+    fn origin_on_side(&self, p: [f32; 3], side: u32, b: &Aabb) -> Option<[f32; 3]> {
+        let hair = (b.max - b.min).min_element() as f64 * 1e-3;
+        let mut near = Vec::new();
+        let distance = self.truths[0].nearest_triangles(p, &mut near);
+        if distance > hair || near.is_empty() {
+            return Some(p);
+        }
+        let n: DVec3 = near.iter().map(|t| t.normal * t.angle).sum();
+        let n = if side == SIDE_BACK { -n } else { n }.normalize_or_zero();
+        let q = (near[0].closest + n * hair).as_vec3();
+        let inside = q.cmpgt(b.min).all() && q.cmplt(b.max).all();
+        let verdict = self.verdict_with(q.to_array(), &mut near);
+        let sure = n != DVec3::ZERO && inside && verdict.distance > 0.5 * hair;
+        (sure && verdict.side == side).then_some(q.to_array())
     }
 
     /// Cages every particle of `particles` that starts strictly inside a solid leaf of
@@ -394,7 +427,7 @@ impl Sides {
                     c.kept = 1;
                     return c;
                 }
-                let bits = self.cage(view, p.position);
+                let bits = self.cage(view, p.position, p.side);
                 p.side = (p.side & SIDE_MASK) | bits;
                 if bits != 0 {
                     c.caged = 1;
@@ -847,7 +880,7 @@ mod tests {
                 rng.range(-leaf, leaf),
                 rng.range(-0.6, 0.6),
             ];
-            let bits = sides.cage(&view, x);
+            let bits = sides.cage(&view, x, sides.side(x));
             if bits == 0 {
                 continue;
             }
@@ -896,6 +929,68 @@ mod tests {
     }
 
     #[test]
+    fn a_particle_exactly_on_the_surface_leaves_its_cage_only_to_its_own_side() {
+        // A peg through a plate: solid leaves where their faces meet. Points exactly on the
+        // axis-aligned faces (a segment from there crosses nothing whichever way it goes),
+        // given either side: every exit leads to a leaf on that side, and both sides have
+        // some. Found by the penetration campaign: a particle on a box's face, in front of
+        // it, left its cage into the box.
+        let plate = scenes::cube([-0.5, -0.1, -0.5], [0.5, 0.1, 0.5]);
+        let peg = scenes::cube([-0.13, -0.6, -0.13], [0.13, 0.6, 0.13]);
+        let refs = [MeshRef::from(&plate), MeshRef::from(&peg)];
+        let params = crate::BuildParams {
+            dmax: 5,
+            ..crate::BuildParams::default()
+        };
+        let (words, _) = crate::bake(&refs, &params, &()).unwrap();
+        let view = ProxyView::new(&words).unwrap();
+        let sides = Sides::new(&refs);
+        let mut rng = Rng::new(3);
+        let mut with_exits = [0; 2];
+        for k in 0..4000 {
+            // On the plate's top face, or on the peg's face at x = 0.13.
+            let x = if k % 2 == 0 {
+                [rng.range(-0.5, 0.5), 0.1, rng.range(-0.5, 0.5)]
+            } else {
+                [0.13, rng.range(-0.6, 0.6), rng.range(-0.13, 0.13)]
+            };
+            for side in [SIDE_FRONT, SIDE_BACK] {
+                let bits = sides.cage(&view, x, side);
+                for axis in 0..3u32 {
+                    for upper in [false, true] {
+                        if bits & side_exit(axis, upper) == 0 {
+                            continue;
+                        }
+                        let cage = view.locate_leaf(Vec3::from_array(x)).unwrap();
+                        let mut dir = Vec3::ZERO;
+                        dir[axis as usize] = if upper { 1.0 } else { -1.0 };
+                        let mut face = (cage.aabb.min + cage.aabb.max) * 0.5;
+                        face[axis as usize] = if upper {
+                            cage.aabb.max[axis as usize]
+                        } else {
+                            cage.aabb.min[axis as usize]
+                        };
+                        let across = view.locate_leaf_toward(face, dir).unwrap();
+                        let centre = (across.aabb.min + across.aabb.max) * 0.5;
+                        assert_eq!(
+                            sides.side(centre.to_array()),
+                            side,
+                            "{x:?} on side {side} leaves its cage {:?} by axis {axis} upper {upper} into {:?}",
+                            cage.aabb,
+                            across.aabb
+                        );
+                        with_exits[side as usize] += 1;
+                    }
+                }
+            }
+        }
+        assert!(
+            with_exits.iter().all(|&n| n > 20),
+            "too few exits to check: {with_exits:?}"
+        );
+    }
+
+    #[test]
     fn a_cage_a_rim_passes_through_has_no_exit() {
         // Round a sheet's rim a path can cross the sheet and come back to where a straight
         // segment reaches without crossing: no face of the cage is a sure exit.
@@ -913,7 +1008,7 @@ mod tests {
                 rng.range(-leaf, leaf),
                 rng.range(-0.9, 0.9),
             ];
-            let bits = sides.cage(&view, x);
+            let bits = sides.cage(&view, x, sides.side(x));
             if bits != 0 {
                 found += 1;
                 assert_eq!(bits, SIDE_CAGED, "at {x:?}");
@@ -924,7 +1019,7 @@ mod tests {
             "only {found} particles in the rim's solid leaves"
         );
         // Not in a solid leaf: no cage; nor at a non-finite position.
-        assert_eq!(sides.cage(&view, [0.3, 0.5, 0.3]), 0);
-        assert_eq!(sides.cage(&view, [f32::NAN, 0.0, 0.0]), 0);
+        assert_eq!(sides.cage(&view, [0.3, 0.5, 0.3], SIDE_FRONT), 0);
+        assert_eq!(sides.cage(&view, [f32::NAN, 0.0, 0.0], SIDE_FRONT), 0);
     }
 }

@@ -1237,8 +1237,8 @@ fn penetration_inner(u: &mut Unstructured<'_>) -> Result<()> {
         }
         // The exact starting side, from the mesh (or the emitter's), and the cage of a particle
         // that starts strictly inside a solid leaf.
-        p.side =
-            emitted_side.unwrap_or_else(|| sides.side(p.position)) | sides.cage(&view, p.position);
+        let side = emitted_side.unwrap_or_else(|| sides.side(p.position));
+        p.side = side | sides.cage(&view, p.position, side);
         let inside = gt.is_inside(p.position);
         let start = p;
         let steps = u.int_in_range(1u32..=12)?;

@@ -409,11 +409,11 @@ fn crosses_itself(list: &[u32], tris: &[Tri]) -> bool {
 /// k + 1.
 fn edges_meet(a: &Tri, b: &Tri, shared: usize) -> bool {
     let meets = |p: &Tri, q: &Tri| {
+        let (pv, qv) = (p.v(), q.v());
         (0..3).any(|k| {
             let (i, j) = (k, (k + 1) % 3);
             let away = shared == 0 || !(q.vid.contains(&p.vid[i]) || q.vid.contains(&p.vid[j]));
-            away && !apart(p.v()[i], p.v()[j], q)
-                && geom::segment_triangle(p.v()[i], p.v()[j], &q.v()).is_some()
+            away && !apart(pv[i], pv[j], q) && geom::segment_triangle(pv[i], pv[j], &qv).is_some()
         })
     };
     meets(a, b) || meets(b, a)
@@ -441,9 +441,10 @@ fn fan_apart(p: &Tri, q: &Tri) -> bool {
     }
     let d = p.n + q.n;
     // The wedges' sides, from `V`, in each triangle's winding order: `orient(a, b) > 0`.
-    let vertex = p.v()[i];
-    let (a, b) = (p.v()[(i + 1) % 3] - vertex, p.v()[(i + 2) % 3] - vertex);
-    let (c, e) = (q.v()[(j + 1) % 3] - vertex, q.v()[(j + 2) % 3] - vertex);
+    let (pv, qv) = (p.v(), q.v());
+    let vertex = pv[i];
+    let (a, b) = (pv[(i + 1) % 3] - vertex, pv[(i + 2) % 3] - vertex);
+    let (c, e) = (qv[(j + 1) % 3] - vertex, qv[(j + 2) % 3] - vertex);
     // Squared lengths: the tests below compare squares, with no square root until a line
     // through a gap is needed.
     let sides = [a, b, c, e];
@@ -489,18 +490,19 @@ fn fan_apart(p: &Tri, q: &Tri) -> bool {
 fn apart(a: DVec3, b: DVec3, q: &Tri) -> bool {
     // A needle's normal is good only to about ε over the sine of its angle: leave it to the
     // exact test.
-    let (e1, e2) = (q.v()[1] - q.v()[0], q.v()[2] - q.v()[0]);
+    let v = q.v();
+    let (e1, e2) = (v[1] - v[0], v[2] - v[0]);
     let twice_area = 2.0 * q.area;
     if twice_area * twice_area < 1e-12 * e1.length_squared() * e2.length_squared() {
         return false;
     }
-    let (da, db) = ((a - q.v()[0]).dot(q.n), (b - q.v()[0]).dot(q.n));
+    let (da, db) = ((a - v[0]).dot(q.n), (b - v[0]).dot(q.n));
     if !(da * db > 0.0) {
         return false;
     }
     let near = da.abs().min(db.abs());
-    let size2 = (a - q.v()[0]).length_squared()
-        + (b - q.v()[0]).length_squared()
+    let size2 = (a - v[0]).length_squared()
+        + (b - v[0]).length_squared()
         + e1.length_squared()
         + e2.length_squared();
     near * near > 1e-18 * size2 && near > 1e-9 * (da - db).abs()

@@ -292,14 +292,12 @@ fn finish_surface(s: &mut Surface, tris: &[Tri], lo: DVec3, hi: DVec3, bound: f6
     for &t in &s.tris {
         let tri = &tris[t as usize];
         rim |= tri.rim_touches(lo, hi);
-        let poly = geom::clip_triangle(&tri.v(), lo, hi);
+        let v = tri.v();
+        let poly = geom::clip_triangle(&v, lo, hi);
         // Where clipping leaves nothing of a triangle that touches the box (numerically, at
         // an edge or a corner), the part of its bounding box in the leaf stands in for it.
         let (pmin, pmax) = if poly.is_empty() {
-            let (a, b) = (
-                tri.v()[0].min(tri.v()[1]).min(tri.v()[2]),
-                tri.v()[0].max(tri.v()[1]).max(tri.v()[2]),
-            );
+            let (a, b) = (v[0].min(v[1]).min(v[2]), v[0].max(v[1]).max(v[2]));
             (a.clamp(lo, hi), b.clamp(lo, hi))
         } else {
             poly.points()
@@ -350,8 +348,8 @@ fn finish_surface(s: &mut Surface, tris: &[Tri], lo: DVec3, hi: DVec3, bound: f6
     if s.anchors.is_empty() {
         // Numerically, no triangle reached inside: anchor at each centroid, clamped in.
         for &t in &s.tris {
-            let c =
-                (tris[t as usize].v()[0] + tris[t as usize].v()[1] + tris[t as usize].v()[2]) / 3.0;
+            let v = tris[t as usize].v();
+            let c = (v[0] + v[1] + v[2]) / 3.0;
             s.anchors.push((c.clamp(lo, hi), t));
         }
     }

@@ -264,7 +264,7 @@ fn leaf_votes(
 fn boxes_of(list: &[u32], tris: &[Tri]) -> Vec<(DVec3, DVec3)> {
     list.iter()
         .map(|&t| {
-            let v = &tris[t as usize].v();
+            let v = tris[t as usize].v();
             (v[0].min(v[1]).min(v[2]), v[0].max(v[1]).max(v[2]))
         })
         .collect()

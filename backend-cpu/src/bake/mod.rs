@@ -302,11 +302,13 @@ impl Tri {
     /// Whether one of its rim edges touches the closed box `lo..hi` (or may: the test errs
     /// on the side of yes).
     pub fn rim_touches(&self, lo: DVec3, hi: DVec3) -> bool {
-        self.rim != 0
-            && (0..3).any(|k| {
-                self.rim & 1 << k != 0
-                    && geom::segment_may_touch_box(self.v()[k], self.v()[(k + 1) % 3], lo, hi)
-            })
+        if self.rim == 0 {
+            return false;
+        }
+        let v = self.v();
+        (0..3).any(|k| {
+            self.rim & 1 << k != 0 && geom::segment_may_touch_box(v[k], v[(k + 1) % 3], lo, hi)
+        })
     }
 }
 
@@ -1102,7 +1104,7 @@ impl Subdiv<'_> {
                     sides[a] = 2;
                 }
             }
-            let v = &self.tris[t as usize].v();
+            let v = self.tris[t as usize].v();
             if sides.contains(&0) {
                 let lo = v[0].min(v[1]).min(v[2]);
                 let hi = v[0].max(v[1]).max(v[2]);
@@ -1114,7 +1116,11 @@ impl Subdiv<'_> {
                 let fits = (0..3).all(|a| sides[a] & (1 << ((o >> a) & 1)) != 0);
                 if fits
                     && (!straddles
-                        || geom::triangle_overlaps_box(v, boxes[o as usize].0, boxes[o as usize].1))
+                        || geom::triangle_overlaps_box(
+                            &v,
+                            boxes[o as usize].0,
+                            boxes[o as usize].1,
+                        ))
                 {
                     subs[o as usize].push(t);
                 }

@@ -61,7 +61,8 @@ fn cube_is_closed_and_outward() {
     )
     .unwrap();
     for tri in &tris {
-        let c = (tri.v()[0] + tri.v()[1] + tri.v()[2]) / 3.0 - DVec3::splat(0.5);
+        let v = tri.v();
+        let c = (v[0] + v[1] + v[2]) / 3.0 - DVec3::splat(0.5);
         assert!(tri.n.dot(c) > 0.0, "normals point out");
     }
     // Dropping one triangle opens it.

@@ -131,8 +131,6 @@ struct PairBuffers {
     bodies: Vec<PairBody>,
     vel: Vec<PairVelocity>,
     vel_next: Vec<PairVelocity>,
-    /// The velocities entering the iterations.
-    start: Vec<PairVelocity>,
     support: Vec<[f32; 4]>,
     ranges: Vec<[u32; 2]>,
     rank: Vec<AtomicU32>,
@@ -311,9 +309,6 @@ impl PairBuffers {
                 capped
             })
             .sum();
-        // The velocities entering the iterations stay in `start` for the debiasing ones.
-        self.start.resize(n, [0.0; 4]);
-        self.start[..valid].copy_from_slice(&self.vel[..valid]);
         self.valid = valid;
         self.capped_once = capped_once;
         self.iterate(particles, s, iterations, false);

@@ -1503,8 +1503,8 @@ impl Report {
             "Particles that collide with each other (`step_pairs`: the uniform-grid pass, then the \
              march at the radius), radius {} m, `dt` 1/60 s, the automatic substeps (gravity's, more \
              while a grain moves more than a radius in one; the table gives the mean a step), 8 \
-             iterations before the march and 8 debiasing ones after it. `particles-pile`: a block {} grains wide resting on a floor, one grain \
-             per cell; `particles-cloud`: one grain per (8R)³ falling onto it. Nanoseconds per \
+             iterations before the march and 8 debiasing ones after it. `particles-pile`: a block {} grains wide set down at rest on a \
+             floor, one grain per cell; `particles-cloud`: one grain per (8R)³ falling onto it. Nanoseconds per \
              particle-step; the pass is the sort and the neighbour loop (both sets of iterations), per particle-substep:\n\n",
             particles::RADIUS,
             particles::PILE_WIDTH,

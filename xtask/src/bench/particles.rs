@@ -1,6 +1,6 @@
 //! The bench's cases of particles that collide with each other (`Backend::step_pairs`, the
 //! uniform-grid pass and the march at a radius). `particles-pile`: a dense block of grains, one
-//! per cell, 64 by 64 wide and as deep as the count asks, resting on a floor. `particles-cloud`:
+//! per cell, 64 by 64 wide and as deep as the count asks, set down at rest on a floor. `particles-cloud`:
 //! a sparse cloud, one grain per 8 radii cubed (about one in 30 cells), spread over a cube
 //! above the same floor and falling onto it. Both at the radius [`RADIUS`], `dt` 1/60 and the
 //! automatic substeps, timed as a whole and, on the CPU, apart: the sort, the neighbour loop
@@ -83,6 +83,9 @@ pub fn case_particles(name: &str, floor: &Floor, n: usize) -> Result<Vec<Particl
             let s = pile_spacing();
             let layer = PILE_WIDTH * PILE_WIDTH;
             let at = |i: usize| (i as f32 - (PILE_WIDTH - 1) as f32 / 2.0) * s;
+            // The lowest layer a thousandth of a radius above where it rests on the floor
+            // (centres a radius from it): the block stands on the floor from the start and
+            // presses under gravity, instead of falling onto it within the timed steps.
             for k in 0..n {
                 let (y, rest) = (k / layer, k % layer);
                 let (z, x) = (rest / PILE_WIDTH, rest % PILE_WIDTH);
@@ -90,7 +93,7 @@ pub fn case_particles(name: &str, floor: &Floor, n: usize) -> Result<Vec<Particl
                 ps.push(Particle::new(
                     [
                         at(x) + j * rng.range(-1.0, 1.0),
-                        floor.top + 2.0 * RADIUS + y as f32 * s,
+                        floor.top + RADIUS * 1.001 + y as f32 * s,
                         at(z) + j * rng.range(-1.0, 1.0),
                     ],
                     [0.0; 3],

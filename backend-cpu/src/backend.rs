@@ -10,6 +10,7 @@ use octoproxy_core::{
     StepParams,
 };
 
+use octoproxy_core::pairs::pair_up;
 use octoproxy_core::pairs::PairGeometry;
 use octoproxy_core::pairs::{
     pair_cell, pair_geometry, pair_hash, pair_in_reach, pair_is_fast, pair_neighbourhood,
@@ -17,20 +18,36 @@ use octoproxy_core::pairs::{
     PAIR_HASH_NONE,
 };
 use octoproxy_core::{
-    pair_probe_speed, pair_substep_range, pair_substeps_for, PairBody, PairParams, PairReport,
-    PairStep, PairVelocity,
+    pair_iterations_for, pair_substep_range, pair_substeps_for, PairBody, PairParams, PairProbe,
+    PairReport, PairStep, PairVelocity,
 };
 
 use rayon::prelude::*;
 
-/// The largest [`pair_probe_speed`] of `particles` (0 for none): what
-/// [`pair_substeps_for`] takes.
-fn probe_speed(particles: &[Particle]) -> f32 {
+/// The [`PairProbe`] of `particles` under `step`'s gravity, in parallel: what
+/// [`pair_substeps_for`] and [`pair_iterations_for`] take.
+fn probe(particles: &[Particle], step: &StepParams) -> PairProbe {
+    let up = pair_up(step);
     particles
         .par_iter()
         .with_min_len(4096)
-        .map(pair_probe_speed)
-        .reduce(|| 0.0, f32::max)
+        .map(|p| PairProbe::of(p, up))
+        .reduce(|| PairProbe::EMPTY, PairProbe::join)
+}
+
+/// A step's plan with the pass, from its particles at its start: its substeps and each
+/// substep's iterations, which it counts in `report` (a step whose particles stand deeper than
+/// the iterations may be).
+fn plan(
+    particles: &[Particle],
+    params: &StepParams,
+    pairs: &PairParams,
+    report: &mut PairReport,
+) -> (u32, u32) {
+    let probe = probe(particles, params);
+    let (iterations, deep) = pair_iterations_for(params, pairs, &probe);
+    report.deep += deep as u64;
+    (pair_substeps_for(params, pairs, probe.speed), iterations)
 }
 
 /// What the CPU backend can report.
@@ -626,6 +643,7 @@ impl CpuBackend {
             last.resize(n, Hit::NONE);
             self.hits.resize(n, Hit::NONE);
         }
+        let (_, iterations) = plan(&self.particles, params, pairs, &mut self.pair_report);
         for (k, scene) in scenes.iter().enumerate() {
             let started = std::time::Instant::now();
             let s0 = PairStep::new(params, pairs, march.dt, n, 0.0);
@@ -649,7 +667,7 @@ impl CpuBackend {
             let (hints, slots) = (&*scene_hints, &*scene_slots);
             let start =
                 |i: usize, p: &Particle| pair_start_scene(scene, p, &hints[i], &slots[i], &s);
-            pair_report.capped += buffers.substep(particles, start, &s, pairs.iterations, started);
+            pair_report.capped += buffers.substep(particles, start, &s, iterations, started);
             let marched = std::time::Instant::now();
             let first_event = self.events.len();
             let (crushed, sides_lost) = self.step_scene_with(scene, march, hits);
@@ -668,8 +686,9 @@ impl CpuBackend {
                 }
             }
             self.pairs.timings.march += marched.elapsed();
-            self.pair_report.capped += self.pairs.debias(&mut self.particles, &s, pairs.iterations);
+            self.pair_report.capped += self.pairs.debias(&mut self.particles, &s, iterations);
             self.pair_report.substeps += 1;
+            self.pair_report.iterations += iterations as u64;
         }
         if hits {
             std::mem::swap(&mut self.hits, &mut last);
@@ -861,7 +880,7 @@ impl Backend for CpuBackend {
         octoproxy_core::check_radius(view.header().radius, params.radius)?;
         let view = if *use_lut { view } else { view.without_lut() };
         for _ in 0..steps {
-            let substeps = pair_substeps_for(params, pairs, probe_speed(particles));
+            let (substeps, iterations) = plan(particles, params, pairs, pair_report);
             let h = params.dt / substeps as f32;
             // Gravity is integrated by the pass; the march moves each particle with what it
             // left.
@@ -883,8 +902,7 @@ impl Backend for CpuBackend {
                 let s = PairStep::new(params, pairs, h, n, v_max);
                 pair_report.fast += fast;
                 let start = |i: usize, p: &Particle| pair_start(&view, p, hints[i], &s);
-                pair_report.capped +=
-                    buffers.substep(particles, start, &s, pairs.iterations, started);
+                pair_report.capped += buffers.substep(particles, start, &s, iterations, started);
                 let marched = std::time::Instant::now();
                 particles
                     .par_iter_mut()
@@ -894,8 +912,9 @@ impl Backend for CpuBackend {
                         step_particle_hinted(&view, p, &march, hint);
                     });
                 buffers.timings.march += marched.elapsed();
-                pair_report.capped += buffers.debias(particles, &s, pairs.iterations);
+                pair_report.capped += buffers.debias(particles, &s, iterations);
                 pair_report.substeps += 1;
+                pair_report.iterations += iterations as u64;
             }
             pair_report.steps += 1;
         }
@@ -943,7 +962,7 @@ impl Backend for CpuBackend {
         Ok(pair_substeps_for(
             params,
             pairs,
-            probe_speed(&self.particles),
+            probe(&self.particles, params).speed,
         ))
     }
 

@@ -19,11 +19,12 @@ pub mod scene;
 
 use crate::emit::{emit_surface_for, Rng, SurfaceSampler};
 use glam::Vec3;
-use octoproxy_core::pairs::{pair_max_speed, pair_table_size};
+use octoproxy_core::pairs::{pair_max_speed, pair_table_size, pair_up};
 use octoproxy_core::{
-    collide_pairs, debias_pairs, initial_side, pair_probe_speed, pair_substeps_for,
-    step_particle_traced, LeafHint, PairBody, PairParams, PairScratch, PairStep, PairVelocity,
-    Particle, ProxyView, StepParams, FLAG_BLOCKED, FLAG_BOUND_HIT, FLAG_INVALID, MAX_DEPTH,
+    collide_pairs, debias_pairs, initial_side, pair_iterations_for, pair_substeps_for,
+    step_particle_traced, LeafHint, PairBody, PairParams, PairProbe, PairScratch, PairStep,
+    PairVelocity, Particle, ProxyView, StepParams, FLAG_BLOCKED, FLAG_BOUND_HIT, FLAG_INVALID,
+    MAX_DEPTH,
 };
 use rayon::prelude::*;
 
@@ -552,7 +553,7 @@ struct PassScratch {
     ranges: Vec<[u32; 2]>,
     /// No grain rests on a support here: every hint is none.
     hints: Vec<LeafHint>,
-    /// The last pass's constants and iterations, for its debiasing iterations.
+    /// The last pass's constants, for its debiasing iterations, and the step's iterations.
     step: PairStep,
     iterations: u32,
 }
@@ -578,16 +579,9 @@ impl PassScratch {
         self.hints.resize(n, LeafHint::NONE);
         let s0 = PairStep::new(params, pairs, h, n, 0.0);
         let s = PairStep::new(params, pairs, h, n, pair_max_speed(particles, &s0));
-        (self.step, self.iterations) = (s, pairs.iterations);
+        self.step = s;
         let hints = std::mem::take(&mut self.hints);
-        collide_pairs(
-            particles,
-            view,
-            &hints,
-            &s,
-            pairs.iterations,
-            self.scratch(),
-        );
+        collide_pairs(particles, view, &hints, &s, self.iterations, self.scratch());
         self.hints = hints;
     }
 
@@ -659,14 +653,17 @@ fn check_paths(
         let (substeps, march) = match pairs {
             None => (1, params),
             Some(pairs) => {
-                // The particles it still steps set the substeps, as a backend's would.
-                let v_max = particles
+                // The particles it still steps set the substeps and the iterations, as a
+                // backend's would.
+                let up = pair_up(&params);
+                let probe = particles
                     .iter()
                     .zip(&states)
                     .filter(|(_, s)| !(s.bad || s.non_finite))
-                    .map(|(p, _)| pair_probe_speed(p))
-                    .fold(0.0, f32::max);
-                let substeps = pair_substeps_for(&params, pairs, v_max);
+                    .map(|(p, _)| PairProbe::of(p, up))
+                    .fold(PairProbe::EMPTY, PairProbe::join);
+                let substeps = pair_substeps_for(&params, pairs, probe.speed);
+                pass.iterations = pair_iterations_for(&params, pairs, &probe).0;
                 let h = params.dt / substeps as f32;
                 let march = StepParams {
                     gravity: [0.0; 3],

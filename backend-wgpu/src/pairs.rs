@@ -36,8 +36,10 @@
 //! buffer, at a dynamic offset. The plain kernel binds nothing of the pass.
 
 use bytemuck::{Pod, Zeroable};
-use octoproxy_core::pairs::{pair_table_size, PAIR_HASH_NONE};
-use octoproxy_core::{pair_substeps_for, PairParams, PairReport, PairStep, StepParams};
+use octoproxy_core::pairs::{pair_table_size, pair_up, PAIR_HASH_NONE};
+use octoproxy_core::{
+    pair_iterations_for, pair_substeps_for, PairParams, PairProbe, PairReport, PairStep, StepParams,
+};
 
 use crate::backend::{storage, uniform, ErrorScope, WgpuBackend, WgpuError};
 use crate::shader;
@@ -66,6 +68,26 @@ pub struct PairState {
     /// The pass's relaxation `β` (`PairParams::relaxation`): `pair_step_kernel` puts it in
     /// `step` each substep, after the debiasing iterations ran with zero.
     pub relaxation: f32,
+    /// The probe's lowest height along `step.up`, as a key ([`height_of_key`]).
+    pub low: u32,
+    /// The probe's highest height along `step.up`, as a key.
+    pub high: u32,
+    /// Padding: the struct is a multiple of its alignment, 16 bytes (`PairStep`'s).
+    pub _pad0: u32,
+    /// Padding.
+    pub _pad1: u32,
+}
+
+const _: () = assert!(core::mem::size_of::<PairState>() % 16 == 0);
+
+/// The height a key of WGSL's `pair_height_key` stands for: keys order as their heights
+/// (the sign bit set for heights at or above +0, every bit flipped below).
+fn height_of_key(key: u32) -> f32 {
+    if key & 0x8000_0000 != 0 {
+        f32::from_bits(key & 0x7fff_ffff)
+    } else {
+        f32::from_bits(!key)
+    }
 }
 
 /// The pass's sizes: WGSL's `PairPassParams`.
@@ -116,6 +138,8 @@ pub const PAIR_STORAGE_BUFFERS: u32 = 7;
 const STATE_BYTES: u64 = core::mem::size_of::<PairState>() as u64;
 /// Where the largest speed's bits lie in the state buffer.
 const V_MAX_AT: u64 = core::mem::offset_of!(PairState, v_max) as u64;
+/// Where the probe's lowest and highest height lie in the state buffer.
+const HEIGHTS_AT: u64 = core::mem::offset_of!(PairState, low) as u64;
 /// Where the report's counts start in the state buffer: `fast_lo`.
 const COUNTS_AT: u64 = core::mem::offset_of!(PairState, fast_lo) as u64;
 const KEY_BYTES: u64 = 8;
@@ -731,7 +755,7 @@ impl WgpuBackend {
         };
         octoproxy_core::check_radius(baked, params.radius)?;
         for _ in 0..steps {
-            let substeps = self.pair_substeps_gpu(params, pairs)?;
+            let (substeps, iterations) = self.pair_plan_gpu(params, pairs)?;
             // Gravity is integrated by the pass; the march moves each particle with what it
             // left.
             let march = StepParams {
@@ -741,26 +765,59 @@ impl WgpuBackend {
             };
             march.validate()?;
             if n > 0 {
-                self.record_pairs(params, pairs, &march, substeps)?;
+                self.record_pairs(params, pairs, &march, substeps, iterations)?;
             }
-            self.pair_steps_done(substeps);
+            self.pair_steps_done(substeps, iterations);
         }
         self.check_health()
     }
 
     /// The substeps of the next step with the pass (`Backend::pair_substeps_now`): the
-    /// particles' largest speed without gravity (`pair_reset_kernel` and `pair_speed_kernel`
-    /// with a zero substep, which counts nothing as fast) read back, then
-    /// `pair_substeps_for`. Waits for the work queued before it.
+    /// probe's largest speed ([`Self::pair_probe_gpu`]), then `pair_substeps_for`.
     pub(crate) fn pair_substeps_gpu(
         &mut self,
         params: &StepParams,
         pairs: &PairParams,
     ) -> Result<u32, WgpuError> {
         self.check_pass(params, pairs)?;
+        let speed_counts = pairs.substeps == 0 && pairs.follow_speed;
+        let probe = self.pair_probe_gpu(params, speed_counts, false)?;
+        Ok(pair_substeps_for(params, pairs, probe.speed))
+    }
+
+    /// The next step's plan with the pass, from the probe of the particles held (as the CPU
+    /// backend's): its substeps (`pair_substeps_for`) and each substep's iterations
+    /// (`pair_iterations_for`; a step whose particles stand deeper than they prop up is
+    /// counted in the report).
+    pub(crate) fn pair_plan_gpu(
+        &mut self,
+        params: &StepParams,
+        pairs: &PairParams,
+    ) -> Result<(u32, u32), WgpuError> {
+        let speed_counts = pairs.substeps == 0 && pairs.follow_speed;
+        // Without gravity, or with no more iterations allowed than the fewest, the depth
+        // changes nothing.
+        let depth_counts = pair_up(params) != [0.0; 3] && pairs.max_iterations > pairs.iterations;
+        let probe = self.pair_probe_gpu(params, speed_counts, depth_counts)?;
+        let (iterations, deep) = pair_iterations_for(params, pairs, &probe);
+        self.pairs.pending.deep += deep as u64;
+        Ok((pair_substeps_for(params, pairs, probe.speed), iterations))
+    }
+
+    /// The probe of the particles held (`PairProbe`): their largest speed without gravity
+    /// and their lowest and highest height along `pair_up` (`pair_reset_kernel` and
+    /// `pair_speed_kernel` with a zero substep, which counts nothing as fast) read back.
+    /// Waits for the work queued before it. What is not asked for is left as
+    /// `PairProbe::EMPTY`'s, and nothing runs when nothing is.
+    fn pair_probe_gpu(
+        &mut self,
+        params: &StepParams,
+        speed: bool,
+        depth: bool,
+    ) -> Result<PairProbe, WgpuError> {
         let n = self.count;
-        if n == 0 || pairs.substeps != 0 || !pairs.follow_speed {
-            return Ok(pair_substeps_for(params, pairs, 0.0));
+        if n == 0 || !(speed || depth) {
+            return Ok(PairProbe::EMPTY);
         }
         self.pair_kernel()?;
         self.pair_buffers(n)?;
@@ -768,8 +825,12 @@ impl WgpuBackend {
         let kernel = self.pairs.kernel.as_ref().expect("built above");
         let buffers = self.pairs.buffers.as_ref().expect("made above");
         let scope = ErrorScope::push(&self.device);
+        let probe_step = PairStep {
+            up: pair_up(params),
+            ..PairStep::default()
+        };
         self.queue
-            .write_buffer(&kernel.state, 0, bytemuck::bytes_of(&PairStep::default()));
+            .write_buffer(&kernel.state, 0, bytemuck::bytes_of(&probe_step));
         let mut encoder = self.device.create_command_encoder(&Default::default());
         {
             let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
@@ -780,11 +841,19 @@ impl WgpuBackend {
         }
         self.queue.submit([encoder.finish()]);
         scope.pop().map_err(WgpuError::Gpu)?;
-        let bytes = self.read_back(&[(&kernel.state, V_MAX_AT, 4)])?;
-        let v_max = f32::from_bits(u32::from_le_bytes(
-            bytes[0][..4].try_into().expect("4 bytes read back"),
-        ));
-        Ok(pair_substeps_for(params, pairs, v_max))
+        let bytes =
+            self.read_back(&[(&kernel.state, V_MAX_AT, 4), (&kernel.state, HEIGHTS_AT, 8)])?;
+        let word =
+            |b: &[u8], at: usize| u32::from_le_bytes(b[at..at + 4].try_into().expect("read back"));
+        let (low, high) = (word(&bytes[1], 0), word(&bytes[1], 4));
+        let mut probe = PairProbe {
+            speed: f32::from_bits(word(&bytes[0], 0)),
+            ..PairProbe::EMPTY
+        };
+        if low <= high {
+            (probe.low, probe.high) = (height_of_key(low), height_of_key(high));
+        }
+        Ok(probe)
     }
 
     /// The substep's constants for the pass (all but the cell, which the GPU computes from
@@ -817,6 +886,7 @@ impl WgpuBackend {
         pairs: &PairParams,
         march: &StepParams,
         substeps: u32,
+        iterations: u32,
     ) -> Result<(), WgpuError> {
         self.pair_kernel()?;
         self.pair_buffers(self.count)?;
@@ -829,7 +899,9 @@ impl WgpuBackend {
                 label: Some("octoproxy pair substep"),
                 timestamp_writes: None,
             });
-            self.encode_pair_substep(&mut pass, pairs, None, |pass| self.record_step(pass, false));
+            self.encode_pair_substep(&mut pass, iterations, None, |pass| {
+                self.record_step(pass, false)
+            });
         }
         self.queue.submit([encoder.finish()]);
         scope.pop().map_err(WgpuError::Gpu)
@@ -869,7 +941,7 @@ impl WgpuBackend {
     pub(crate) fn encode_pair_substep(
         &self,
         pass: &mut wgpu::ComputePass<'_>,
-        pairs: &PairParams,
+        iterations: u32,
         scene: Option<(&wgpu::ComputePipeline, &[&wgpu::BindGroup])>,
         march: impl FnOnce(&mut wgpu::ComputePass<'_>),
     ) {
@@ -936,12 +1008,12 @@ impl WgpuBackend {
             }
         }
         pass.set_pipeline(&kernel.iterate);
-        for i in 0..pairs.iterations {
+        for i in 0..iterations {
             pass.set_bind_group(0, &buffers.iterate_groups[iterate_group(i)], &[]);
             dispatch(pass, n);
         }
         pass.set_pipeline(&kernel.scatter);
-        let last = last_velocities(pairs.iterations);
+        let last = last_velocities(iterations);
         for c in chunks {
             pass.set_bind_group(0, &c.scatter[last], &[]);
             dispatch(pass, c.count);
@@ -957,12 +1029,12 @@ impl WgpuBackend {
             dispatch(pass, c.count);
         }
         pass.set_pipeline(&kernel.iterate);
-        for i in 0..pairs.iterations {
+        for i in 0..iterations {
             pass.set_bind_group(0, &buffers.iterate_groups[1 + i as usize % 2], &[]);
             dispatch(pass, n);
         }
         pass.set_pipeline(&kernel.scatter);
-        let last = (pairs.iterations % 2) as usize;
+        let last = (iterations % 2) as usize;
         for c in chunks {
             pass.set_bind_group(0, &c.scatter[last], &[]);
             dispatch(pass, c.count);
@@ -974,10 +1046,11 @@ impl WgpuBackend {
         self.pairs.buffers.as_ref().map(|b| b.given.clone())
     }
 
-    /// Counts one step of `substeps` substeps of the pass for the report.
-    pub(crate) fn pair_steps_done(&mut self, substeps: u32) {
+    /// Counts one step of `substeps` substeps of `iterations` iterations each for the report.
+    pub(crate) fn pair_steps_done(&mut self, substeps: u32, iterations: u32) {
         self.pairs.pending.steps += 1;
         self.pairs.pending.substeps += substeps as u64;
+        self.pairs.pending.iterations += substeps as u64 * iterations as u64;
     }
 
     pub(crate) fn take_pair_report_gpu(&mut self) -> Result<PairReport, WgpuError> {

@@ -544,6 +544,7 @@ impl WgpuBackend {
             ..*params
         };
         march.validate()?;
+        let (_, iterations) = self.pair_plan_gpu(params, pairs)?;
         let tables = substeps
             .iter()
             .enumerate()
@@ -586,7 +587,7 @@ impl WgpuBackend {
                     });
                     self.encode_pair_substep(
                         &mut pass,
-                        pairs,
+                        iterations,
                         Some((&kernel.support, &groups)),
                         |pass| self.record_scene_step(pass),
                     );
@@ -595,7 +596,7 @@ impl WgpuBackend {
             }
             scope.pop().map_err(WgpuError::Gpu)?;
         }
-        self.pair_steps_done(count);
+        self.pair_steps_done(count, iterations);
         self.scene.steps = self.scene.steps.wrapping_add(1);
         self.check_health()
     }

@@ -59,9 +59,9 @@ mod view;
 pub use backend::{Backend, EventCount, SceneStepReport, SceneSubstep};
 pub use format::{Label, NodeRecord, FORMAT_VERSION, MAX_DEPTH, MAX_LUT_DEPTH};
 pub use pairs::{
-    collide_pairs, debias_pairs, pair_probe_speed, pair_start_scene, pair_substep_range,
-    pair_substeps, pair_substeps_for, pair_support_scene, PairBody, PairParamError, PairParams,
-    PairReport, PairScratch, PairStep, PairVelocity,
+    collide_pairs, debias_pairs, pair_iterations_for, pair_probe_speed, pair_start_scene,
+    pair_substep_range, pair_substeps, pair_substeps_for, pair_support_scene, PairBody,
+    PairParamError, PairParams, PairProbe, PairReport, PairScratch, PairStep, PairVelocity,
 };
 pub use particle::*;
 pub use query::{Aabb, LeafInfo, LeafKind, NO_LEAF};

@@ -139,8 +139,13 @@ pub struct PairParams {
     /// upper particle beyond half (0: half each, momentum exact; 1: a particle directly on
     /// another takes it all).
     pub stacking: f32,
-    /// Jacobi iterations per substep, `1..=MAX_PAIR_ITERATIONS`.
+    /// The fewest Jacobi iterations per substep, `1..=MAX_PAIR_ITERATIONS`: a step takes
+    /// more where its particles stand deeper ([`pair_iterations_for`]).
     pub iterations: u32,
+    /// The most Jacobi iterations per substep, `iterations..=MAX_PAIR_ITERATIONS`: what a
+    /// deep pile may ask for ([`pair_iterations_for`]); steps that ask for more are counted
+    /// ([`PairReport::deep`]).
+    pub max_iterations: u32,
     /// Substeps per step; 0 chooses them ([`pair_substeps_for`]).
     pub substeps: u32,
     /// With automatic substeps, whether they also follow the fastest particle, so that no
@@ -160,6 +165,7 @@ impl Default for PairParams {
             relaxation: 0.4,
             stacking: 1.0,
             iterations: 8,
+            max_iterations: MAX_PAIR_ITERATIONS,
             substeps: 0,
             follow_speed: true,
             max_candidates: 1024,
@@ -183,6 +189,9 @@ pub enum PairParamError {
     BadStacking(f32),
     /// Iterations outside `1..=MAX_PAIR_ITERATIONS`.
     BadIterations(u32),
+    /// The most iterations outside `iterations..=MAX_PAIR_ITERATIONS` (the most, the
+    /// fewest).
+    BadMaxIterations(u32, u32),
     /// Substeps above `MAX_PAIR_SUBSTEPS`.
     BadSubsteps(u32),
     /// Candidate cap outside `1..=MAX_PAIR_CANDIDATES`.
@@ -207,6 +216,10 @@ impl core::fmt::Display for PairParamError {
             Self::BadIterations(n) => write!(
                 f,
                 "particle iterations must be 1 to {MAX_PAIR_ITERATIONS}, got {n}"
+            ),
+            Self::BadMaxIterations(n, least) => write!(
+                f,
+                "the most particle iterations must be {least} (the fewest) to {MAX_PAIR_ITERATIONS}, got {n}"
             ),
             Self::BadSubsteps(n) => write!(
                 f,
@@ -242,6 +255,12 @@ impl PairParams {
         }
         if !(1..=MAX_PAIR_ITERATIONS).contains(&self.iterations) {
             return Err(PairParamError::BadIterations(self.iterations));
+        }
+        if !(self.iterations..=MAX_PAIR_ITERATIONS).contains(&self.max_iterations) {
+            return Err(PairParamError::BadMaxIterations(
+                self.max_iterations,
+                self.iterations,
+            ));
         }
         if self.substeps > MAX_PAIR_SUBSTEPS {
             return Err(PairParamError::BadSubsteps(self.substeps));
@@ -319,6 +338,143 @@ pub fn pair_probe_speed(p: &Particle) -> f32 {
     pair_prepare(p, &PairStep::default()).map_or(0.0, |(_, speed)| speed)
 }
 
+/// A deep pile stands when each substep's iterations are at least its depth in layers (the
+/// height of its particles along `−gravity` in diameters, plus one) over this
+/// ([`pair_iterations_for`]).
+///
+/// A Jacobi iteration carries a grain's support one contact further, so a substep of `N`
+/// iterations props up `N` layers over the floor; the layers above fall through the substep
+/// and are held by their overlaps alone. The pass's substeps follow gravity
+/// ([`pair_substeps`]), so how far the unheld layers fall before the support reaches them,
+/// in diameters, depends only on the ratio of layers to iterations. Stood up from rest on a
+/// floor (the scratch column of `docs/bench/README.md`), 16 to 1,000 layers over 8 to 64
+/// iterations stand where the ratio is at most 12.5 (the largest speed never above the 0.33
+/// m/s the top reaches in its first two steps of free fall), swing up to 1 m/s at 15 to 20,
+/// and throw their top (4 to 60 m/s) at 30.
+pub const PAIR_LAYERS_PER_ITERATION: f32 = 12.0;
+
+/// The unit vector against gravity (zero without gravity): [`PairStep::up`].
+pub fn pair_up(step: &StepParams) -> [f32; 3] {
+    let g = Vec3::from_array(step.gravity);
+    let gl = g.length();
+    if gl > 0.0 {
+        (-g / gl).to_array()
+    } else {
+        [0.0; 3]
+    }
+}
+
+/// What a step with the pass is planned from, at its start: the particles' largest speed
+/// ([`pair_probe_speed`], for [`pair_substeps_for`]) and their lowest and highest height
+/// along `up` ([`pair_up`], for [`pair_iterations_for`]). Particles the pass leaves out take
+/// no part. Each part is a minimum or a maximum, so any order of particles, a GPU's
+/// included, gives the same probe.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PairProbe {
+    /// The largest speed.
+    pub speed: f32,
+    /// The lowest height (`+∞` for no particle).
+    pub low: f32,
+    /// The highest height (`−∞` for no particle).
+    pub high: f32,
+}
+
+impl PairProbe {
+    /// The probe of no particle.
+    pub const EMPTY: Self = Self {
+        speed: 0.0,
+        low: f32::INFINITY,
+        high: f32::NEG_INFINITY,
+    };
+
+    /// One particle's probe: its speed, and its height `position · up` both low and high
+    /// (WGSL's `pair_height`); [`Self::EMPTY`] for one the pass leaves out.
+    #[inline]
+    pub fn of(p: &Particle, up: [f32; 3]) -> Self {
+        match pair_prepare(p, &PairStep::default()) {
+            Some((_, speed)) => {
+                let height = pair_height(p.position, up);
+                Self {
+                    speed,
+                    low: height,
+                    high: height,
+                }
+            }
+            None => Self::EMPTY,
+        }
+    }
+
+    /// The probe of two sets of particles.
+    #[inline]
+    pub fn join(self, other: Self) -> Self {
+        Self {
+            speed: if other.speed > self.speed {
+                other.speed
+            } else {
+                self.speed
+            },
+            low: if other.low < self.low {
+                other.low
+            } else {
+                self.low
+            },
+            high: if other.high > self.high {
+                other.high
+            } else {
+                self.high
+            },
+        }
+    }
+
+    /// The probe of `particles`, on one thread.
+    pub fn of_all(particles: &[Particle], step: &StepParams) -> Self {
+        let up = pair_up(step);
+        particles
+            .iter()
+            .fold(Self::EMPTY, |a, p| a.join(Self::of(p, up)))
+    }
+
+    /// The height between the lowest and the highest particle (0 for none).
+    pub fn depth(&self) -> f32 {
+        if self.high >= self.low {
+            self.high - self.low
+        } else {
+            0.0
+        }
+    }
+}
+
+/// A position's height along `up`: `x·up` (WGSL's `pair_height`).
+#[inline]
+pub fn pair_height(x: [f32; 3], up: [f32; 3]) -> f32 {
+    x[0] * up[0] + x[1] * up[1] + x[2] * up[2]
+}
+
+/// The Jacobi iterations of each substep of a step whose particles' probe is `probe`
+/// ([`PairProbe`]), and whether their depth asked for more than [`PairParams::max_iterations`]
+/// (then the step takes the most, and a pile that deep may not stand: [`PairReport::deep`]).
+/// Under gravity, the depth in layers, `depth / 2R + 1`, over [`PAIR_LAYERS_PER_ITERATION`],
+/// rounded up, within [`PairParams::iterations`] and [`PairParams::max_iterations`]; without
+/// gravity nothing stacks, and the fewest. The depth is that of all the particles, an upper
+/// bound of any pile's: a tall cloud of falling particles takes as many as a pile as tall.
+pub fn pair_iterations_for(
+    step: &StepParams,
+    pairs: &PairParams,
+    probe: &PairProbe,
+) -> (u32, bool) {
+    let (least, most) = (pairs.iterations, pairs.max_iterations.max(pairs.iterations));
+    let g = Vec3::from_array(step.gravity).length();
+    if !(g > 0.0) || !(step.radius > 0.0) {
+        return (least, false);
+    }
+    let layers = probe.depth() / (2.0 * step.radius) + 1.0;
+    let wanted = libm::ceilf(layers / PAIR_LAYERS_PER_ITERATION);
+    if !(wanted <= most as f32) {
+        return (most, true);
+    }
+    ((wanted as u32).max(least), false)
+}
+
 /// One substep's constants, the same bytes on both backends (WGSL's `PairStep`). The host
 /// makes it with [`PairStep::new`] once the substep's largest speed is known.
 #[repr(C)]
@@ -379,12 +535,7 @@ impl PairStep {
     /// gravity ([`pair_prepare`]'s) is `v_max`.
     pub fn new(step: &StepParams, pairs: &PairParams, h: f32, n: usize, v_max: f32) -> Self {
         let g = Vec3::from_array(step.gravity);
-        let gl = g.length();
-        let up = if gl > 0.0 {
-            (-g / gl).to_array()
-        } else {
-            [0.0; 3]
-        };
+        let up = pair_up(step);
         let r = step.radius;
         let diameter = 2.0 * r;
         let cell = pair_cell_edge(diameter, r, v_max, h);
@@ -459,6 +610,12 @@ pub struct PairReport {
     /// Particle-substeps that moved more than a radius ([`pair_cell_edge`]): they may have
     /// passed through other particles (never through the scene).
     pub fast: u64,
+    /// Jacobi iterations, summed over substeps (each substep runs them twice, before the
+    /// march and after it): over `substeps`, the mean per substep.
+    pub iterations: u64,
+    /// Steps whose particles stood deeper than [`PairParams::max_iterations`] props up
+    /// ([`pair_iterations_for`]): a pile that deep may sink and throw its top.
+    pub deep: u64,
 }
 
 /// The velocity a valid particle enters the substep with (gravity integrated) and its

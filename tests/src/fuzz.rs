@@ -1334,12 +1334,14 @@ fn crowd_with_pairs(u: &mut Unstructured<'_>, mesh: &Mesh, scene: f32) -> Result
     let view = ProxyView::new(&words).expect("a radius bake gives a valid proxy");
     let root = view.root_aabb();
     let steps = u.int_in_range(1u32..=8)?;
+    let iterations = u.int_in_range(1u32..=8)?;
     let pairs = PairParams {
         restitution: range(u, 0.0, 1.0)?,
         friction: range(u, 0.0, 1.0)?,
         relaxation: range(u, 0.05, 1.0)?,
         stacking: range(u, 0.0, 1.0)?,
-        iterations: u.int_in_range(1u32..=8)?,
+        iterations,
+        max_iterations: iterations + u.int_in_range(0u32..=8)?,
         substeps: u.int_in_range(0u32..=3)?,
         max_candidates: u.int_in_range(1u32..=64)?,
         follow_speed: u.arbitrary()?,

@@ -354,6 +354,51 @@ fn a_pile_in_a_box_on_both_backends() {
     }
 }
 
+/// A column 28 grains deep stood on the box's floor: each step takes its iterations from how
+/// deep its particles stand (`pair_iterations_for`: 3 here, over the fewest asked, 1), the
+/// GPU's from its probe's lowest and highest heights; capped at 2, both count every step as
+/// deeper than it props up.
+#[test]
+fn iterations_that_follow_the_depth_on_both_backends() {
+    let r = 0.05;
+    let baked = pile_box();
+    let gap = 2.0 * r * 1.001;
+    let mut ps = block([3, 28, 3], [-gap, r * 1.001, -gap], gap, 0.0);
+    baked.start(&mut ps);
+    for max_iterations in [64, 2] {
+        let name = format!("a column 28 deep, 1 to {max_iterations} iterations");
+        let Some((report, _)) = (Run {
+            name: &name,
+            baked,
+            particles: ps.clone(),
+            params: StepParams {
+                dt: DT,
+                radius: r,
+                ..StepParams::default()
+            },
+            pairs: PairParams {
+                iterations: 1,
+                max_iterations,
+                ..PairParams::default()
+            },
+            calls: 4,
+            steps_per_call: 3,
+            chunk_particles: None,
+            fold_width: None,
+        })
+        .compare() else {
+            return;
+        };
+        let capped = max_iterations < 3;
+        assert_eq!(
+            report.iterations,
+            report.substeps * if capped { 2 } else { 3 },
+            "{name}: {report:?}"
+        );
+        assert_eq!(report.deep, if capped { 12 } else { 0 }, "{name}");
+    }
+}
+
 #[test]
 fn coincident_invalid_and_fast_particles_on_both_backends() {
     let r = 0.05;

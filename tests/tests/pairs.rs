@@ -126,6 +126,84 @@ fn a_deep_stack_does_not_throw_its_top() {
     assert!(vmax < 0.05, "the stack still moves at {vmax}");
 }
 
+/// A column 250 grains deep, stood on a floor at rest: a Jacobi iteration carries support one
+/// contact further, so the layers the iterations of a substep do not reach fall until they
+/// do, and their overlaps then throw them up. A step takes an iteration for every
+/// `PAIR_LAYERS_PER_ITERATION` layers (21 here): the column stands, no grain faster than
+/// the top's first two steps of free fall. Capped at the default fewest (8), the report
+/// counts each step as deeper than its iterations prop up, and the top is thrown.
+#[test]
+fn a_column_250_grains_deep_stands() {
+    let r = 0.01;
+    let baked = bake_for(&[scenes::slab([0.0, -0.025, 0.0], [0.2, 0.05, 0.2])], 6, r);
+    let (k, layers) = (3, 250);
+    let spacing = 2.0 * r * 1.001;
+    let mut ps = Vec::new();
+    for y in 0..layers {
+        for z in 0..k {
+            for x in 0..k {
+                let at = |i: usize| (i as f32 - (k - 1) as f32 / 2.0) * spacing;
+                ps.push(Particle::new(
+                    [at(x), r * 1.001 + y as f32 * spacing, at(z)],
+                    [0.0; 3],
+                ));
+            }
+        }
+    }
+    assert_eq!(baked.start(&mut ps).stuck, 0);
+    let top0 = ps.iter().map(|p| p.position[1]).fold(0.0, f32::max);
+    let step = StepParams {
+        radius: r,
+        dt: 1.0 / 60.0,
+        ..StepParams::default()
+    };
+    let run = |pairs: &PairParams, steps: u64| {
+        let mut cpu = CpuBackend::new();
+        cpu.upload_proxy(&baked.words).unwrap();
+        cpu.upload_particles(&ps).unwrap();
+        let mut out = ps.clone();
+        let mut fastest = 0.0f32;
+        for _ in 0..steps {
+            cpu.step_pairs(&step, pairs, 1).unwrap();
+            cpu.download_particles(&mut out).unwrap();
+            fastest = out
+                .iter()
+                .map(|p| Vec3::from_array(p.velocity).length())
+                .fold(fastest, f32::max);
+        }
+        let top = out.iter().map(|p| p.position[1]).fold(0.0, f32::max);
+        let report = cpu.take_pair_report().unwrap();
+        (fastest, top, report)
+    };
+    let (fastest, top, report) = run(&PairParams::default(), 30);
+    let mean = report.iterations as f64 / report.substeps as f64;
+    eprintln!(
+        "{layers} layers: {mean} iterations a substep, fastest {fastest:.3} m/s, the top moved {:.2} mm",
+        (top - top0) * 1e3
+    );
+    assert_eq!(mean, 21.0);
+    assert_eq!(report.deep, 0);
+    // Two steps of free fall: 2/60 s at 9.81 m/s².
+    assert!(fastest < 0.35, "a grain moved at {fastest} m/s");
+    assert!((top - top0).abs() < 0.01, "the top moved {} m", top - top0);
+
+    let capped = PairParams {
+        max_iterations: 8,
+        ..PairParams::default()
+    };
+    let (fastest, top, report) = run(&capped, 8);
+    eprintln!(
+        "capped at 8: fastest {fastest:.3} m/s, the top moved {:.2} mm",
+        (top - top0) * 1e3
+    );
+    assert_eq!(report.iterations, 8 * report.substeps);
+    assert_eq!(report.deep, 8);
+    assert!(
+        fastest > 1.0,
+        "capped, the fastest grain moved at {fastest} m/s only"
+    );
+}
+
 /// The penetration harness with the pass on (`run_check_pairs`): grains thrown about a box
 /// at up to the box's width per step, bumping into each other, every piece of every path
 /// checked against exact ground truth (the offset surface's winding number, the mesh's
@@ -700,12 +778,11 @@ fn parallel_pass_against_serial(pairs: &PairParams) -> (u64, u64) {
     }
     for _ in 0..40 {
         cpu.step_pairs(&step, &pairs, 1).unwrap();
-        // The step's substeps from its particles' largest speed, as the backend chooses them.
-        let v_max = ps
-            .iter()
-            .map(octoproxy_core::pair_probe_speed)
-            .fold(0.0, f32::max);
-        let substeps = octoproxy_core::pair_substeps_for(&step, &pairs, v_max);
+        // The step's substeps from its particles' largest speed and its iterations from
+        // their depth, as the backend chooses them.
+        let probe = octoproxy_core::PairProbe::of_all(&ps, &step);
+        let substeps = octoproxy_core::pair_substeps_for(&step, &pairs, probe.speed);
+        let (iterations, _) = octoproxy_core::pair_iterations_for(&step, &pairs, &probe);
         let h = step.dt / substeps as f32;
         let march = StepParams {
             gravity: [0.0; 3],
@@ -716,20 +793,14 @@ fn parallel_pass_against_serial(pairs: &PairParams) -> (u64, u64) {
             let s0 = octoproxy_core::PairStep::new(&step, &pairs, h, n, 0.0);
             let v_max = octoproxy_core::pairs::pair_max_speed(&ps, &s0);
             let s = octoproxy_core::PairStep::new(&step, &pairs, h, n, v_max);
-            serial_caps += octoproxy_core::collide_pairs(
-                &mut ps,
-                &view,
-                &hints,
-                &s,
-                pairs.iterations,
-                scratch!(),
-            )
-            .unwrap();
+            serial_caps +=
+                octoproxy_core::collide_pairs(&mut ps, &view, &hints, &s, iterations, scratch!())
+                    .unwrap();
             for (p, hint) in ps.iter_mut().zip(&mut hints) {
                 octoproxy_core::step_particle_hinted(&view, p, &march, hint);
             }
             serial_caps +=
-                octoproxy_core::debias_pairs(&mut ps, &s, pairs.iterations, scratch!()).unwrap();
+                octoproxy_core::debias_pairs(&mut ps, &s, iterations, scratch!()).unwrap();
         }
         cpu.download_particles(&mut got).unwrap();
         for (a, b) in got.iter().zip(&ps) {

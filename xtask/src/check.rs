@@ -413,9 +413,10 @@ fn check_scene(
     );
     if let Some(pairs) = pairs {
         eprintln!(
-            "the particle pass: on (substeps: {}; {} iterations each); with it every step's end is checked, not the path between",
+            "the particle pass: on (substeps: {}; {} to {} iterations each, by how deep the particles stand); with it every step's end is checked, not the path between",
             crate::flags::substeps_said(params, pairs),
-            pairs.iterations
+            pairs.iterations,
+            pairs.max_iterations
         );
     }
     let mut too_near = 0usize;
@@ -591,9 +592,10 @@ fn check_radius(
     let report = match pairs {
         Some(pairs) => {
             eprintln!(
-                "the particle pass: on (substeps: {}; {} iterations each)",
+                "the particle pass: on (substeps: {}; {} to {} iterations each, by how deep the particles stand)",
                 crate::flags::substeps_said(params, pairs),
-                pairs.iterations
+                pairs.iterations,
+                pairs.max_iterations
             );
             run_check_pairs(
                 view, &off_gt, &mut ps, steps, params, pairs, &mesh_gt, clearance,

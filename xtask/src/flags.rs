@@ -75,6 +75,7 @@ pub struct PairFlags {
     pub restitution: Option<f32>,
     pub friction: Option<f32>,
     pub iterations: Option<u32>,
+    pub max_iterations: Option<u32>,
     pub substeps: Option<u32>,
     /// `--particle-substeps speed` (true) or `gravity` (false).
     pub follow_speed: Option<bool>,
@@ -87,7 +88,9 @@ pub const PAIR_HELP: &str =
     "  --collide-particles          Green's uniform grid and position-based contacts
   --particle-restitution E     in [0, 1] (default: --restitution)
   --particle-friction F        Coulomb coefficient >= 0 (default: --friction)
-  --particle-iterations N      Jacobi iterations per substep, 1..=64 (default 8)
+  --particle-iterations N      the fewest Jacobi iterations per substep, 1..=64 (default 8);
+                               a step takes one per 12 layers its particles stand deep
+  --particle-max-iterations N  the most, up to 64 (default 64): deeper piles are reported
   --particle-substeps N|speed|gravity
                                substeps per step, 1..=256, or chosen each step: speed (the
                                default) keeps gravity's closing per substep under 1 % of the
@@ -105,6 +108,7 @@ impl PairFlags {
             "--particle-restitution" => self.restitution = Some(number(parser, name)?),
             "--particle-friction" => self.friction = Some(number(parser, name)?),
             "--particle-iterations" => self.iterations = Some(number(parser, name)?),
+            "--particle-max-iterations" => self.max_iterations = Some(number(parser, name)?),
             "--particle-substeps" => {
                 let v = string(parser, name)?;
                 match v.trim() {
@@ -131,6 +135,7 @@ impl PairFlags {
         self.restitution.is_some()
             || self.friction.is_some()
             || self.iterations.is_some()
+            || self.max_iterations.is_some()
             || self.substeps.is_some()
             || self.follow_speed.is_some()
             || self.relaxation.is_some()
@@ -158,7 +163,13 @@ impl PairFlags {
             friction: self.friction.unwrap_or(step.friction),
             relaxation: self.relaxation.unwrap_or(d.relaxation),
             stacking: self.stacking.unwrap_or(d.stacking),
-            iterations: self.iterations.unwrap_or(d.iterations),
+            // A cap under the default fewest lowers the fewest with it.
+            iterations: self.iterations.unwrap_or(
+                d.iterations
+                    .min(self.max_iterations.unwrap_or(d.iterations))
+                    .max(1),
+            ),
+            max_iterations: self.max_iterations.unwrap_or(d.max_iterations),
             substeps: self.substeps.unwrap_or(d.substeps),
             follow_speed: self.follow_speed.unwrap_or(d.follow_speed),
             max_candidates: d.max_candidates,

@@ -135,6 +135,7 @@ pub fn run(
     let report = stepper.take_pair_report()?;
     let (capped, fast) = (report.capped, report.fast);
     let substeps = report.substeps as f64 / report.steps.max(1) as f64;
+    let iterations = report.iterations as f64 / report.substeps.max(1) as f64;
     stepper.download_particles(&mut grains)?;
 
     // The picture: the plate and the block, the grains coloured by height.
@@ -216,7 +217,7 @@ pub fn run(
         }
     );
     println!(
-        "  steps:         {steps} × {:.4} s, {substeps:.1} substeps each on average (gravity's: {}), {} iterations; {capped} particle-iterations at the neighbour cap, {fast} particle-substeps faster than a radius",
+        "  steps:         {steps} × {:.4} s, {substeps:.1} substeps each on average (gravity's: {}), {iterations:.1} iterations each on average (at least {}); {capped} particle-iterations at the neighbour cap, {fast} particle-substeps faster than a radius",
         params.dt,
         pair_substeps(&params, &pairs),
         pairs.iterations

@@ -381,11 +381,21 @@ fn report_pass(
 ) -> Result<()> {
     let report = backend.take_pair_report()?;
     eprintln!(
-        "particle pass: {} substeps over {} steps ({}), {} iterations each; {} particle-iterations stopped at the neighbour cap, {} particle-substeps faster than a radius per substep (they may pass through other particles, never the scene{})",
+        "particle pass: {} substeps over {} steps ({}), {:.1} iterations each on average ({} to {}, by how deep the particles stand){}; {} particle-iterations stopped at the neighbour cap, {} particle-substeps faster than a radius per substep (they may pass through other particles, never the scene{})",
         report.substeps,
         report.steps,
         crate::flags::substeps_said(params, pairs),
+        report.iterations as f64 / report.substeps.max(1) as f64,
         pairs.iterations,
+        pairs.max_iterations,
+        if report.deep > 0 {
+            format!(
+                "; {} steps stood deeper than {} iterations prop up (a pile that deep may sink and throw its top: raise --particle-max-iterations)",
+                report.deep, pairs.max_iterations
+            )
+        } else {
+            String::new()
+        },
         report.capped,
         report.fast,
         if pairs.follow_speed && pairs.substeps == 0 {

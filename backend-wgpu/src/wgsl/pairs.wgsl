@@ -50,6 +50,11 @@ struct PairState {
     capped_hi: atomic<u32>,
     zero: f32,
     relaxation: f32,
+    // The probe's lowest and highest height along `step.up` (`pair_height_key`s).
+    low: atomic<u32>,
+    high: atomic<u32>,
+    _pad0: u32,
+    _pad1: u32,
 }
 
 @group(0) @binding(3) var<storage, read_write> pair_state: PairState;
@@ -114,6 +119,19 @@ fn pair_prepare(p: Particle, s: PairStep) -> PreparedOption {
         return PreparedOption(vec3<f32>(0.0), 0.0, false);
     }
     return PreparedOption(v, sqrt(dot3(v, v)), true);
+}
+
+// A position's height along `up` (Rust's `pair_height`).
+fn pair_height(x: vec3<f32>, up: vec3<f32>) -> f32 {
+    return x.x * up.x + x.y * up.y + x.z * up.z;
+}
+
+// A key of a height whose order as an unsigned integer is the heights' (the sign bit set
+// for heights at or above +0, every bit flipped below): the probe's `atomicMin` and
+// `atomicMax` find the lowest and highest exactly.
+fn pair_height_key(height: f32) -> u32 {
+    let b = bitcast<u32>(height);
+    return select(b | 0x80000000u, ~b, (b & 0x80000000u) != 0u);
 }
 
 fn pair_cell(x: vec3<f32>, s: PairStep) -> vec3<i32> {

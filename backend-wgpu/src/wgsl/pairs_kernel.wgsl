@@ -3,6 +3,8 @@
 //
 //   pair_reset_kernel    the table's ranges to [0, 0], the largest speed and the valid count to 0
 //   pair_speed_kernel    per chunk: the largest speed after gravity, and the fast particles
+//                        (in the probe before a step, `pair_reset_kernel` and this alone with
+//                        a zero substep: also the lowest and highest height)
 //   pair_step_kernel     one invocation: the substep's cell from the largest speed
 //   pair_key_kernel      per chunk: each particle's (hash, index)
 //   pair_sort_*_kernel   a bitonic sort of the keys: blocks sorted in workgroup memory, the
@@ -89,6 +91,8 @@ fn pair_reset_kernel(
     let t = particle_index(wg, groups, local);
     if t == 0u {
         atomicStore(&pair_state.v_max, 0u);
+        atomicStore(&pair_state.low, 0xffffffffu);
+        atomicStore(&pair_state.high, 0u);
         pair_state.valid = 0u;
     }
     if t < pair_pass.table {
@@ -96,7 +100,8 @@ fn pair_reset_kernel(
     }
 }
 
-// Per chunk. A particle left out of the pass takes no part in the largest speed.
+// Per chunk. A particle left out of the pass takes no part in the largest speed. In the
+// probe before a step (a zero substep), also the lowest and highest height along `up`.
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn pair_speed_kernel(
     @builtin(workgroup_id) wg: vec3<u32>,
@@ -113,6 +118,11 @@ fn pair_speed_kernel(
         return;
     }
     atomicMax(&pair_state.v_max, bitcast<u32>(prepared.speed));
+    if s.h == 0.0 {
+        let key = pair_height_key(pair_height(particles[i].position, s.up));
+        atomicMin(&pair_state.low, key);
+        atomicMax(&pair_state.high, key);
+    }
     if pair_is_fast(prepared.speed, s) {
         count_fast();
     }

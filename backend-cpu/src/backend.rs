@@ -10,8 +10,10 @@ use octoproxy_core::{
     StepParams,
 };
 
-use octoproxy_core::pairs::pair_up;
 use octoproxy_core::pairs::PairGeometry;
+use octoproxy_core::pairs::{
+    pair_across, pair_column_key, pair_column_slot, pair_column_table_size,
+};
 use octoproxy_core::pairs::{
     pair_cell, pair_geometry, pair_hash, pair_in_reach, pair_is_fast, pair_neighbourhood,
     pair_prepare, pair_start, pair_start_scene, pair_table_size, pair_velocity_listed,
@@ -24,15 +26,46 @@ use octoproxy_core::{
 
 use rayon::prelude::*;
 
-/// The [`PairProbe`] of `particles` under `step`'s gravity, in parallel: what
-/// [`pair_substeps_for`] and [`pair_iterations_for`] take.
-fn probe(particles: &[Particle], step: &StepParams) -> PairProbe {
-    let up = pair_up(step);
-    particles
+/// The [`PairProbe`] of `particles` under `step`'s gravity, in parallel (core's
+/// `PairProbe::of_all`, the same probe): what [`pair_substeps_for`] and
+/// [`pair_iterations_for`] take. `columns` is the columns' table, resized here.
+fn probe(
+    particles: &[Particle],
+    step: &StepParams,
+    columns: &mut Vec<[AtomicU32; 2]>,
+) -> PairProbe {
+    let size = pair_column_table_size(particles.len());
+    columns.resize_with(size, Default::default);
+    columns.par_iter().with_min_len(4096).for_each(|e| {
+        e[0].store(0, Ordering::Relaxed);
+        e[1].store(0, Ordering::Relaxed);
+    });
+    let columns = &columns[..size];
+    let across = pair_across(step);
+    let inv_diameter = 1.0 / (2.0 * step.radius);
+    let mask = size - 1;
+    let (speed, deepest) = particles
         .par_iter()
         .with_min_len(4096)
-        .map(|p| PairProbe::of(p, up))
-        .reduce(|| PairProbe::EMPTY, PairProbe::join)
+        .map(|p| {
+            let Some((_, speed)) = pair_prepare(p, &PairStep::default()) else {
+                return (0.0, 0);
+            };
+            let key = pair_column_key(p.position, &across, inv_diameter);
+            let mut slot = pair_column_slot(key, mask as u32) as usize;
+            // At most half the entries are taken: an empty one or the column's own is found.
+            while let Err(k) =
+                columns[slot][0].compare_exchange(0, key, Ordering::Relaxed, Ordering::Relaxed)
+            {
+                if k == key {
+                    break;
+                }
+                slot = (slot + 1) & mask;
+            }
+            (speed, columns[slot][1].fetch_add(1, Ordering::Relaxed) + 1)
+        })
+        .reduce(|| (0.0, 0), |a, b| (a.0.max(b.0), a.1.max(b.1)));
+    PairProbe { speed, deepest }
 }
 
 /// A step's plan with the pass, from its particles at its start: its substeps and each
@@ -43,8 +76,9 @@ fn plan(
     params: &StepParams,
     pairs: &PairParams,
     report: &mut PairReport,
+    columns: &mut Vec<[AtomicU32; 2]>,
 ) -> (u32, u32) {
-    let probe = probe(particles, params);
+    let probe = probe(particles, params, columns);
     let (iterations, deep) = pair_iterations_for(params, pairs, &probe);
     report.deep += deep as u64;
     (pair_substeps_for(params, pairs, probe.speed), iterations)
@@ -151,6 +185,8 @@ struct PairBuffers {
     support: Vec<[f32; 4]>,
     ranges: Vec<[u32; 2]>,
     rank: Vec<AtomicU32>,
+    /// The probe's columns ([`PairProbe`]): a key and a count per entry.
+    columns: Vec<[AtomicU32; 2]>,
     /// Each chunk of the sorted order's candidates
     /// ([`pair_candidates`](octoproxy_core::pairs::pair_candidates)), listed once a substep:
     /// the iterations read them instead of searching the 27 cells again.
@@ -643,7 +679,13 @@ impl CpuBackend {
             last.resize(n, Hit::NONE);
             self.hits.resize(n, Hit::NONE);
         }
-        let (_, iterations) = plan(&self.particles, params, pairs, &mut self.pair_report);
+        let (_, iterations) = plan(
+            &self.particles,
+            params,
+            pairs,
+            &mut self.pair_report,
+            &mut self.pairs.columns,
+        );
         for (k, scene) in scenes.iter().enumerate() {
             let started = std::time::Instant::now();
             let s0 = PairStep::new(params, pairs, march.dt, n, 0.0);
@@ -880,7 +922,8 @@ impl Backend for CpuBackend {
         octoproxy_core::check_radius(view.header().radius, params.radius)?;
         let view = if *use_lut { view } else { view.without_lut() };
         for _ in 0..steps {
-            let (substeps, iterations) = plan(particles, params, pairs, pair_report);
+            let (substeps, iterations) =
+                plan(particles, params, pairs, pair_report, &mut buffers.columns);
             let h = params.dt / substeps as f32;
             // Gravity is integrated by the pass; the march moves each particle with what it
             // left.
@@ -962,7 +1005,7 @@ impl Backend for CpuBackend {
         Ok(pair_substeps_for(
             params,
             pairs,
-            probe(&self.particles, params).speed,
+            probe(&self.particles, params, &mut self.pairs.columns).speed,
         ))
     }
 

@@ -19,7 +19,7 @@ pub mod scene;
 
 use crate::emit::{emit_surface_for, Rng, SurfaceSampler};
 use glam::Vec3;
-use octoproxy_core::pairs::{pair_max_speed, pair_table_size, pair_up};
+use octoproxy_core::pairs::{pair_column_table_size, pair_max_speed, pair_table_size};
 use octoproxy_core::{
     collide_pairs, debias_pairs, initial_side, pair_iterations_for, pair_substeps_for,
     step_particle_traced, LeafHint, PairBody, PairParams, PairProbe, PairScratch, PairStep,
@@ -655,13 +655,15 @@ fn check_paths(
             Some(pairs) => {
                 // The particles it still steps set the substeps and the iterations, as a
                 // backend's would.
-                let up = pair_up(&params);
-                let probe = particles
+                let stepped: Vec<Particle> = particles
                     .iter()
                     .zip(&states)
                     .filter(|(_, s)| !(s.bad || s.non_finite))
-                    .map(|(p, _)| PairProbe::of(p, up))
-                    .fold(PairProbe::EMPTY, PairProbe::join);
+                    .map(|(p, _)| *p)
+                    .collect();
+                let mut table = vec![[0u32; 2]; pair_column_table_size(stepped.len())];
+                let probe = PairProbe::of_all(&stepped, &params, &mut table)
+                    .expect("a table of the size asked");
                 let substeps = pair_substeps_for(&params, pairs, probe.speed);
                 pass.iterations = pair_iterations_for(&params, pairs, &probe).0;
                 let h = params.dt / substeps as f32;

@@ -36,7 +36,9 @@
 //! buffer, at a dynamic offset. The plain kernel binds nothing of the pass.
 
 use bytemuck::{Pod, Zeroable};
-use octoproxy_core::pairs::{pair_table_size, pair_up, PAIR_HASH_NONE};
+use octoproxy_core::pairs::{
+    pair_across, pair_column_table_size, pair_table_size, pair_up, PAIR_HASH_NONE,
+};
 use octoproxy_core::{
     pair_iterations_for, pair_substeps_for, PairParams, PairProbe, PairReport, PairStep, StepParams,
 };
@@ -68,27 +70,21 @@ pub struct PairState {
     /// The pass's relaxation `β` (`PairParams::relaxation`): `pair_step_kernel` puts it in
     /// `step` each substep, after the debiasing iterations ran with zero.
     pub relaxation: f32,
-    /// The probe's lowest height along `step.up`, as a key ([`height_of_key`]).
-    pub low: u32,
-    /// The probe's highest height along `step.up`, as a key.
-    pub high: u32,
-    /// Padding: the struct is a multiple of its alignment, 16 bytes (`PairStep`'s).
+    /// The probe's most particles in one column (`PairProbe::deepest`).
+    pub deepest: u32,
+    /// Padding.
     pub _pad0: u32,
     /// Padding.
     pub _pad1: u32,
+    /// Padding.
+    pub _pad2: u32,
+    /// The first unit vector across gravity (`pair_across`), for the probe's columns.
+    pub across0: [f32; 4],
+    /// The second.
+    pub across1: [f32; 4],
 }
 
 const _: () = assert!(core::mem::size_of::<PairState>() % 16 == 0);
-
-/// The height a key of WGSL's `pair_height_key` stands for: keys order as their heights
-/// (the sign bit set for heights at or above +0, every bit flipped below).
-fn height_of_key(key: u32) -> f32 {
-    if key & 0x8000_0000 != 0 {
-        f32::from_bits(key & 0x7fff_ffff)
-    } else {
-        f32::from_bits(!key)
-    }
-}
 
 /// The pass's sizes: WGSL's `PairPassParams`.
 #[repr(C)]
@@ -138,8 +134,12 @@ pub const PAIR_STORAGE_BUFFERS: u32 = 7;
 const STATE_BYTES: u64 = core::mem::size_of::<PairState>() as u64;
 /// Where the largest speed's bits lie in the state buffer.
 const V_MAX_AT: u64 = core::mem::offset_of!(PairState, v_max) as u64;
-/// Where the probe's lowest and highest height lie in the state buffer.
-const HEIGHTS_AT: u64 = core::mem::offset_of!(PairState, low) as u64;
+/// Where the probe's most particles in a column lie in the state buffer.
+const DEEPEST_AT: u64 = core::mem::offset_of!(PairState, deepest) as u64;
+/// Where the vectors across gravity lie in the state buffer.
+const ACROSS_AT: u64 = core::mem::offset_of!(PairState, across0) as u64;
+/// Bytes of an entry of the probe's columns (a key and a count).
+const COLUMN_BYTES: u64 = 8;
 /// Where the report's counts start in the state buffer: `fast_lo`.
 const COUNTS_AT: u64 = core::mem::offset_of!(PairState, fast_lo) as u64;
 const KEY_BYTES: u64 = 8;
@@ -182,6 +182,9 @@ struct PairBuffers {
     /// Two for the iterations, and the velocities entering them (`vel[2]`).
     vel: [wgpu::Buffer; 3],
     supports: wgpu::Buffer,
+    /// The pass's sizes (`PairPassParams`), and the probe's columns.
+    pass: wgpu::Buffer,
+    columns: wgpu::Buffer,
     /// In a scene, each particle's support found by the scene module, by upload index.
     pub(crate) given: wgpu::Buffer,
     /// The sort's dispatches, whether each is a block's (or a pass over all the keys), and
@@ -404,6 +407,10 @@ impl WgpuBackend {
                 "the particle-particle pass's table",
                 table as u64 * RANGE_BYTES,
             ),
+            (
+                "the particle-particle pass's columns",
+                pair_column_table_size(n) as u64 * COLUMN_BYTES,
+            ),
         ];
         for (what, needed) in sizes {
             // The table's size (and so every index) must fit a u32 below 2^31.
@@ -461,6 +468,11 @@ impl WgpuBackend {
         let ranges = buffer(
             "octoproxy pair table",
             table as u64 * RANGE_BYTES,
+            storage_usage,
+        );
+        let columns = buffer(
+            "octoproxy pair columns",
+            pair_column_table_size(n) as u64 * COLUMN_BYTES,
             storage_usage,
         );
         let pass = buffer(
@@ -567,6 +579,8 @@ impl WgpuBackend {
             bodies,
             vel,
             supports,
+            pass,
+            columns,
             given,
             sort_blocks: passes.iter().map(|(block, _)| *block).collect(),
             sort_stride: stride,
@@ -647,7 +661,13 @@ impl WgpuBackend {
                         device,
                         &kernel.speed,
                         "octoproxy pair speed",
-                        &[(1, particles()), (2, params.clone()), (3, state.clone())],
+                        &[
+                            (1, particles()),
+                            (2, params.clone()),
+                            (3, state.clone()),
+                            (10, buffers.pass.as_entire_binding()),
+                            (16, buffers.columns.as_entire_binding()),
+                        ],
                     ),
                     key: group(
                         device,
@@ -805,10 +825,10 @@ impl WgpuBackend {
     }
 
     /// The probe of the particles held (`PairProbe`): their largest speed without gravity
-    /// and their lowest and highest height along `pair_up` (`pair_reset_kernel` and
-    /// `pair_speed_kernel` with a zero substep, which counts nothing as fast) read back.
-    /// Waits for the work queued before it. What is not asked for is left as
-    /// `PairProbe::EMPTY`'s, and nothing runs when nothing is.
+    /// and, with `depth`, the most in one column (`pair_reset_kernel` and `pair_speed_kernel`
+    /// with a zero substep, which counts nothing as fast) read back. Waits for the work
+    /// queued before it. What is not asked for is left as `PairProbe::default()`'s, and
+    /// nothing runs when nothing is.
     fn pair_probe_gpu(
         &mut self,
         params: &StepParams,
@@ -817,7 +837,7 @@ impl WgpuBackend {
     ) -> Result<PairProbe, WgpuError> {
         let n = self.count;
         if n == 0 || !(speed || depth) {
-            return Ok(PairProbe::EMPTY);
+            return Ok(PairProbe::default());
         }
         self.pair_kernel()?;
         self.pair_buffers(n)?;
@@ -825,13 +845,25 @@ impl WgpuBackend {
         let kernel = self.pairs.kernel.as_ref().expect("built above");
         let buffers = self.pairs.buffers.as_ref().expect("made above");
         let scope = ErrorScope::push(&self.device);
+        // A zero substep: no gravity, nothing fast, and the columns counted (with `depth`;
+        // else the diameter's inverse is 0 and every particle is in one column, not read).
         let probe_step = PairStep {
-            up: pair_up(params),
+            inv_diameter: if depth {
+                1.0 / (2.0 * params.radius)
+            } else {
+                0.0
+            },
             ..PairStep::default()
         };
         self.queue
             .write_buffer(&kernel.state, 0, bytemuck::bytes_of(&probe_step));
+        let across = pair_across(params).map(|[x, y, z]| [x, y, z, 0.0]);
+        self.queue
+            .write_buffer(&kernel.state, ACROSS_AT, bytemuck::cast_slice(&across));
         let mut encoder = self.device.create_command_encoder(&Default::default());
+        if depth {
+            encoder.clear_buffer(&buffers.columns, 0, None);
+        }
         {
             let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some("octoproxy pair speed probe"),
@@ -842,18 +874,12 @@ impl WgpuBackend {
         self.queue.submit([encoder.finish()]);
         scope.pop().map_err(WgpuError::Gpu)?;
         let bytes =
-            self.read_back(&[(&kernel.state, V_MAX_AT, 4), (&kernel.state, HEIGHTS_AT, 8)])?;
-        let word =
-            |b: &[u8], at: usize| u32::from_le_bytes(b[at..at + 4].try_into().expect("read back"));
-        let (low, high) = (word(&bytes[1], 0), word(&bytes[1], 4));
-        let mut probe = PairProbe {
-            speed: f32::from_bits(word(&bytes[0], 0)),
-            ..PairProbe::EMPTY
-        };
-        if low <= high {
-            (probe.low, probe.high) = (height_of_key(low), height_of_key(high));
-        }
-        Ok(probe)
+            self.read_back(&[(&kernel.state, V_MAX_AT, 4), (&kernel.state, DEEPEST_AT, 4)])?;
+        let word = |b: &[u8]| u32::from_le_bytes(b[..4].try_into().expect("4 bytes read back"));
+        Ok(PairProbe {
+            speed: f32::from_bits(word(&bytes[0])),
+            deepest: if depth { word(&bytes[1]) } else { 0 },
+        })
     }
 
     /// The substep's constants for the pass (all but the cell, which the GPU computes from

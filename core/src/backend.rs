@@ -77,7 +77,9 @@ pub trait Backend {
     /// Steps every particle `steps` times with the particle–particle pass
     /// ([`crate::pairs`]): each step is [`Backend::pair_substeps_now`] substeps of the pass
     /// (it changes velocities only), each followed by the march of every particle against
-    /// the proxy over the substep. Needs `params.radius > 0` and a proxy baked for that radius. May
+    /// the proxy over the substep. Each substep's iterations are
+    /// [`crate::pair_iterations_for`] of the [`crate::PairProbe`] of the particles held at the
+    /// step's start. Needs `params.radius > 0` and a proxy baked for that radius. May
     /// return before the work is done, as [`Backend::step`].
     fn step_pairs(
         &mut self,
@@ -130,7 +132,8 @@ pub trait Backend {
     /// each the pass (changing velocities only; a grain's
     /// support is the static instance its scene hint holds, [`crate::pairs::pair_support_scene`]),
     /// then every particle marched through the scene over the substep with no gravity (the
-    /// pass integrated it), then the debiasing iterations. `substeps[k]` is the scene in
+    /// pass integrated it), then the debiasing iterations (as many as [`Backend::step_pairs`]
+    /// takes, from the particles held at the step's start). `substeps[k]` is the scene in
     /// substep `k`: each instance moving from its pose at `k / S` of the step to its pose at
     /// `(k + 1) / S` (`Instance::pose_at` of the step's instance; a static one as it is). Needs `params.radius > 0`, every instance's proxy baked for
     /// it at its scale. With `hits`, each particle keeps its last collision of any substep,

@@ -5,10 +5,11 @@
 //! ([`pair_prepare`]), put every valid particle in a cell of edge [`PairStep::cell`] and hash
 //! the cell into a table of a power-of-two size ([`pair_cell`], [`pair_hash`]), sort the
 //! particles by (hash, index) — a total order, so any correct sort gives the same array —,
-//! find each bucket's range in the sorted order ([`pair_range_marks`]), and run
-//! [`PairParams::iterations`] Jacobi iterations in which every particle visits the 27 cells
-//! around its own, in a fixed order, and changes only its own velocity
-//! ([`pair_velocity`]). Then each particle's displacement over the substep is marched against
+//! find each bucket's range in the sorted order ([`pair_range_marks`]), and run the step's
+//! Jacobi iterations (at least [`PairParams::iterations`], one for every
+//! [`PAIR_LAYERS_PER_ITERATION`] layers its particles stand deep: [`pair_iterations_for`]) in
+//! which every particle visits the 27 cells around its own, in a fixed order, and changes only
+//! its own velocity ([`pair_velocity`]). Then each particle's displacement over the substep is marched against
 //! the scene with gravity already integrated (the step with zero gravity and the substep's
 //! `dt`): the scene comes last, so no neighbour can push a particle through a surface. Last,
 //! as many **debiasing iterations** ([`debias_pairs`]) solve the same contacts again from the
@@ -339,8 +340,7 @@ pub fn pair_probe_speed(p: &Particle) -> f32 {
 }
 
 /// A deep pile stands when each substep's iterations are at least its depth in layers (the
-/// height of its particles along `−gravity` in diameters, plus one) over this
-/// ([`pair_iterations_for`]).
+/// most grains in one column along gravity, [`PairProbe`]) over this ([`pair_iterations_for`]).
 ///
 /// A Jacobi iteration carries a grain's support one contact further, so a substep of `N`
 /// iterations props up `N` layers over the floor; the layers above fall through the substep
@@ -351,7 +351,7 @@ pub fn pair_probe_speed(p: &Particle) -> f32 {
 /// iterations stand where the ratio is at most 12.5 (the largest speed never above the 0.33
 /// m/s the top reaches in its first two steps of free fall), swing up to 1 m/s at 15 to 20,
 /// and throw their top (4 to 60 m/s) at 30.
-pub const PAIR_LAYERS_PER_ITERATION: f32 = 12.0;
+pub const PAIR_LAYERS_PER_ITERATION: u32 = 12;
 
 /// The unit vector against gravity (zero without gravity): [`PairStep::up`].
 pub fn pair_up(step: &StepParams) -> [f32; 3] {
@@ -365,98 +365,125 @@ pub fn pair_up(step: &StepParams) -> [f32; 3] {
 }
 
 /// What a step with the pass is planned from, at its start: the particles' largest speed
-/// ([`pair_probe_speed`], for [`pair_substeps_for`]) and their lowest and highest height
-/// along `up` ([`pair_up`], for [`pair_iterations_for`]). Particles the pass leaves out take
-/// no part. Each part is a minimum or a maximum, so any order of particles, a GPU's
-/// included, gives the same probe.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// ([`pair_probe_speed`], for [`pair_substeps_for`]) and the most of them in one column along
+/// gravity (for [`pair_iterations_for`]). Particles the pass leaves out take no part.
+///
+/// **Columns** are a grid one diameter wide across gravity ([`pair_across`]): a particle's
+/// column is `floor(x·a / 2R)` for the two unit vectors `a` across gravity
+/// ([`pair_column_key`]). A pile `D` grains deep puts about `D` grains in its middle columns,
+/// while a particle that fell off the scene or a sparse cloud put few in any: the count is
+/// the weight a column of contacts must carry, which is what the iterations must reach. Each
+/// column is counted exactly (an open-addressing table keyed by the column, the caller's
+/// scratch: [`pair_column_table_size`]), and the most is a maximum: any order of particles, a
+/// GPU's included, gives the same probe.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct PairProbe {
     /// The largest speed.
     pub speed: f32,
-    /// The lowest height (`+∞` for no particle).
-    pub low: f32,
-    /// The highest height (`−∞` for no particle).
-    pub high: f32,
+    /// The most valid particles in one column.
+    pub deepest: u32,
 }
 
 impl PairProbe {
-    /// The probe of no particle.
-    pub const EMPTY: Self = Self {
-        speed: 0.0,
-        low: f32::INFINITY,
-        high: f32::NEG_INFINITY,
-    };
-
-    /// One particle's probe: its speed, and its height `position · up` both low and high
-    /// (WGSL's `pair_height`); [`Self::EMPTY`] for one the pass leaves out.
-    #[inline]
-    pub fn of(p: &Particle, up: [f32; 3]) -> Self {
-        match pair_prepare(p, &PairStep::default()) {
-            Some((_, speed)) => {
-                let height = pair_height(p.position, up);
-                Self {
-                    speed,
-                    low: height,
-                    high: height,
-                }
+    /// The probe of `particles` under `step`'s gravity, on one thread; `table` is the
+    /// columns' scratch, at least [`pair_column_table_size`]`(particles.len())` entries
+    /// (`None` when shorter).
+    pub fn of_all(
+        particles: &[Particle],
+        step: &StepParams,
+        table: &mut [[u32; 2]],
+    ) -> Option<Self> {
+        let size = pair_column_table_size(particles.len());
+        let table = table.get_mut(..size)?;
+        table.fill([0, 0]);
+        let across = pair_across(step);
+        let inv_diameter = 1.0 / (2.0 * step.radius);
+        let mut probe = Self::default();
+        for p in particles {
+            let Some((_, speed)) = pair_prepare(p, &PairStep::default()) else {
+                continue;
+            };
+            if speed > probe.speed {
+                probe.speed = speed;
             }
-            None => Self::EMPTY,
+            let key = pair_column_key(p.position, &across, inv_diameter);
+            let mut slot = pair_column_slot(key, size as u32 - 1) as usize;
+            // The table holds twice the particles: an empty slot or the column's own is
+            // always found.
+            loop {
+                let entry = &mut table[slot];
+                if entry[0] == 0 || entry[0] == key {
+                    entry[0] = key;
+                    entry[1] += 1;
+                    probe.deepest = probe.deepest.max(entry[1]);
+                    break;
+                }
+                slot = (slot + 1) & (size - 1);
+            }
         }
-    }
-
-    /// The probe of two sets of particles.
-    #[inline]
-    pub fn join(self, other: Self) -> Self {
-        Self {
-            speed: if other.speed > self.speed {
-                other.speed
-            } else {
-                self.speed
-            },
-            low: if other.low < self.low {
-                other.low
-            } else {
-                self.low
-            },
-            high: if other.high > self.high {
-                other.high
-            } else {
-                self.high
-            },
-        }
-    }
-
-    /// The probe of `particles`, on one thread.
-    pub fn of_all(particles: &[Particle], step: &StepParams) -> Self {
-        let up = pair_up(step);
-        particles
-            .iter()
-            .fold(Self::EMPTY, |a, p| a.join(Self::of(p, up)))
-    }
-
-    /// The height between the lowest and the highest particle (0 for none).
-    pub fn depth(&self) -> f32 {
-        if self.high >= self.low {
-            self.high - self.low
-        } else {
-            0.0
-        }
+        Some(probe)
     }
 }
 
-/// A position's height along `up`: `x·up` (WGSL's `pair_height`).
+/// Entries of the columns' table for `n` particles: twice [`pair_table_size`]`(n)`, so at
+/// most half are taken.
+pub fn pair_column_table_size(n: usize) -> usize {
+    2 * pair_table_size(n)
+}
+
+/// Two unit vectors across gravity, at right angles to it and to each other (zeros without
+/// gravity): `a₁ = (up × e) / |up × e|` with `e` the axis along which `up` has the least part
+/// (the first of equals), `a₂ = up × a₁`.
+pub fn pair_across(step: &StepParams) -> [[f32; 3]; 2] {
+    let up = Vec3::from_array(pair_up(step));
+    if up == Vec3::ZERO {
+        return [[0.0; 3]; 2];
+    }
+    let a = up.abs();
+    let e = if a.x <= a.y && a.x <= a.z {
+        Vec3::X
+    } else if a.y <= a.z {
+        Vec3::Y
+    } else {
+        Vec3::Z
+    };
+    let a1 = up.cross(e).normalize();
+    [a1.to_array(), up.cross(a1).to_array()]
+}
+
+/// The key of a position's column ([`PairProbe`]): the two column coordinates
+/// `floor(x·a / 2R)` (`x·a` as [`pair_height`]; clamped as [`pair_cell`]'s), 15 and 16 bits
+/// of them with the top bit set, never 0 (an empty slot). Columns 32,768 diameters apart
+/// across the first vector share a key: particles that far apart add to one count.
 #[inline]
-pub fn pair_height(x: [f32; 3], up: [f32; 3]) -> f32 {
-    x[0] * up[0] + x[1] * up[1] + x[2] * up[2]
+pub fn pair_column_key(x: [f32; 3], across: &[[f32; 3]; 2], inv_diameter: f32) -> u32 {
+    let c = |a: &[f32; 3]| {
+        let f = math::floor(pair_height(x, *a) * inv_diameter);
+        f.clamp(-PAIR_CELL_LIMIT, PAIR_CELL_LIMIT) as i32 as u32
+    };
+    0x8000_0000 | (c(&across[0]) & 0x7fff) << 16 | (c(&across[1]) & 0xffff)
+}
+
+/// Where a column's key starts its search in a table of `mask + 1` entries.
+#[inline]
+pub fn pair_column_slot(key: u32, mask: u32) -> u32 {
+    region_mix(key) & mask
+}
+
+/// A position's part along a unit vector: `x·a` (WGSL's `pair_height`), the products summed
+/// in this order on both backends.
+#[inline]
+pub fn pair_height(x: [f32; 3], a: [f32; 3]) -> f32 {
+    x[0] * a[0] + x[1] * a[1] + x[2] * a[2]
 }
 
 /// The Jacobi iterations of each substep of a step whose particles' probe is `probe`
-/// ([`PairProbe`]), and whether their depth asked for more than [`PairParams::max_iterations`]
+/// ([`PairProbe`]), and whether they stand deeper than [`PairParams::max_iterations`] props up
 /// (then the step takes the most, and a pile that deep may not stand: [`PairReport::deep`]).
-/// Under gravity, the depth in layers, `depth / 2R + 1`, over [`PAIR_LAYERS_PER_ITERATION`],
+/// Under gravity, the most particles in one column over [`PAIR_LAYERS_PER_ITERATION`],
 /// rounded up, within [`PairParams::iterations`] and [`PairParams::max_iterations`]; without
-/// gravity nothing stacks, and the fewest. The depth is that of all the particles, an upper
-/// bound of any pile's: a tall cloud of falling particles takes as many as a pile as tall.
+/// gravity nothing stacks, and the fewest. A column counts every particle in it, resting or
+/// not: a dense stream falling onto a pile adds its grains to the pile's columns.
 pub fn pair_iterations_for(
     step: &StepParams,
     pairs: &PairParams,
@@ -467,12 +494,11 @@ pub fn pair_iterations_for(
     if !(g > 0.0) || !(step.radius > 0.0) {
         return (least, false);
     }
-    let layers = probe.depth() / (2.0 * step.radius) + 1.0;
-    let wanted = libm::ceilf(layers / PAIR_LAYERS_PER_ITERATION);
-    if !(wanted <= most as f32) {
+    let wanted = probe.deepest.div_ceil(PAIR_LAYERS_PER_ITERATION);
+    if wanted > most {
         return (most, true);
     }
-    ((wanted as u32).max(least), false)
+    (wanted.max(least), false)
 }
 
 /// One substep's constants, the same bytes on both backends (WGSL's `PairStep`). The host
@@ -1719,6 +1745,21 @@ mod tests {
             ),
             (
                 PairParams {
+                    iterations: 9,
+                    max_iterations: 8,
+                    ..ok
+                },
+                "the most particle iterations must be 9 (the fewest) to 64, got 8",
+            ),
+            (
+                PairParams {
+                    max_iterations: 65,
+                    ..ok
+                },
+                "the most particle iterations",
+            ),
+            (
+                PairParams {
                     substeps: 100_000,
                     ..ok
                 },
@@ -1734,6 +1775,68 @@ mod tests {
         ] {
             let e = bad.validate(&step).unwrap_err();
             assert!(std::format!("{e}").contains(err), "{e}");
+        }
+        // The iterations follow the depth: one for every 12 grains in a column, within the
+        // fewest and the most; none more without gravity; a depth past the most is flagged.
+        let column = |deepest: u32| PairProbe {
+            speed: 0.0,
+            deepest,
+        };
+        let pairs = PairParams::default();
+        for (deepest, want) in [(0, 8), (1, 8), (96, 8), (97, 9), (250, 21), (768, 64)] {
+            assert_eq!(
+                pair_iterations_for(&step, &pairs, &column(deepest)),
+                (want, false),
+                "{deepest} deep"
+            );
+        }
+        assert_eq!(pair_iterations_for(&step, &pairs, &column(769)), (64, true));
+        let weightless = StepParams {
+            gravity: [0.0; 3],
+            ..step
+        };
+        assert_eq!(
+            pair_iterations_for(&weightless, &pairs, &column(800)),
+            (8, false)
+        );
+        let capped = PairParams {
+            iterations: 2,
+            max_iterations: 5,
+            ..pairs
+        };
+        assert_eq!(pair_iterations_for(&step, &capped, &column(30)), (3, false));
+        assert_eq!(pair_iterations_for(&step, &capped, &column(60)), (5, false));
+        assert_eq!(pair_iterations_for(&step, &capped, &column(61)), (5, true));
+        // The probe: the fastest speed, and the most particles in one column along gravity
+        // (a diameter, 0.2, wide); one the pass leaves out takes no part.
+        let mut ps = std::vec![Particle::new([5.05, -1.0, 0.05], [0.0, 1.0, 0.0])];
+        for k in 0..5 {
+            ps.push(Particle::new([0.05, k as f32 * 0.3, 0.15], [3.0, 0.0, 0.0]));
+        }
+        ps.push(Particle::new([0.05, f32::NAN, 0.15], [9.0, 0.0, 0.0]));
+        let mut table = std::vec![[0u32; 2]; pair_column_table_size(ps.len())];
+        let probe = PairProbe::of_all(&ps, &step, &mut table).unwrap();
+        assert_eq!(
+            probe,
+            PairProbe {
+                speed: 3.0,
+                deepest: 5
+            }
+        );
+        assert_eq!(PairProbe::of_all(&ps, &step, &mut table[..3]), None);
+        assert_eq!(
+            PairProbe::of_all(&[], &step, &mut table),
+            Some(PairProbe::default())
+        );
+        // Across gravity: unit vectors at right angles to it and to each other.
+        for g in [[0.0, -9.81, 0.0], [1.0, 2.0, -3.0], [0.0, 0.0, 5.0]] {
+            let s = StepParams { gravity: g, ..step };
+            let [a, b] = pair_across(&s).map(Vec3::from_array);
+            let up = Vec3::from_array(pair_up(&s));
+            for (x, y) in [(a, up), (b, up), (a, b)] {
+                assert!(x.dot(y).abs() < 1e-6, "{g:?}");
+            }
+            assert!((a.length() - 1.0).abs() < 1e-6 && (b.length() - 1.0).abs() < 1e-6);
         }
         // Automatic substeps: g h² ≤ κ R.
         let s = pair_substeps(&step, &ok);

@@ -780,7 +780,8 @@ fn parallel_pass_against_serial(pairs: &PairParams) -> (u64, u64) {
         cpu.step_pairs(&step, &pairs, 1).unwrap();
         // The step's substeps from its particles' largest speed and its iterations from
         // their depth, as the backend chooses them.
-        let probe = octoproxy_core::PairProbe::of_all(&ps, &step);
+        let mut columns = vec![[0u32; 2]; octoproxy_core::pairs::pair_column_table_size(n)];
+        let probe = octoproxy_core::PairProbe::of_all(&ps, &step, &mut columns).unwrap();
         let substeps = octoproxy_core::pair_substeps_for(&step, &pairs, probe.speed);
         let (iterations, _) = octoproxy_core::pair_iterations_for(&step, &pairs, &probe);
         let h = step.dt / substeps as f32;

@@ -365,6 +365,9 @@ pub struct Row {
     /// A particle case's substeps per step (0 elsewhere): its rows time the step with the
     /// particle–particle pass.
     pub substeps: u32,
+    /// A particle case's Jacobi iterations per substep on average (0 elsewhere, and in runs
+    /// before a step took them from how deep its particles stand).
+    pub iterations: u32,
     /// A GPU row's workgroup size (invocations per workgroup of the plain step; 0 on the CPU
     /// rows and in runs that predate the sweep).
     pub workgroup_size: u32,
@@ -885,6 +888,7 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
                         ratio_to_static: f64::NAN,
                         ratio_to_plain: f64::NAN,
                         substeps: 0,
+                        iterations: 0,
                         workgroup_size: 0,
                         ns_min: f64::NAN,
                         ns_max: f64::NAN,
@@ -1145,6 +1149,7 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
                         ratio_to_static: f64::NAN,
                         ratio_to_plain: f64::NAN,
                         substeps: 0,
+                        iterations: 0,
                         workgroup_size: 0,
                         ns_min: f64::NAN,
                         ns_max: f64::NAN,
@@ -1352,6 +1357,9 @@ impl Report {
             if r.substeps > 0 {
                 let _ = write!(s, ", \"substeps\": {}", r.substeps);
             }
+            if r.iterations > 0 {
+                let _ = write!(s, ", \"iterations\": {}", r.iterations);
+            }
             if r.workgroup_size > 0 {
                 let _ = write!(s, ", \"workgroup_size\": {}", r.workgroup_size);
             }
@@ -1502,15 +1510,16 @@ impl Report {
             s,
             "Particles that collide with each other (`step_pairs`: the uniform-grid pass, then the \
              march at the radius), radius {} m, `dt` 1/60 s, the automatic substeps (gravity's, more \
-             while a grain moves more than a radius in one; the table gives the mean a step), 8 \
-             iterations before the march and 8 debiasing ones after it. `particles-pile`: a block {} grains wide set down at rest on a \
+             while a grain moves more than a radius in one; the table gives the mean a step), as many \
+             Jacobi iterations before the march as debiasing ones after it (at least 8, one for every 12 layers the \
+             grains stand deep; the table gives the mean a substep). `particles-pile`: a block {} grains wide set down at rest on a \
              floor, one grain per cell; `particles-cloud`: one grain per (8R)³ falling onto it. Nanoseconds per \
              particle-step; the pass is the sort and the neighbour loop (both sets of iterations), per particle-substep:\n\n",
             particles::RADIUS,
             particles::PILE_WIDTH,
         );
-        s.push_str("| case | particles | backend | substeps | step | per substep | pass per substep | sort | neighbour loop | march | × floor |\n");
-        s.push_str("|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|\n");
+        s.push_str("| case | particles | backend | substeps | iterations | step | per substep | pass per substep | sort | neighbour loop | march | × floor |\n");
+        s.push_str("|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
         let ns = |x: Option<f64>| x.map(|v| format!("{v:.0}")).unwrap_or_else(|| "–".into());
         for r in cases {
             let sub = r.substeps as f64;
@@ -1525,11 +1534,16 @@ impl Report {
             };
             let _ = writeln!(
                 s,
-                "| {} | {} | {} | {} | {:.0} | {:.0} | {} | {} | {} | {} | {} |",
+                "| {} | {} | {} | {} | {} | {:.0} | {:.0} | {} | {} | {} | {} | {} |",
                 r.scene,
                 r.particles,
                 r.backend,
                 r.substeps,
+                if r.iterations > 0 {
+                    r.iterations.to_string()
+                } else {
+                    "–".into()
+                },
                 r.ns_per_particle_step,
                 r.ns_per_particle_step / sub,
                 ns(pass),
@@ -2990,6 +3004,7 @@ mod docs {
                 ratio_to_static: f64::NAN,
                 ratio_to_plain: f64::NAN,
                 substeps: 0,
+                iterations: 0,
                 workgroup_size: size,
                 ns_min: f64::NAN,
                 ns_max: f64::NAN,
@@ -3048,6 +3063,7 @@ mod docs {
                 ratio_to_static: f64::NAN,
                 ratio_to_plain: f64::NAN,
                 substeps: 0,
+                iterations: 0,
                 workgroup_size: 0,
                 ns_min: f64::NAN,
                 ns_max: f64::NAN,
@@ -3410,6 +3426,7 @@ mod json {
             ratio_to_static: r.num_or("ratio_to_static", f64::NAN)?,
             ratio_to_plain: r.num_or("ratio_to_plain", f64::NAN)?,
             substeps: r.count_or("substeps", 0)? as u32,
+            iterations: r.count_or("iterations", 0)? as u32,
             workgroup_size: r.count_or("workgroup_size", 0)? as u32,
             sweep: r.bool_or("sweep", false)?,
             ns_min: r.num_or("ns_min", f64::NAN)?,
@@ -3509,6 +3526,7 @@ mod json {
                     ratio_to_static: f64::NAN,
                     ratio_to_plain: f64::NAN,
                     substeps: 0,
+                    iterations: 0,
                     workgroup_size: 0,
                     ns_min: f64::NAN,
                     ns_max: f64::NAN,

@@ -866,6 +866,20 @@ fn particles_collide_with_each_other_and_bad_pass_options_are_errors() {
             "particle iterations must be 1 to 64",
         ),
         (
+            vec![
+                "--collide-particles",
+                "--particle-iterations",
+                "12",
+                "--particle-max-iterations",
+                "10",
+            ],
+            "the most particle iterations must be 12 (the fewest) to 64, got 10",
+        ),
+        (
+            vec!["--collide-particles", "--particle-max-iterations", "0"],
+            "the most particle iterations must be 1 (the fewest) to 64, got 0",
+        ),
+        (
             vec!["--collide-particles", "--particle-substeps", "0"],
             "--particle-substeps must be at least 1",
         ),

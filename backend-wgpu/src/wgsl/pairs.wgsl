@@ -50,11 +50,14 @@ struct PairState {
     capped_hi: atomic<u32>,
     zero: f32,
     relaxation: f32,
-    // The probe's lowest and highest height along `step.up` (`pair_height_key`s).
-    low: atomic<u32>,
-    high: atomic<u32>,
+    // The probe's most particles in one column (`pair_column_key`), and the two unit
+    // vectors across gravity the host writes for it (`xyz`).
+    deepest: atomic<u32>,
     _pad0: u32,
     _pad1: u32,
+    _pad2: u32,
+    across0: vec4<f32>,
+    across1: vec4<f32>,
 }
 
 @group(0) @binding(3) var<storage, read_write> pair_state: PairState;
@@ -121,17 +124,29 @@ fn pair_prepare(p: Particle, s: PairStep) -> PreparedOption {
     return PreparedOption(v, sqrt(dot3(v, v)), true);
 }
 
-// A position's height along `up` (Rust's `pair_height`).
-fn pair_height(x: vec3<f32>, up: vec3<f32>) -> f32 {
-    return x.x * up.x + x.y * up.y + x.z * up.z;
+// A position's part along a unit vector (Rust's `pair_height`), summed in this order.
+fn pair_height(x: vec3<f32>, a: vec3<f32>) -> f32 {
+    return x.x * a.x + x.y * a.y + x.z * a.z;
 }
 
-// A key of a height whose order as an unsigned integer is the heights' (the sign bit set
-// for heights at or above +0, every bit flipped below): the probe's `atomicMin` and
-// `atomicMax` find the lowest and highest exactly.
-fn pair_height_key(height: f32) -> u32 {
-    let b = bitcast<u32>(height);
-    return select(b | 0x80000000u, ~b, (b & 0x80000000u) != 0u);
+// The key of a position's column: its two coordinates across gravity, clamped as
+// `pair_cell`'s, 15 and 16 bits of them with the top bit set (never 0, an empty slot).
+fn pair_column_key(x: vec3<f32>, a0: vec3<f32>, a1: vec3<f32>, inv_diameter: f32) -> u32 {
+    let f = floor(vec2<f32>(pair_height(x, a0) * inv_diameter, pair_height(x, a1) * inv_diameter));
+    let c = bitcast<vec2<u32>>(vec2<i32>(clamp(f, vec2<f32>(-PAIR_CELL_LIMIT), vec2<f32>(PAIR_CELL_LIMIT))));
+    return 0x80000000u | ((c.x & 0x7fffu) << 16u) | (c.y & 0xffffu);
+}
+
+// Where a column's key starts its search in a table of `mask + 1` entries: `pair_hash`'s
+// mix of a region.
+fn pair_column_slot(key: u32, mask: u32) -> u32 {
+    var h = key;
+    h ^= h >> 16u;
+    h = h * 0x7feb352du;
+    h ^= h >> 15u;
+    h = h * 0x846ca68bu;
+    h ^= h >> 16u;
+    return h & mask;
 }
 
 fn pair_cell(x: vec3<f32>, s: PairStep) -> vec3<i32> {

@@ -4,7 +4,7 @@
 //   pair_reset_kernel    the table's ranges to [0, 0], the largest speed and the valid count to 0
 //   pair_speed_kernel    per chunk: the largest speed after gravity, and the fast particles
 //                        (in the probe before a step, `pair_reset_kernel` and this alone with
-//                        a zero substep: also the lowest and highest height)
+//                        a zero substep: also the most particles in one column)
 //   pair_step_kernel     one invocation: the substep's cell from the largest speed
 //   pair_key_kernel      per chunk: each particle's (hash, index)
 //   pair_sort_*_kernel   a bitonic sort of the keys: blocks sorted in workgroup memory, the
@@ -91,8 +91,7 @@ fn pair_reset_kernel(
     let t = particle_index(wg, groups, local);
     if t == 0u {
         atomicStore(&pair_state.v_max, 0u);
-        atomicStore(&pair_state.low, 0xffffffffu);
-        atomicStore(&pair_state.high, 0u);
+        atomicStore(&pair_state.deepest, 0u);
         pair_state.valid = 0u;
     }
     if t < pair_pass.table {
@@ -100,8 +99,15 @@ fn pair_reset_kernel(
     }
 }
 
+// The probe's columns (`PairProbe`): a key and a count per entry, twice the table's size,
+// zeroed by the host before the probe.
+@group(0) @binding(16) var<storage, read_write> pair_columns: array<atomic<u32>>;
+
 // Per chunk. A particle left out of the pass takes no part in the largest speed. In the
-// probe before a step (a zero substep), also the lowest and highest height along `up`.
+// probe before a step (a zero substep), each particle also counts in its column: the first
+// entry from its key's slot on that is empty or holds the key (a compare-exchange that fails
+// spuriously is tried again on the same entry, so a column never takes two), and the most in
+// one column is kept.
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn pair_speed_kernel(
     @builtin(workgroup_id) wg: vec3<u32>,
@@ -119,9 +125,26 @@ fn pair_speed_kernel(
     }
     atomicMax(&pair_state.v_max, bitcast<u32>(prepared.speed));
     if s.h == 0.0 {
-        let key = pair_height_key(pair_height(particles[i].position, s.up));
-        atomicMin(&pair_state.low, key);
-        atomicMax(&pair_state.high, key);
+        let key = pair_column_key(
+            particles[i].position,
+            pair_state.across0.xyz,
+            pair_state.across1.xyz,
+            s.inv_diameter,
+        );
+        let size = 2u * pair_pass.table;
+        var slot = pair_column_slot(key, size - 1u);
+        // At most half the entries are taken: an empty one or the column's own is found.
+        for (var tries = 0u; tries < 4u * size; tries++) {
+            let r = atomicCompareExchangeWeak(&pair_columns[2u * slot], 0u, key);
+            if r.exchanged || r.old_value == key {
+                let count = atomicAdd(&pair_columns[2u * slot + 1u], 1u) + 1u;
+                atomicMax(&pair_state.deepest, count);
+                break;
+            }
+            if r.old_value != 0u {
+                slot = (slot + 1u) & (size - 1u);
+            }
+        }
     }
     if pair_is_fast(prepared.speed, s) {
         count_fast();

@@ -134,6 +134,12 @@ fn mean_substeps(report: &octoproxy_core::PairReport) -> u32 {
     (report.substeps as f64 / report.steps.max(1) as f64).round() as u32
 }
 
+/// The Jacobi iterations a substep took on average (rounded), from the pass's report: they
+/// follow how deep the particles stand (`octoproxy_core::pair_iterations_for`).
+fn mean_iterations(report: &octoproxy_core::PairReport) -> u32 {
+    (report.iterations as f64 / report.substeps.max(1) as f64).round() as u32
+}
+
 /// Times one case: the floor (integration only), the step with the pass on the CPU (whole and
 /// in parts) and, given one, on a GPU (whole). One untimed step first, from the same start.
 pub fn time_case(
@@ -150,36 +156,38 @@ pub fn time_case(
     // The floor's rows carry gravity's substeps, the fewest a step takes: a particle case's
     // rows are those with substeps.
     let base = octoproxy_core::pair_substeps(&params, &pairs);
-    let row = |method: String, backend: &'static str, ns: f64, substeps: u32| Row {
-        scene: name.to_string(),
-        triangles: floor.triangles,
-        particles: n,
-        build_ms: if method == "floor" {
-            0.0
-        } else {
-            floor.bake_ms
-        },
-        memory_bytes: if method == "floor" {
-            0
-        } else {
-            floor.words.len() * 4
-        },
-        method,
-        backend,
-        ns_per_particle_step: ns,
-        ratio_to_floor: f64::NAN,
-        penetrations_per_million: f64::NAN,
-        band: "mixed",
-        instances: 0,
-        moving: 0,
-        ratio_to_static: f64::NAN,
-        ratio_to_plain: f64::NAN,
-        substeps,
-        workgroup_size: 0,
-        ns_min: f64::NAN,
-        ns_max: f64::NAN,
-        sweep: false,
-    };
+    let row =
+        |method: String, backend: &'static str, ns: f64, (substeps, iterations): (u32, u32)| Row {
+            scene: name.to_string(),
+            triangles: floor.triangles,
+            particles: n,
+            build_ms: if method == "floor" {
+                0.0
+            } else {
+                floor.bake_ms
+            },
+            memory_bytes: if method == "floor" {
+                0
+            } else {
+                floor.words.len() * 4
+            },
+            method,
+            backend,
+            ns_per_particle_step: ns,
+            ratio_to_floor: f64::NAN,
+            penetrations_per_million: f64::NAN,
+            band: "mixed",
+            instances: 0,
+            moving: 0,
+            ratio_to_static: f64::NAN,
+            ratio_to_plain: f64::NAN,
+            substeps,
+            iterations,
+            workgroup_size: 0,
+            ns_min: f64::NAN,
+            ns_max: f64::NAN,
+            sweep: false,
+        };
     let per_step = |secs: f64| secs * 1e9 / (n as f64 * steps as f64);
     let mut rows = Vec::new();
     if cpu {
@@ -192,7 +200,7 @@ pub fn time_case(
             "floor".into(),
             "cpu",
             per_step(t.elapsed().as_secs_f64()),
-            base,
+            (base, 0),
         ));
         c.upload_proxy(&floor.words)?;
         c.upload_particles(&particles)?;
@@ -203,7 +211,8 @@ pub fn time_case(
         c.step_pairs(&params, &pairs, steps)?;
         let whole = per_step(t.elapsed().as_secs_f64());
         let parts = c.take_pair_timings();
-        let substeps = mean_substeps(&c.take_pair_report()?);
+        let report = c.take_pair_report()?;
+        let substeps = (mean_substeps(&report), mean_iterations(&report));
         rows.push(row(
             format!("octoproxy-cpu{METHOD}"),
             "cpu",
@@ -236,7 +245,7 @@ pub fn time_case(
             "floor".into(),
             "wgpu",
             per_step(t.elapsed().as_secs_f64()),
-            base,
+            (base, 0),
         ));
         g.upload_particles(&particles)?;
         g.step_pairs(&params, &pairs, 1)?;
@@ -246,7 +255,8 @@ pub fn time_case(
         g.step_pairs(&params, &pairs, steps)?;
         g.wait()?;
         let whole = per_step(t.elapsed().as_secs_f64());
-        let substeps = mean_substeps(&g.take_pair_report()?);
+        let report = g.take_pair_report()?;
+        let substeps = (mean_substeps(&report), mean_iterations(&report));
         rows.push(row(
             format!("octoproxy-wgpu{METHOD}"),
             "wgpu",

@@ -845,8 +845,8 @@ impl WgpuBackend {
         let kernel = self.pairs.kernel.as_ref().expect("built above");
         let buffers = self.pairs.buffers.as_ref().expect("made above");
         let scope = ErrorScope::push(&self.device);
-        // A zero substep: no gravity, nothing fast, and the columns counted (with `depth`;
-        // else the diameter's inverse is 0 and every particle is in one column, not read).
+        // A zero substep: no gravity, nothing fast, and the columns counted with `depth`
+        // (else the diameter's inverse is 0, which the kernel takes for no columns).
         let probe_step = PairStep {
             inv_diameter: if depth {
                 1.0 / (2.0 * params.radius)

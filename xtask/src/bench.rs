@@ -1511,8 +1511,8 @@ impl Report {
             "Particles that collide with each other (`step_pairs`: the uniform-grid pass, then the \
              march at the radius), radius {} m, `dt` 1/60 s, the automatic substeps (gravity's, more \
              while a grain moves more than a radius in one; the table gives the mean a step), as many \
-             Jacobi iterations before the march as debiasing ones after it (at least 8, one for every 12 layers the \
-             grains stand deep; the table gives the mean a substep). `particles-pile`: a block {} grains wide set down at rest on a \
+             Jacobi iterations before the march as debiasing ones after it (at least 8, one for every 12 grains in the deepest \
+             column; the table gives the mean a substep). `particles-pile`: a block {} grains wide set down at rest on a \
              floor, one grain per cell; `particles-cloud`: one grain per (8R)³ falling onto it. Nanoseconds per \
              particle-step; the pass is the sort and the neighbour loop (both sets of iterations), per particle-substep:\n\n",
             particles::RADIUS,

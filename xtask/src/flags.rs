@@ -89,7 +89,7 @@ pub const PAIR_HELP: &str =
   --particle-restitution E     in [0, 1] (default: --restitution)
   --particle-friction F        Coulomb coefficient >= 0 (default: --friction)
   --particle-iterations N      the fewest Jacobi iterations per substep, 1..=64 (default 8);
-                               a step takes one per 12 layers its particles stand deep
+                               a step takes one per 12 grains in its deepest column
   --particle-max-iterations N  the most, up to 64 (default 64): deeper piles are reported
   --particle-substeps N|speed|gravity
                                substeps per step, 1..=256, or chosen each step: speed (the

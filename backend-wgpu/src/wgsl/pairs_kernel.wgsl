@@ -124,7 +124,8 @@ fn pair_speed_kernel(
         return;
     }
     atomicMax(&pair_state.v_max, bitcast<u32>(prepared.speed));
-    if s.h == 0.0 {
+    // (A probe for the speed alone leaves the diameter's inverse 0: no columns.)
+    if s.h == 0.0 && s.inv_diameter != 0.0 {
         let key = pair_column_key(
             particles[i].position,
             pair_state.across0.xyz,

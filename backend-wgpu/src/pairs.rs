@@ -84,7 +84,7 @@ pub struct PairState {
     pub across1: [f32; 4],
 }
 
-const _: () = assert!(core::mem::size_of::<PairState>() % 16 == 0);
+const _: () = assert!(core::mem::size_of::<PairState>().is_multiple_of(16));
 
 /// The pass's sizes: WGSL's `PairPassParams`.
 #[repr(C)]

@@ -68,6 +68,25 @@ fn a_column_settles_in_a_box() {
     assert_eq!(cpu.take_pair_report().unwrap().capped, 0);
 }
 
+/// A block `k` by `k` grains of radius `r` and `layers` deep, at rest on a simple lattice a
+/// thousandth of a diameter apart, centred on the y axis, its lowest layer at `bottom`.
+fn stack(k: usize, layers: usize, r: f32, bottom: f32) -> Vec<Particle> {
+    let spacing = 2.0 * r * 1.001;
+    let at = |i: usize| (i as f32 - (k - 1) as f32 / 2.0) * spacing;
+    let mut ps = Vec::with_capacity(k * k * layers);
+    for y in 0..layers {
+        for z in 0..k {
+            for x in 0..k {
+                ps.push(Particle::new(
+                    [at(x), bottom + y as f32 * spacing, at(z)],
+                    [0.0; 3],
+                ));
+            }
+        }
+    }
+    ps
+}
+
 /// A block 28 grains deep on a floor: what removes its overlaps must not stay as velocity
 /// (each grain parting from the one below at its overlap's rate, the top taking the sum): no
 /// grain is thrown up, and the block comes to rest. Without the hold on parting pairs the
@@ -77,19 +96,7 @@ fn a_deep_stack_does_not_throw_its_top() {
     let r = 0.025;
     let baked = bake_for(&[scenes::slab([0.0, -0.1, 0.0], [1.2, 0.2, 1.2])], 7, r);
     let (k, layers) = (20, 28);
-    let spacing = 2.0 * r * 1.001;
-    let mut ps = Vec::new();
-    for y in 0..layers {
-        for z in 0..k {
-            for x in 0..k {
-                let at = |i: usize| (i as f32 - (k - 1) as f32 / 2.0) * spacing;
-                ps.push(Particle::new(
-                    [at(x), r * 1.2 + y as f32 * spacing, at(z)],
-                    [0.0; 3],
-                ));
-            }
-        }
-    }
+    let mut ps = stack(k, layers, r, r * 1.2);
     assert_eq!(baked.start(&mut ps).stuck, 0);
     let top0 = ps.iter().map(|p| p.position[1]).fold(0.0, f32::max);
     let mut cpu = CpuBackend::new();
@@ -137,19 +144,7 @@ fn a_column_250_grains_deep_stands() {
     let r = 0.01;
     let baked = bake_for(&[scenes::slab([0.0, -0.025, 0.0], [0.2, 0.05, 0.2])], 6, r);
     let (k, layers) = (3, 250);
-    let spacing = 2.0 * r * 1.001;
-    let mut ps = Vec::new();
-    for y in 0..layers {
-        for z in 0..k {
-            for x in 0..k {
-                let at = |i: usize| (i as f32 - (k - 1) as f32 / 2.0) * spacing;
-                ps.push(Particle::new(
-                    [at(x), r * 1.001 + y as f32 * spacing, at(z)],
-                    [0.0; 3],
-                ));
-            }
-        }
-    }
+    let mut ps = stack(k, layers, r, r * 1.001);
     assert_eq!(baked.start(&mut ps).stuck, 0);
     let top0 = ps.iter().map(|p| p.position[1]).fold(0.0, f32::max);
     let step = StepParams {

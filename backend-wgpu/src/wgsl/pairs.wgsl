@@ -137,16 +137,20 @@ fn pair_column_key(x: vec3<f32>, a0: vec3<f32>, a1: vec3<f32>, inv_diameter: f32
     return 0x80000000u | ((c.x & 0x7fffu) << 16u) | (c.y & 0xffffu);
 }
 
-// Where a column's key starts its search in a table of `mask + 1` entries: `pair_hash`'s
-// mix of a region.
-fn pair_column_slot(key: u32, mask: u32) -> u32 {
-    var h = key;
+// The mix of a region's combined coordinates in `pair_hash`: where its run starts.
+fn region_mix(x: u32) -> u32 {
+    var h = x;
     h ^= h >> 16u;
     h = h * 0x7feb352du;
     h ^= h >> 15u;
     h = h * 0x846ca68bu;
-    h ^= h >> 16u;
-    return h & mask;
+    return h ^ (h >> 16u);
+}
+
+// Where a column's key starts its search in a table of `mask + 1` entries: `pair_hash`'s
+// mix of a region.
+fn pair_column_slot(key: u32, mask: u32) -> u32 {
+    return region_mix(key) & mask;
 }
 
 fn pair_cell(x: vec3<f32>, s: PairStep) -> vec3<i32> {
@@ -181,13 +185,8 @@ fn pair_start_with(p: Particle, support: vec4<f32>, s: PairStep) -> PairStart {
 fn pair_hash(c: vec3<i32>, mask: u32) -> u32 {
     let b = c >> vec3<u32>(2u);
     let r = b >> vec3<u32>(3u);
-    var h = (bitcast<u32>(r.x) * 0x8da6b343u) ^ (bitcast<u32>(r.y) * 0xd8163841u)
-        ^ (bitcast<u32>(r.z) * 0xcb1ab31fu);
-    h ^= h >> 16u;
-    h = h * 0x7feb352du;
-    h ^= h >> 15u;
-    h = h * 0x846ca68bu;
-    h ^= h >> 16u;
+    let h = region_mix((bitcast<u32>(r.x) * 0x8da6b343u) ^ (bitcast<u32>(r.y) * 0xd8163841u)
+        ^ (bitcast<u32>(r.z) * 0xcb1ab31fu));
     let bb = bitcast<vec3<u32>>(b);
     var block = 0u;
     for (var i = 0u; i < 3u; i++) {

@@ -12,7 +12,7 @@ use octoproxy_core::{
 
 use octoproxy_core::pairs::PairGeometry;
 use octoproxy_core::pairs::{
-    pair_across, pair_column_key, pair_column_slot, pair_column_table_size,
+    pair_across, pair_column_key, pair_column_slot, pair_column_table_size, pair_up,
 };
 use octoproxy_core::pairs::{
     pair_cell, pair_geometry, pair_hash, pair_in_reach, pair_is_fast, pair_neighbourhood,
@@ -20,20 +20,31 @@ use octoproxy_core::pairs::{
     PAIR_HASH_NONE,
 };
 use octoproxy_core::{
-    pair_iterations_for, pair_substep_range, pair_substeps_for, PairBody, PairParams, PairProbe,
-    PairReport, PairStep, PairVelocity,
+    pair_iterations_for, pair_probe_speed, pair_substep_range, pair_substeps_for, PairBody,
+    PairParams, PairProbe, PairReport, PairStep, PairVelocity,
 };
 
 use rayon::prelude::*;
 
 /// The [`PairProbe`] of `particles` under `step`'s gravity, in parallel (core's
 /// `PairProbe::of_all`, the same probe): what [`pair_substeps_for`] and
-/// [`pair_iterations_for`] take. `columns` is the columns' table, resized here.
+/// [`pair_iterations_for`] take. `columns` is the columns' table, resized here. Without
+/// `depth` (or gravity, where nothing stacks) the columns are left uncounted, `deepest` 0, as
+/// the GPU backend's probe leaves them.
 fn probe(
     particles: &[Particle],
     step: &StepParams,
     columns: &mut Vec<[AtomicU32; 2]>,
+    depth: bool,
 ) -> PairProbe {
+    if !depth || pair_up(step) == [0.0; 3] {
+        let speed = particles
+            .par_iter()
+            .with_min_len(4096)
+            .map(pair_probe_speed)
+            .reduce(|| 0.0, f32::max);
+        return PairProbe { speed, deepest: 0 };
+    }
     let size = pair_column_table_size(particles.len());
     columns.resize_with(size, Default::default);
     columns.par_iter().with_min_len(4096).for_each(|e| {
@@ -78,7 +89,7 @@ fn plan(
     report: &mut PairReport,
     columns: &mut Vec<[AtomicU32; 2]>,
 ) -> (u32, u32) {
-    let probe = probe(particles, params, columns);
+    let probe = probe(particles, params, columns, true);
     let (iterations, deep) = pair_iterations_for(params, pairs, &probe);
     report.deep += deep as u64;
     (pair_substeps_for(params, pairs, probe.speed), iterations)
@@ -1005,7 +1016,7 @@ impl Backend for CpuBackend {
         Ok(pair_substeps_for(
             params,
             pairs,
-            probe(&self.particles, params, &mut self.pairs.columns).speed,
+            probe(&self.particles, params, &mut self.pairs.columns, false).speed,
         ))
     }
 

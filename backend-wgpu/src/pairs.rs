@@ -815,9 +815,10 @@ impl WgpuBackend {
         pairs: &PairParams,
     ) -> Result<(u32, u32), WgpuError> {
         let speed_counts = pairs.substeps == 0 && pairs.follow_speed;
-        // Without gravity, or with no more iterations allowed than the fewest, the depth
-        // changes nothing.
-        let depth_counts = pair_up(params) != [0.0; 3] && pairs.max_iterations > pairs.iterations;
+        // Without gravity nothing stacks: the depth changes nothing. With it the depth is
+        // probed even when the fewest iterations are also the most, for the report's count of
+        // steps deeper than they prop up (the CPU backend's too).
+        let depth_counts = pair_up(params) != [0.0; 3];
         let probe = self.pair_probe_gpu(params, speed_counts, depth_counts)?;
         let (iterations, deep) = pair_iterations_for(params, pairs, &probe);
         self.pairs.pending.deep += deep as u64;

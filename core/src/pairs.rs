@@ -398,6 +398,8 @@ impl PairProbe {
         table.fill([0, 0]);
         let across = pair_across(step);
         let inv_diameter = 1.0 / (2.0 * step.radius);
+        // Without gravity nothing stacks: no columns, `deepest` 0.
+        let counting = pair_up(step) != [0.0; 3];
         let mut probe = Self::default();
         for p in particles {
             let Some((_, speed)) = pair_prepare(p, &PairStep::default()) else {
@@ -405,6 +407,9 @@ impl PairProbe {
             };
             if speed > probe.speed {
                 probe.speed = speed;
+            }
+            if !counting {
+                continue;
             }
             let key = pair_column_key(p.position, &across, inv_diameter);
             let mut slot = pair_column_slot(key, size as u32 - 1) as usize;

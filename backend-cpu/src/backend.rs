@@ -188,7 +188,7 @@ pub struct CpuBackend {
 /// above index: the same total order as core's `[hash, index]`), and each particle's place
 /// in the sorted order (to gather the velocities back in the caller's order).
 #[derive(Debug, Default)]
-struct PairBuffers {
+pub(crate) struct PairBuffers {
     keys: Vec<u64>,
     bodies: Vec<PairBody>,
     vel: Vec<PairVelocity>,
@@ -248,7 +248,7 @@ const RANGE_CHUNK: usize = 4096;
 impl PairBuffers {
     /// One substep of the pass over `particles` with the constants `s`: their velocities
     /// change, nothing else. Returns the particle-iterations that hit the neighbour cap.
-    fn substep(
+    pub(crate) fn substep(
         &mut self,
         particles: &mut [Particle],
         start: impl Fn(usize, &Particle) -> (PairVelocity, [f32; 4]) + Sync,
@@ -426,7 +426,12 @@ impl PairBuffers {
     /// The debiasing iterations after the march ([`debias_pairs`]'s, in parallel): the
     /// substep's lists solved again from the marched velocities with the unbiased targets.
     /// Returns the particle-iterations that hit the neighbour cap.
-    fn debias(&mut self, particles: &mut [Particle], s: &PairStep, iterations: u32) -> u64 {
+    pub(crate) fn debias(
+        &mut self,
+        particles: &mut [Particle],
+        s: &PairStep,
+        iterations: u32,
+    ) -> u64 {
         let started = std::time::Instant::now();
         let valid = self.valid;
         let bodies = &self.bodies[..valid];

@@ -19,15 +19,15 @@ pub mod scene;
 
 use crate::emit::{emit_surface_for, Rng, SurfaceSampler};
 use glam::Vec3;
-use octoproxy_core::pairs::{pair_column_table_size, pair_max_speed, pair_table_size};
+use octoproxy_core::pairs::{pair_column_table_size, pair_max_speed, pair_start};
 use octoproxy_core::{
-    collide_pairs, debias_pairs, initial_side, pair_iterations_for, pair_substeps_for,
-    step_particle_traced, LeafHint, PairBody, PairParams, PairProbe, PairScratch, PairStep,
-    PairVelocity, Particle, ProxyView, StepParams, FLAG_BLOCKED, FLAG_BOUND_HIT, FLAG_INVALID,
-    MAX_DEPTH,
+    initial_side, pair_iterations_for, pair_substeps_for, step_particle_traced, LeafHint,
+    PairParams, PairProbe, PairStep, Particle, ProxyView, StepParams, FLAG_BLOCKED, FLAG_BOUND_HIT,
+    FLAG_INVALID, MAX_DEPTH,
 };
 use rayon::prelude::*;
 
+use crate::backend::PairBuffers;
 use crate::bake::MeshRef;
 use crate::ground_truth::GroundTruth;
 use crate::sides::Sides;
@@ -406,11 +406,13 @@ pub fn run_check_radius(
 }
 
 /// [`run_check_radius`] with the particle–particle pass on: every step is
-/// [`octoproxy_core::pair_substeps_for`] substeps of the pass over all the particles (core's
-/// one-thread [`collide_pairs`], with gravity) and then each particle's march, traced and
-/// checked piece by piece as [`run_check_radius`] checks it. The pass runs without supports
-/// (no leaf hints): it may push grains towards the scene freely, and the march alone keeps
-/// them out, a harder case than the backends' (whose supports take such pushes off first).
+/// [`octoproxy_core::pair_substeps_for`] substeps of the pass over all the particles (the CPU
+/// backend's parallel pass, bit for bit core's one-thread
+/// [`collide_pairs`](octoproxy_core::collide_pairs), with gravity) and then each particle's
+/// march, traced and checked piece by piece as [`run_check_radius`] checks it. The pass runs
+/// without leaf hints, so without supports but for grains the shell rule stopped: it may push
+/// grains towards the scene freely, and the march alone keeps them out, a harder case than the
+/// backends' (whose supports take such pushes off first).
 /// Particles found bad stay in the pass as obstacles, and stop moving.
 #[allow(clippy::too_many_arguments)]
 pub fn run_check_pairs(
@@ -541,25 +543,19 @@ impl Checker<'_> {
     }
 }
 
-/// The scratch of core's one-thread pass.
+/// The pass's scratch: the CPU backend's own buffers, so that a check runs the backend's
+/// parallel pass (candidates listed once a substep) over its particles.
 #[derive(Default)]
 struct PassScratch {
-    keys: Vec<[u32; 2]>,
-    bodies: Vec<PairBody>,
-    start: Vec<PairVelocity>,
-    vel: Vec<PairVelocity>,
-    vel_next: Vec<PairVelocity>,
-    support: Vec<[f32; 4]>,
-    ranges: Vec<[u32; 2]>,
-    /// No grain rests on a support here: every hint is none.
-    hints: Vec<LeafHint>,
+    buffers: PairBuffers,
     /// The last pass's constants, for its debiasing iterations, and the step's iterations.
     step: PairStep,
     iterations: u32,
 }
 
 impl PassScratch {
-    /// The pass over `particles` for one substep `h` (no supports).
+    /// The pass over `particles` for one substep `h`. No particle has a leaf hint here, so
+    /// only a grain the shell rule stopped in its last march rests on a support.
     fn pass(
         &mut self,
         view: &ProxyView<'_>,
@@ -569,38 +565,19 @@ impl PassScratch {
         h: f32,
     ) {
         let n = particles.len();
-        self.keys.resize(n, [0; 2]);
-        self.bodies.resize(n, PairBody::default());
-        self.start.resize(n, [0.0; 4]);
-        self.vel.resize(n, [0.0; 4]);
-        self.vel_next.resize(n, [0.0; 4]);
-        self.support.resize(n, [0.0; 4]);
-        self.ranges.resize(pair_table_size(n), [0; 2]);
-        self.hints.resize(n, LeafHint::NONE);
         let s0 = PairStep::new(params, pairs, h, n, 0.0);
         let s = PairStep::new(params, pairs, h, n, pair_max_speed(particles, &s0));
         self.step = s;
-        let hints = std::mem::take(&mut self.hints);
-        collide_pairs(particles, view, &hints, &s, self.iterations, self.scratch());
-        self.hints = hints;
+        let start = |_: usize, p: &Particle| pair_start(view, p, LeafHint::NONE, &s);
+        let started = std::time::Instant::now();
+        self.buffers
+            .substep(particles, start, &s, self.iterations, started);
     }
 
     /// The last pass's debiasing iterations, after the march.
     fn debias(&mut self, particles: &mut [Particle]) {
         let (s, iterations) = (self.step, self.iterations);
-        debias_pairs(particles, &s, iterations, self.scratch());
-    }
-
-    fn scratch(&mut self) -> PairScratch<'_> {
-        PairScratch {
-            keys: &mut self.keys,
-            bodies: &mut self.bodies,
-            start: &mut self.start,
-            vel: &mut self.vel,
-            vel_next: &mut self.vel_next,
-            support: &mut self.support,
-            ranges: &mut self.ranges,
-        }
+        self.buffers.debias(particles, &s, iterations);
     }
 }
 

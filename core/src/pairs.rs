@@ -347,10 +347,10 @@ pub fn pair_probe_speed(p: &Particle) -> f32 {
 /// and are held by their overlaps alone. The pass's substeps follow gravity
 /// ([`pair_substeps`]), so how far the unheld layers fall before the support reaches them,
 /// in diameters, depends only on the ratio of layers to iterations. Stood up from rest on a
-/// floor (the scratch column of `docs/bench/README.md`), columns of 245 to 500 layers hold
-/// where the ratio is at most 12.5 (the largest speed 0.33 to 0.46 m/s, what the top reaches
-/// in its first steps of free fall), swing to 0.5 to 1.15 m/s at 15 to 20 (1,000 layers at
-/// 64), and throw their top at 30 (245 layers at 8: 4.5 m/s).
+/// floor (the scratch column of `docs/method.md`, "Deep piles"), columns of 245 to 500
+/// layers hold where the ratio is at most 12.5 (the largest speed 0.33 to 0.46 m/s, what the
+/// top reaches in its first steps of free fall), swing to 0.5 to 1.15 m/s at 15 to 20 (1,000
+/// layers at 64), and throw their top at 30 (245 layers at 8: 4.5 m/s).
 pub const PAIR_LAYERS_PER_ITERATION: u32 = 12;
 
 /// The unit vector against gravity (zero without gravity): [`PairStep::up`].

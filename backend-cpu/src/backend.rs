@@ -15,7 +15,7 @@ use octoproxy_core::pairs::{
     pair_across, pair_column_key, pair_column_slot, pair_column_table_size, pair_up,
 };
 use octoproxy_core::pairs::{
-    pair_cell, pair_geometry, pair_hash, pair_in_reach, pair_is_fast, pair_neighbourhood,
+    pair_cell, pair_geometry, pair_hash, pair_in_reach, pair_is_fast, pair_neighbourhood_where,
     pair_prepare, pair_start, pair_start_scene, pair_table_size, pair_velocity_listed,
     PAIR_HASH_NONE,
 };
@@ -198,6 +198,10 @@ pub(crate) struct PairBuffers {
     rank: Vec<AtomicU32>,
     /// The probe's columns ([`PairProbe`]): a key and a count per entry.
     columns: Vec<[AtomicU32; 2]>,
+    /// A bit per [`pair_hash`] of the cells under [`occupied_mask`], set for the cells that
+    /// hold a particle: the listing passes over a bucket whose cell's bit is clear without
+    /// reading its entries ([`pair_neighbourhood_where`]).
+    occupied: Vec<AtomicU64>,
     /// Each chunk of the sorted order's candidates
     /// ([`pair_candidates`](octoproxy_core::pairs::pair_candidates)), listed once a substep:
     /// the iterations read them instead of searching the 27 cells again.
@@ -240,6 +244,17 @@ pub struct PairTimings {
     pub neighbours: std::time::Duration,
     /// The march of every particle against the scene over the substep.
     pub march: std::time::Duration,
+}
+
+/// The mask of the occupied cells' bitmap for a table of mask `table`: eight bits per bucket
+/// (a sparse cloud's neighbouring cells, one in dozens occupied, then rarely share a bit),
+/// all of `u32` beyond.
+fn occupied_mask(table: u32) -> u32 {
+    if table >= u32::MAX >> 3 {
+        u32::MAX
+    } else {
+        table << 3 | 7
+    }
 }
 
 /// Buckets of the pass's table each thread fills at a time.
@@ -286,23 +301,53 @@ impl PairBuffers {
         let (bodies, vel) = (&mut self.bodies[..valid], &mut self.vel[..valid]);
         let support = &mut self.support[..valid];
         let rank = &self.rank;
-        bodies
-            .par_iter_mut()
-            .zip(vel.par_iter_mut())
-            .zip(support.par_iter_mut())
-            .enumerate()
+        // The occupied cells' bits, cleared, then set as the bodies are made. Sorted by the
+        // table's hash, the low bits of the bitmap's, a block's cells lie together in the
+        // sorted order and in one word of the bitmap: each run of one word is set with one
+        // `fetch_or`.
+        let bits_mask = occupied_mask(s.mask);
+        let words = (bits_mask as usize >> 6) + 1;
+        if self.occupied.len() < words {
+            self.occupied.resize_with(words, || AtomicU64::new(0));
+        }
+        let occupied = &self.occupied[..words];
+        occupied
+            .par_iter()
             .with_min_len(4096)
-            .for_each(|(k, ((body, v), sup))| {
-                let i = keys[k] as u32;
-                let p = &particles[i as usize];
-                *body = PairBody {
-                    position: p.position,
-                    index: i,
-                    cell: pair_cell(p.position, s),
-                    hash: (keys[k] >> 32) as u32,
-                };
-                (*v, *sup) = start(i as usize, p);
-                rank[i as usize].store(k as u32, Ordering::Relaxed);
+            .for_each(|w| w.store(0, Ordering::Relaxed));
+        const BODY_CHUNK: usize = 4096;
+        bodies
+            .par_chunks_mut(BODY_CHUNK)
+            .zip(vel.par_chunks_mut(BODY_CHUNK))
+            .zip(support.par_chunks_mut(BODY_CHUNK))
+            .enumerate()
+            .for_each(|(c, ((bodies, vel), support))| {
+                let (mut word, mut bits) = (usize::MAX, 0u64);
+                let chunk = bodies.iter_mut().zip(vel).zip(support);
+                for (j, ((body, v), sup)) in chunk.enumerate() {
+                    let k = c * BODY_CHUNK + j;
+                    let i = keys[k] as u32;
+                    let p = &particles[i as usize];
+                    *body = PairBody {
+                        position: p.position,
+                        index: i,
+                        cell: pair_cell(p.position, s),
+                        hash: (keys[k] >> 32) as u32,
+                    };
+                    (*v, *sup) = start(i as usize, p);
+                    rank[i as usize].store(k as u32, Ordering::Relaxed);
+                    let h = pair_hash(body.cell, bits_mask) as usize;
+                    if h >> 6 != word {
+                        if bits != 0 {
+                            occupied[word].fetch_or(bits, Ordering::Relaxed);
+                        }
+                        (word, bits) = (h >> 6, 0);
+                    }
+                    bits |= 1 << (h & 63);
+                }
+                if bits != 0 {
+                    occupied[word].fetch_or(bits, Ordering::Relaxed);
+                }
             });
         // Each chunk of the table is a run of the sorted keys: find where it starts, walk it.
         self.ranges
@@ -350,9 +395,19 @@ impl PairBuffers {
                     if l.hood_cell != Some(me.cell) {
                         let hood = &mut l.hood;
                         hood.clear();
-                        l.hood_capped = pair_neighbourhood(me.cell, bodies, ranges, s, |m| {
-                            hood.push((m as u32, bodies[m].position));
-                        });
+                        let occupied = |h: u32| {
+                            let h = h as usize;
+                            occupied[h >> 6].load(Ordering::Relaxed) >> (h & 63) & 1 != 0
+                        };
+                        l.hood_capped = pair_neighbourhood_where(
+                            me.cell,
+                            bodies,
+                            ranges,
+                            s,
+                            bits_mask,
+                            occupied,
+                            |m| hood.push((m as u32, bodies[m].position)),
+                        );
                         l.hood_cell = Some(me.cell);
                     }
                     let x = glam::Vec3::from_array(me.position);

@@ -850,6 +850,7 @@ const HOST_ONLY: &[(&str, &str, &str)] = &[
     ("pairs.rs", "pair_fast_count", "a reduction: pair_speed_kernel's count over pair_is_fast"),
     ("pairs.rs", "pair_candidates", "pair_velocity's neighbour loop, which pairs.wgsl's pair_velocity inlines; the CPU backend lists a substep's candidates once with it"),
     ("pairs.rs", "pair_neighbourhood", "pair_candidates' visit of the 27 cells, inlined in pairs.wgsl's pair_velocity; the CPU backend gathers it once per cell and filters it for each of the cell's particles"),
+    ("pairs.rs", "pair_neighbourhood_where", "pair_neighbourhood passing over the buckets of cells a bitmap says are empty (the same entries and cap count; the CPU backend's listing); the GPU visits every bucket"),
     ("pairs.rs", "neighbourhood_hashes", "pair_neighbourhood's 27 cells hashed from per-axis parts: pairs.wgsl's pair_velocity calls pair_hash for each cell, the same values (a core test compares them)"),
     ("pairs.rs", "cell_place", "pair_hash's place of a cell in its region's run, one axis's bits: pairs.wgsl's pair_hash writes the Morton code bit by bit, the same bits (a core test compares them)"),
     ("pairs.rs", "pair_in_reach", "pair_candidates' filter (not itself, closer than the cell edge), inlined in pairs.wgsl's pair_velocity"),

@@ -376,6 +376,11 @@ impl PairBuffers {
             self.lists.resize_with(chunks, CandidateList::default);
         }
         let lists = &mut self.lists[..chunks];
+        // Whether a cell's bit (its hash under `bits_mask`) is set in the bitmap.
+        let is_occupied = |h: u32| {
+            let h = h as usize;
+            occupied[h >> 6].load(Ordering::Relaxed) >> (h & 63) & 1 != 0
+        };
         // Candidates depend on positions only: a particle that hits the cap hits it in every
         // iteration, as the search in each would.
         let capped_once: u64 = lists
@@ -395,17 +400,13 @@ impl PairBuffers {
                     if l.hood_cell != Some(me.cell) {
                         let hood = &mut l.hood;
                         hood.clear();
-                        let occupied = |h: u32| {
-                            let h = h as usize;
-                            occupied[h >> 6].load(Ordering::Relaxed) >> (h & 63) & 1 != 0
-                        };
                         l.hood_capped = pair_neighbourhood_where(
                             me.cell,
                             bodies,
                             ranges,
                             s,
                             bits_mask,
-                            occupied,
+                            is_occupied,
                             |m| hood.push((m as u32, bodies[m].position)),
                         );
                         l.hood_cell = Some(me.cell);

@@ -1,8 +1,12 @@
 //! [`CpuBackend`]: the core step run over particles in parallel with rayon.
 
 use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
+use std::sync::Mutex;
 
-use octoproxy_core::scene::{step_plain, FLAG_CRUSHED, FLAG_SIDES_LOST, SLOT_INSTANCE_SHIFT};
+use octoproxy_core::scene::{
+    plain_first_slot, step_plain, FLAG_CRUSHED, FLAG_SIDES_LOST, SLOT_INSTANCE_SHIFT,
+    SLOT_SIDE_MASK,
+};
 use octoproxy_core::{
     step_particle_hinted, step_particle_scene, Backend, BroadNode, EventCount, FormatError, Hit,
     HitEvent, HitEvents, Instance, LeafHint, OwnedProxy, Particle, ProxyView, SceneError,
@@ -166,6 +170,11 @@ pub struct CpuBackend {
     /// first slot every step reads, and the other slots.
     scene_hints: Vec<SceneHint>,
     scene_slots: Vec<SceneSlots>,
+    /// A one-proxy static scene at the identity being stepped as the plain step
+    /// ([`PlainScene`]); and the instance and proxy of such a scene whose particles all took
+    /// the plain step, none of them invalid, in the last scene step, so that the next may.
+    plain_scene: Option<PlainScene>,
+    plain_ready: Option<(u32, u32)>,
     /// Each particle's last collision in its last scene step, when asked for.
     hits: Vec<Hit>,
     /// The last collision over a step's substeps with the pass (scratch, kept so that a step
@@ -534,10 +543,32 @@ impl HitEvents for CpuEvents<'_> {
 /// Particles per task of the scene step's parallel loop.
 const SCENE_CHUNK: usize = 1024;
 
+/// Particles stepped through a one-proxy static scene at the identity as the plain step
+/// (`Backend::step`'s loop), once every particle's state is that instance's: each one's side
+/// in the particle and its hint here, 8 bytes, instead of core's 16-byte [`SceneHint`], whose
+/// first slots are made only when the scene's form is asked for
+/// ([`CpuBackend::leave_plain_scene`]). The particles, hints, slots and counts are core's
+/// [`step_plain`]'s, bit for bit: its first slot is made from the particle and the hint its
+/// last step left ([`plain_first_slot`]), which is what the particle and its hint still are
+/// when it is made. A step that leaves a particle invalid (a finite start whose path
+/// overflows) ends the mode: that particle's slot is made from its hint before that step, as
+/// `step_plain` leaves the slot of its last valid step.
+#[derive(Debug)]
+struct PlainScene {
+    /// The instance and its proxy.
+    instance: u32,
+    proxy: u32,
+    /// Each particle's hint (the scene hint's `hint` while the mode lasts).
+    hints: Vec<LeafHint>,
+    /// The particles the last step left invalid, and their first slots.
+    invalid: Vec<(usize, u32)>,
+}
+
 /// One particle's scene step: the plain step where the scene is one static proxy at the
 /// identity (`plain`, `view.plain_proxy()` hoisted out of the loop) and the particle's state
 /// is that instance's, else the scene step. The counts of the report it adds to (crushed,
-/// sides lost).
+/// sides lost), and 1 unless its next step may be the plain step (it is valid, and its state
+/// is the plain instance's).
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn step_one(
@@ -549,11 +580,12 @@ fn step_one(
     params: &StepParams,
     hit: Option<&mut Hit>,
     events: &mut impl HitEvents,
-) -> (u64, u64) {
+) -> (u64, u64, u64) {
     let counts = |p: &Particle| {
         (
             (p.flags & FLAG_CRUSHED != 0) as u64,
             (p.flags & FLAG_SIDES_LOST != 0) as u64,
+            1,
         )
     };
     match plain {
@@ -564,12 +596,18 @@ fn step_one(
             if step_plain(proxy, c, p, sh, params, hit, events) == StepOutcome::Invalid {
                 counts(p)
             } else {
-                (0, 0)
+                (0, 0, 0)
             }
         }
         _ => {
-            step_particle_scene(view, p, sh, ss, params, hit, events);
-            counts(p)
+            let outcome = step_particle_scene(view, p, sh, ss, params, hit, events);
+            // Whether its next step may be the plain step: valid, and that instance's state.
+            let next_plain = outcome != StepOutcome::Invalid
+                && plain.is_some_and(|(c, _)| {
+                    sh.first_slot >> SLOT_INSTANCE_SHIFT == c && sh.hint_instance == c
+                });
+            let (crushed, lost, _) = counts(p);
+            (crushed, lost, u64::from(!next_plain))
         }
     }
 }
@@ -595,11 +633,129 @@ impl CpuBackend {
 
     /// Each particle's sides for a scene's instances, in upload order.
     pub fn scene_sides(&self) -> Vec<SceneSides> {
-        self.scene_hints
-            .iter()
-            .zip(&self.scene_slots)
-            .map(|(h, s)| SceneSides::join(h, s))
+        // While a static scene is stepped as the plain step, what leaving it would write.
+        let plain = self.plain_scene.as_ref().and_then(|ps| {
+            let owned = self.scene_proxies.get(ps.proxy as usize)?;
+            Some((ps, owned.view()))
+        });
+        let hint = |i: usize| match &plain {
+            Some((ps, view)) => {
+                let h = ps.hints[i];
+                SceneHint {
+                    hint: h,
+                    first_slot: plain_first_slot(view, ps.instance, &self.particles[i], h),
+                    ..self.scene_hints[i]
+                }
+            }
+            None => self.scene_hints[i],
+        };
+        (0..self.scene_hints.len())
+            .map(|i| SceneSides::join(&hint(i), &self.scene_slots[i]))
             .collect()
+    }
+
+    /// Ends the plain stepping of a one-proxy static scene ([`PlainScene`]): each particle's
+    /// hint goes back into its scene hint, with the first slot `step_plain` would have left.
+    fn leave_plain_scene(&mut self) {
+        let Some(proxy) = self.plain_scene.as_ref().map(|ps| ps.proxy as usize) else {
+            return;
+        };
+        let proxies = std::mem::take(&mut self.scene_proxies);
+        match proxies.get(proxy) {
+            Some(owned) => self.leave_plain_scene_with(&owned.view()),
+            // The proxies are replaced only after the mode has ended; stay total anyway.
+            None => self.plain_scene = None,
+        }
+        self.scene_proxies = proxies;
+    }
+
+    /// [`Self::leave_plain_scene`] with the instance's proxy at hand.
+    fn leave_plain_scene_with(&mut self, view: &ProxyView<'_>) {
+        let Some(ps) = self.plain_scene.take() else {
+            return;
+        };
+        let c = ps.instance;
+        self.scene_hints
+            .par_iter_mut()
+            .zip(self.particles.par_iter())
+            .zip(ps.hints.par_iter())
+            .with_min_len(4096)
+            .for_each(|((sh, p), &h)| {
+                sh.hint = h;
+                sh.first_slot = plain_first_slot(view, c, p, h);
+            });
+        for &(i, slot) in &ps.invalid {
+            self.scene_hints[i].first_slot = slot;
+        }
+    }
+
+    /// What every change of the particles or of their scene state outside a scene step does
+    /// first: the plain stepping ends, and the next scene step takes the scene's form.
+    fn scene_state_changes(&mut self) {
+        self.leave_plain_scene();
+        self.plain_ready = None;
+    }
+
+    /// A scene step of a one-proxy static scene at the identity, instance `c` of proxy
+    /// `proxy` (`view`), as the plain step ([`PlainScene`]); entered when the last scene step
+    /// of that instance took the plain step for every particle. Returns the report's counts.
+    fn step_plain_scene(
+        &mut self,
+        view: &ProxyView<'_>,
+        c: u32,
+        proxy: u32,
+        params: &StepParams,
+    ) -> (u64, u64) {
+        if self.plain_scene.is_none() {
+            // `step_plain` puts the slot's side in the particle before each step.
+            self.particles
+                .par_iter_mut()
+                .zip(self.scene_hints.par_iter())
+                .with_min_len(4096)
+                .for_each(|(p, sh)| p.side = sh.first_slot & SLOT_SIDE_MASK);
+            self.plain_scene = Some(PlainScene {
+                instance: c,
+                proxy,
+                hints: self.scene_hints.iter().map(|sh| sh.hint).collect(),
+                invalid: Vec::new(),
+            });
+        }
+        let Some(ps) = self.plain_scene.as_mut() else {
+            return (0, 0);
+        };
+        // `step_plain`'s loop: its counts come from the particles it leaves invalid, a
+        // path that overflowed from a finite start (every particle started finite, or the
+        // last scene step would not have let this one be taken).
+        let invalid = Mutex::new(Vec::new());
+        self.particles
+            .par_iter_mut()
+            .zip(ps.hints.par_iter_mut())
+            .enumerate()
+            .with_min_len(1024)
+            .for_each(|(i, (p, hint))| {
+                let before = *hint;
+                if step_particle_hinted(view, p, params, hint) == StepOutcome::Invalid {
+                    // The slot of its last valid step: the particle is as that step left it.
+                    let slot = plain_first_slot(view, c, p, before);
+                    let counts = (
+                        (p.flags & FLAG_CRUSHED != 0) as u64,
+                        (p.flags & FLAG_SIDES_LOST != 0) as u64,
+                    );
+                    if let Ok(mut list) = invalid.lock() {
+                        list.push((i, slot, counts));
+                    }
+                } else {
+                    p.flags &= !(FLAG_CRUSHED | FLAG_SIDES_LOST);
+                }
+            });
+        let invalid = invalid.into_inner().unwrap_or_default();
+        if invalid.is_empty() {
+            return (0, 0);
+        }
+        ps.invalid = invalid.iter().map(|&(i, slot, _)| (i, slot)).collect();
+        invalid
+            .iter()
+            .fold((0, 0), |a, &(_, _, c)| (a.0 + c.0, a.1 + c.1))
     }
 
     /// Each particle's last collision in the last scene step taken with hits.
@@ -613,8 +769,8 @@ impl CpuBackend {
         view: &SceneView<'_>,
         params: &StepParams,
         hits: bool,
-    ) -> (u64, u64) {
-        let add = |a: (u64, u64), b: (u64, u64)| (a.0 + b.0, a.1 + b.1);
+    ) -> (u64, u64, u64) {
+        let add = |a: (u64, u64, u64), b: (u64, u64, u64)| (a.0 + b.0, a.1 + b.1, a.2 + b.2);
         let particles_len = self.particles.len();
         let plain = view.plain_proxy();
         let Self {
@@ -644,7 +800,7 @@ impl CpuBackend {
                 .enumerate()
                 .with_min_len(1024)
                 .fold(
-                    || ((0u64, 0u64), Vec::new(), 0u64),
+                    || ((0u64, 0u64, 0u64), Vec::new(), 0u64),
                     |(counts, mut out, mut lost), (i, (((p, sh), ss), h))| {
                         let mut sink = CpuEvents {
                             step,
@@ -661,7 +817,7 @@ impl CpuBackend {
                 )
                 .map(|(c, out, lost)| (c, vec![out], lost))
                 .reduce(
-                    || ((0, 0), Vec::new(), 0),
+                    || ((0, 0, 0), Vec::new(), 0),
                     |(ca, mut la, xa), (cb, lb, xb)| {
                         la.extend(lb);
                         (add(ca, cb), la, xa + xb)
@@ -682,21 +838,21 @@ impl CpuBackend {
                 .zip(scene_slots.par_chunks_mut(SCENE_CHUNK))
                 .zip(hit_buf.par_chunks_mut(SCENE_CHUNK))
                 .map(|(((ps, shs), sss), hs)| {
-                    let mut counts = (0, 0);
+                    let mut counts = (0, 0, 0);
                     for (((p, sh), ss), h) in ps.iter_mut().zip(shs).zip(sss).zip(hs) {
                         let c = step_one(view, plain, p, sh, ss, params, Some(h), &mut ());
                         counts = add(counts, c);
                     }
                     counts
                 })
-                .reduce(|| (0, 0), add)
+                .reduce(|| (0, 0, 0), add)
         } else {
             particles
                 .par_chunks_mut(SCENE_CHUNK)
                 .zip(scene_hints.par_chunks_mut(SCENE_CHUNK))
                 .zip(scene_slots.par_chunks_mut(SCENE_CHUNK))
                 .map(|((ps, shs), sss)| {
-                    let mut counts = (0, 0);
+                    let mut counts = (0, 0, 0);
                     for ((p, sh), ss) in ps.iter_mut().zip(shs).zip(sss) {
                         counts = add(
                             counts,
@@ -705,7 +861,7 @@ impl CpuBackend {
                     }
                     counts
                 })
-                .reduce(|| (0, 0), add)
+                .reduce(|| (0, 0, 0), add)
         }
     }
 
@@ -784,7 +940,7 @@ impl CpuBackend {
             pair_report.capped += buffers.substep(particles, start, &s, iterations, started);
             let marched = std::time::Instant::now();
             let first_event = self.events.len();
-            let (crushed, sides_lost) = self.step_scene_with(scene, march, hits);
+            let (crushed, sides_lost, _) = self.step_scene_with(scene, march, hits);
             self.report.crushed += crushed;
             self.report.sides_lost += sides_lost;
             // Hits and events at fractions of the whole step.
@@ -820,6 +976,7 @@ impl CpuBackend {
     /// semi-implicit Euler, no proxy, no collision). Benchmarks measure the step against it.
     pub fn integrate_only(&mut self, params: &StepParams, steps: u32) -> Result<(), CpuError> {
         params.validate()?;
+        self.scene_state_changes();
         let g = glam::Vec3::from_array(params.gravity) * params.dt;
         for _ in 0..steps {
             self.particles
@@ -851,6 +1008,8 @@ impl Backend for CpuBackend {
     }
 
     fn upload_particles(&mut self, particles: &[Particle]) -> Result<(), CpuError> {
+        // Every particle's state is replaced.
+        (self.plain_scene, self.plain_ready) = (None, None);
         self.particles.clear();
         self.particles.extend_from_slice(particles);
         self.scene_steps = 0;
@@ -885,6 +1044,7 @@ impl Backend for CpuBackend {
 
     fn step(&mut self, params: &StepParams, steps: u32) -> Result<(), CpuError> {
         params.validate()?;
+        self.scene_state_changes();
         let Self {
             proxy,
             particles,
@@ -911,6 +1071,8 @@ impl Backend for CpuBackend {
     }
 
     fn upload_scene_proxies(&mut self, key: u64, proxies: &[&[u32]]) -> Result<(), CpuError> {
+        // The slots are made with the proxies that stepped them.
+        self.scene_state_changes();
         let owned = proxies
             .iter()
             .enumerate()
@@ -958,7 +1120,44 @@ impl Backend for CpuBackend {
                     }
                     None => view,
                 };
-                self.step_scene_with(&view, params, hits)
+                // A one-proxy static scene at the identity, without hit records or events:
+                // once every particle took the plain step in it, the plain step's loop.
+                let plain = view
+                    .plain_proxy()
+                    .filter(|_| !hits && self.event_capacity == 0)
+                    .map(|(c, proxy_view)| (c, view.instances()[c as usize].proxy, proxy_view));
+                let key = plain.map(|(c, proxy, _)| (c, proxy));
+                if let Some(ps) = &self.plain_scene {
+                    if Some((ps.instance, ps.proxy)) != key {
+                        match views.get(ps.proxy as usize) {
+                            Some(v) => self.leave_plain_scene_with(v),
+                            None => self.plain_scene = None,
+                        }
+                    }
+                }
+                match plain {
+                    Some((c, proxy, proxy_view))
+                        if self.plain_scene.is_some() || self.plain_ready == key =>
+                    {
+                        let counts = self.step_plain_scene(proxy_view, c, proxy, params);
+                        if self
+                            .plain_scene
+                            .as_ref()
+                            .is_some_and(|ps| !ps.invalid.is_empty())
+                        {
+                            // Invalid particles end the mode: the scene's form from here on.
+                            self.leave_plain_scene_with(proxy_view);
+                            self.plain_ready = None;
+                        }
+                        counts
+                    }
+                    _ => {
+                        let (crushed, sides_lost, off_plain) =
+                            self.step_scene_with(&view, params, hits);
+                        self.plain_ready = if off_plain == 0 { key } else { None };
+                        (crushed, sides_lost)
+                    }
+                }
             });
         drop(views);
         self.scene_proxies = proxies;
@@ -977,6 +1176,7 @@ impl Backend for CpuBackend {
         steps: u32,
     ) -> Result<(), CpuError> {
         self.check_pass(params, pairs)?;
+        self.scene_state_changes();
         let n = self.particles.len();
         let Self {
             proxy,
@@ -1044,6 +1244,7 @@ impl Backend for CpuBackend {
         hits: bool,
     ) -> Result<(), CpuError> {
         self.check_pass(params, pairs)?;
+        self.scene_state_changes();
         let (min, max) = pair_substep_range(params, pairs);
         if !(min as usize..=max as usize).contains(&substeps.len()) {
             return Err(CpuError::Substeps {
@@ -1132,6 +1333,7 @@ impl Backend for CpuBackend {
                 got: out.len(),
             });
         }
+        self.leave_plain_scene();
         for ((o, h), s) in out.iter_mut().zip(&self.scene_hints).zip(&self.scene_slots) {
             *o = SceneSides::join(h, s);
         }
@@ -1145,6 +1347,8 @@ impl Backend for CpuBackend {
                 got: sides.len(),
             });
         }
+        // Every particle's scene state is replaced.
+        (self.plain_scene, self.plain_ready) = (None, None);
         for ((h, s), sides) in self
             .scene_hints
             .iter_mut()

@@ -769,6 +769,7 @@ const HOST_ONLY: &[(&str, &str, &str)] = &[
     ("pairs.rs", "pair_start_scene", "pair_start_with of pair_support_scene: on the GPU two kernels, scene_support_kernel and pair_start_given_kernel, since the pass's module holds no scene"),
     ("step.rs", "check_radius", "the host checks the particles' radius against the proxy's before stepping"),
     ("scene.rs", "check_radius", "SceneView::check_radius: the host checks every instance's radius before stepping"),
+    ("scene.rs", "plain_first_slot", "step_plain's first slot, made apart for the CPU backend, which steps a one-proxy static scene as the plain step and makes the slots only when asked for them; step_plain's twin makes it inline"),
     ("query.rs", "surface_box", "ProxyView::surface_box: the host's scene check (how instances' shells overlap)"),
     ("step.rs", "default", "StepParams::default: the host fills the uniform"),
     ("step.rs", "validate", "StepParams::validate: the host checks parameters before uploading them"),

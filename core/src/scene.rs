@@ -2007,10 +2007,20 @@ pub fn step_plain<E: HitEvents>(
     if outcome == StepOutcome::Invalid {
         return outcome;
     }
-    let required = must_keep(view, p, sides.hint);
-    sides.first_slot = c << SLOT_INSTANCE_SHIFT | if required { SLOT_REQUIRED } else { 0 } | p.side;
+    sides.first_slot = plain_first_slot(view, c, p, sides.hint);
     p.flags &= !(FLAG_CRUSHED | FLAG_SIDES_LOST);
     outcome
+}
+
+/// The first slot [`step_plain`] leaves for instance `c` after a step that was not invalid,
+/// from the particle and the hint the step left: the instance, whether the side must be
+/// kept ([`SLOT_REQUIRED`]) and the particle's side. A backend that steps such particles as
+/// the plain step, with the side in the particle and an 8-byte hint, makes the slot with it
+/// when the scene's form is asked for.
+#[inline(always)]
+pub fn plain_first_slot(view: &ProxyView<'_>, c: u32, p: &Particle, hint: LeafHint) -> u32 {
+    let required = must_keep(view, p, hint);
+    c << SLOT_INSTANCE_SHIFT | if required { SLOT_REQUIRED } else { 0 } | p.side
 }
 
 /// [`step_particle_scene`] for every particle and scene.

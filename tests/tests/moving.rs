@@ -196,6 +196,84 @@ fn a_one_proxy_scene_at_the_identity_steps_as_the_plain_step_bit_for_bit() {
     assert!(plain.iter().map(|p| p.collisions()).sum::<u32>() > 1000);
 }
 
+/// The CPU backend steps a one-proxy static scene at the identity as the plain step once every
+/// particle took it (the side in the particle, an 8-byte hint, the first slots made when
+/// asked for): the same particles, sides and report as core's `step_plain` on the scene's
+/// form, which a step with hit records takes. Sides are read every step (made on the fly) and
+/// downloaded now and then (which ends the mode until the next step takes it again), and the
+/// instance moves away and back (the scene's form while it moves).
+#[test]
+fn a_static_scene_stepped_as_the_plain_step_keeps_the_scenes_sides_and_report() {
+    let mesh = scenes::merge(&[
+        scenes::uv_sphere([0.0, 0.0, 0.0], 0.6, 20, 10),
+        scenes::slab([0.0, -0.8, 0.0], [3.0, 0.1, 3.0]),
+    ]);
+    let words = bake_mesh(&mesh, 7);
+    let view = ProxyView::new(&words).unwrap();
+    let mut particles = lattice(Vec3::new(-1.4, -0.7, -1.4), Vec3::new(1.4, 1.5, 1.4), 16, 5);
+    for (k, p) in particles.iter_mut().enumerate() {
+        p.side = initial_side(&view, p.position);
+        p.velocity = [
+            ((k % 7) as f32 - 3.0) * 0.5,
+            0.0,
+            ((k % 5) as f32 - 2.0) * 0.5,
+        ];
+    }
+    let params = params([0.0, -9.81, 0.0]);
+    let sides: Vec<SceneSides> = particles
+        .iter()
+        .map(|p| {
+            let mut s = SceneSides::EMPTY;
+            s.set_side(0, p.side);
+            s
+        })
+        .collect();
+    // One scene for each backend, moved alike.
+    let make = || {
+        let mut scene = Scene::new();
+        scene.add_proxy(words.clone()).unwrap();
+        scene.add_instance(0, Pose::IDENTITY).unwrap();
+        scene
+    };
+    let (mut scene, mut twin) = (make(), make());
+    let (mut plain, mut form) = (CpuBackend::new(), CpuBackend::new());
+    for cpu in [&mut plain, &mut form] {
+        cpu.upload_particles(&particles).unwrap();
+        cpu.upload_scene_sides(&sides).unwrap();
+    }
+    let away = pose([0.3, 0.1, 0.0], Quat::from_rotation_y(0.2), 1.0);
+    let mut downloaded = vec![SceneSides::EMPTY; particles.len()];
+    for step in 0..160 {
+        // Away for two steps at 60, back for two at 62: a moving scene takes the scene's form.
+        for s in [&mut scene, &mut twin] {
+            match step {
+                60 => s.move_to(0, away).unwrap(),
+                62 => s.move_to(0, Pose::IDENTITY).unwrap(),
+                _ => {}
+            }
+        }
+        scene.step(&mut plain, &params, false).unwrap();
+        twin.step(&mut form, &params, true).unwrap();
+        for (k, (a, b)) in form.particles().iter().zip(plain.particles()).enumerate() {
+            assert_eq!(
+                bytemuck::bytes_of(a),
+                bytemuck::bytes_of(b),
+                "particle {k} after step {step}: scene's form {a:?}, plain {b:?}"
+            );
+        }
+        assert_eq!(form.scene_sides(), plain.scene_sides(), "step {step}");
+        if step % 25 == 7 {
+            plain.download_scene_sides(&mut downloaded).unwrap();
+            assert_eq!(form.scene_sides(), downloaded, "step {step}");
+        }
+    }
+    assert_eq!(
+        form.take_scene_report().unwrap(),
+        plain.take_scene_report().unwrap()
+    );
+    assert!(form.particles().iter().map(|p| p.collisions()).sum::<u32>() > 500);
+}
+
 #[test]
 fn hits_say_where_when_and_how_fast_a_particle_met_a_moving_floor() {
     let floor = scenes::slab([0.0; 3], [2.0, 0.2, 2.0]);

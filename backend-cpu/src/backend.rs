@@ -175,6 +175,9 @@ pub struct CpuBackend {
     /// the plain step, none of them invalid, in the last scene step, so that the next may.
     plain_scene: Option<PlainScene>,
     plain_ready: Option<(u32, u32)>,
+    /// The hints' allocation between two such runs (a new one costs its pages' first
+    /// touch, which a run of a few steps notices).
+    plain_spare: Vec<LeafHint>,
     /// Each particle's last collision in its last scene step, when asked for.
     hits: Vec<Hit>,
     /// The last collision over a step's substeps with the pass (scratch, kept so that a step
@@ -564,6 +567,39 @@ struct PlainScene {
     invalid: Vec<(usize, u32)>,
 }
 
+/// The particles a step of [`CpuBackend::step_plain_scene`] left invalid: each one's index,
+/// first slot, and its counts of the report (crushed, sides lost).
+type InvalidParticles = Mutex<Vec<(usize, u32, (u64, u64))>>;
+
+/// One particle's step in [`CpuBackend::step_plain_scene`], the `i`th: `step_plain` with the
+/// side already in the particle and the slot left to be made, and an invalid particle's slot
+/// and counts put in `invalid`.
+#[inline(always)]
+fn plain_scene_particle(
+    view: &ProxyView<'_>,
+    c: u32,
+    params: &StepParams,
+    i: usize,
+    p: &mut Particle,
+    hint: &mut LeafHint,
+    invalid: &InvalidParticles,
+) {
+    let before = *hint;
+    if step_particle_hinted(view, p, params, hint) == StepOutcome::Invalid {
+        // The slot of its last valid step: the particle is as that step left it.
+        let slot = plain_first_slot(view, c, p, before);
+        let counts = (
+            (p.flags & FLAG_CRUSHED != 0) as u64,
+            (p.flags & FLAG_SIDES_LOST != 0) as u64,
+        );
+        if let Ok(mut list) = invalid.lock() {
+            list.push((i, slot, counts));
+        }
+    } else {
+        p.flags &= !(FLAG_CRUSHED | FLAG_SIDES_LOST);
+    }
+}
+
 /// One particle's scene step: the plain step where the scene is one static proxy at the
 /// identity (`plain`, `view.plain_proxy()` hoisted out of the loop) and the particle's state
 /// is that instance's, else the scene step. The counts of the report it adds to (crushed,
@@ -664,7 +700,7 @@ impl CpuBackend {
         match proxies.get(proxy) {
             Some(owned) => self.leave_plain_scene_with(&owned.view()),
             // The proxies are replaced only after the mode has ended; stay total anyway.
-            None => self.plain_scene = None,
+            None => self.drop_plain_scene(),
         }
         self.scene_proxies = proxies;
     }
@@ -687,6 +723,16 @@ impl CpuBackend {
         for &(i, slot) in &ps.invalid {
             self.scene_hints[i].first_slot = slot;
         }
+        self.plain_spare = ps.hints;
+    }
+
+    /// Drops the plain stepping of a one-proxy static scene without making the slots: every
+    /// particle's state is being replaced.
+    fn drop_plain_scene(&mut self) {
+        if let Some(ps) = self.plain_scene.take() {
+            self.plain_spare = ps.hints;
+        }
+        self.plain_ready = None;
     }
 
     /// What every change of the particles or of their scene state outside a scene step does
@@ -698,7 +744,8 @@ impl CpuBackend {
 
     /// A scene step of a one-proxy static scene at the identity, instance `c` of proxy
     /// `proxy` (`view`), as the plain step ([`PlainScene`]); entered when the last scene step
-    /// of that instance took the plain step for every particle. Returns the report's counts.
+    /// of that instance left every particle ready for the plain step. Returns the report's
+    /// counts.
     fn step_plain_scene(
         &mut self,
         view: &ProxyView<'_>,
@@ -706,48 +753,59 @@ impl CpuBackend {
         proxy: u32,
         params: &StepParams,
     ) -> (u64, u64) {
-        if self.plain_scene.is_none() {
-            // `step_plain` puts the slot's side in the particle before each step.
-            self.particles
-                .par_iter_mut()
-                .zip(self.scene_hints.par_iter())
-                .with_min_len(4096)
-                .for_each(|(p, sh)| p.side = sh.first_slot & SLOT_SIDE_MASK);
-            self.plain_scene = Some(PlainScene {
+        let Self {
+            particles,
+            scene_hints,
+            plain_scene,
+            plain_spare,
+            ..
+        } = self;
+        // Entered in the step's own pass over the particles: the hints taken from the scene
+        // hints as each particle is stepped.
+        let entering = plain_scene.is_none();
+        let ps = plain_scene.get_or_insert_with(|| {
+            let mut hints = std::mem::take(plain_spare);
+            hints.resize(particles.len(), LeafHint::NONE);
+            PlainScene {
                 instance: c,
                 proxy,
-                hints: self.scene_hints.iter().map(|sh| sh.hint).collect(),
+                hints,
                 invalid: Vec::new(),
-            });
-        }
-        let Some(ps) = self.plain_scene.as_mut() else {
-            return (0, 0);
-        };
+            }
+        });
         // `step_plain`'s loop: its counts come from the particles it leaves invalid, a
         // path that overflowed from a finite start (every particle started finite, or the
         // last scene step would not have let this one be taken).
-        let invalid = Mutex::new(Vec::new());
-        self.particles
-            .par_iter_mut()
-            .zip(ps.hints.par_iter_mut())
-            .enumerate()
-            .with_min_len(1024)
-            .for_each(|(i, (p, hint))| {
-                let before = *hint;
-                if step_particle_hinted(view, p, params, hint) == StepOutcome::Invalid {
-                    // The slot of its last valid step: the particle is as that step left it.
-                    let slot = plain_first_slot(view, c, p, before);
-                    let counts = (
-                        (p.flags & FLAG_CRUSHED != 0) as u64,
-                        (p.flags & FLAG_SIDES_LOST != 0) as u64,
-                    );
-                    if let Ok(mut list) = invalid.lock() {
-                        list.push((i, slot, counts));
+        let invalid: InvalidParticles = Mutex::new(Vec::new());
+        let step = |i: usize, p: &mut Particle, hint: &mut LeafHint| {
+            plain_scene_particle(view, c, params, i, p, hint, &invalid);
+        };
+        if entering {
+            particles
+                .par_iter_mut()
+                .zip(ps.hints.par_iter_mut())
+                .zip(scene_hints.par_iter())
+                .enumerate()
+                .with_min_len(1024)
+                .for_each(|(i, ((p, hint), sh))| {
+                    // `step_plain` puts the slot's side in the particle before each step.
+                    p.side = sh.first_slot & SLOT_SIDE_MASK;
+                    *hint = sh.hint;
+                    step(i, p, hint);
+                });
+        } else {
+            // Chunks stepped in a plain loop, as in the scene's form (an index per particle
+            // through rayon's `enumerate` cost more).
+            particles
+                .par_chunks_mut(SCENE_CHUNK)
+                .zip(ps.hints.par_chunks_mut(SCENE_CHUNK))
+                .enumerate()
+                .for_each(|(k, (pc, hc))| {
+                    for (j, (p, hint)) in pc.iter_mut().zip(hc).enumerate() {
+                        step(k * SCENE_CHUNK + j, p, hint);
                     }
-                } else {
-                    p.flags &= !(FLAG_CRUSHED | FLAG_SIDES_LOST);
-                }
-            });
+                });
+        }
         let invalid = invalid.into_inner().unwrap_or_default();
         if invalid.is_empty() {
             return (0, 0);
@@ -1009,7 +1067,7 @@ impl Backend for CpuBackend {
 
     fn upload_particles(&mut self, particles: &[Particle]) -> Result<(), CpuError> {
         // Every particle's state is replaced.
-        (self.plain_scene, self.plain_ready) = (None, None);
+        self.drop_plain_scene();
         self.particles.clear();
         self.particles.extend_from_slice(particles);
         self.scene_steps = 0;
@@ -1131,7 +1189,7 @@ impl Backend for CpuBackend {
                     if Some((ps.instance, ps.proxy)) != key {
                         match views.get(ps.proxy as usize) {
                             Some(v) => self.leave_plain_scene_with(v),
-                            None => self.plain_scene = None,
+                            None => self.drop_plain_scene(),
                         }
                     }
                 }
@@ -1348,7 +1406,7 @@ impl Backend for CpuBackend {
             });
         }
         // Every particle's scene state is replaced.
-        (self.plain_scene, self.plain_ready) = (None, None);
+        self.drop_plain_scene();
         for ((h, s), sides) in self
             .scene_hints
             .iter_mut()

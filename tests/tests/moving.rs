@@ -146,15 +146,16 @@ fn rain_on_a_grid_of_instances_half_of_them_moving_never_crosses_a_surface() {
     assert!(tally.collisions > 2000, "{tally:?}");
 }
 
-#[test]
-fn a_one_proxy_scene_at_the_identity_steps_as_the_plain_step_bit_for_bit() {
+/// A ball on a slab baked at depth 7, and particles on a jittered lattice of `n` a side around
+/// it, moving sideways, with their sides from the proxy, also as one instance's scene sides.
+fn ball_on_a_slab(n: u32) -> (Vec<u32>, Vec<Particle>, Vec<SceneSides>) {
     let mesh = scenes::merge(&[
         scenes::uv_sphere([0.0, 0.0, 0.0], 0.6, 20, 10),
         scenes::slab([0.0, -0.8, 0.0], [3.0, 0.1, 3.0]),
     ]);
     let words = bake_mesh(&mesh, 7);
     let view = ProxyView::new(&words).unwrap();
-    let mut particles = lattice(Vec3::new(-1.4, -0.7, -1.4), Vec3::new(1.4, 1.5, 1.4), 20, 5);
+    let mut particles = lattice(Vec3::new(-1.4, -0.7, -1.4), Vec3::new(1.4, 1.5, 1.4), n, 5);
     for (k, p) in particles.iter_mut().enumerate() {
         p.side = initial_side(&view, p.position);
         p.velocity = [
@@ -163,6 +164,21 @@ fn a_one_proxy_scene_at_the_identity_steps_as_the_plain_step_bit_for_bit() {
             ((k % 5) as f32 - 2.0) * 0.5,
         ];
     }
+    let sides = particles
+        .iter()
+        .map(|p| {
+            let mut s = SceneSides::EMPTY;
+            s.set_side(0, p.side);
+            s
+        })
+        .collect();
+    (words, particles, sides)
+}
+
+#[test]
+fn a_one_proxy_scene_at_the_identity_steps_as_the_plain_step_bit_for_bit() {
+    let (words, particles, sides) = ball_on_a_slab(20);
+    let view = ProxyView::new(&words).unwrap();
     let params = params([0.0, -9.81, 0.0]);
     let mut plain = particles.clone();
     let mut hints = vec![LeafHint::NONE; plain.len()];
@@ -171,14 +187,6 @@ fn a_one_proxy_scene_at_the_identity_steps_as_the_plain_step_bit_for_bit() {
     scene.add_instance(0, Pose::IDENTITY).unwrap();
     let mut cpu = CpuBackend::new();
     cpu.upload_particles(&particles).unwrap();
-    let sides: Vec<SceneSides> = particles
-        .iter()
-        .map(|p| {
-            let mut s = SceneSides::EMPTY;
-            s.set_side(0, p.side);
-            s
-        })
-        .collect();
     cpu.upload_scene_sides(&sides).unwrap();
     for step in 0..90 {
         for (p, h) in plain.iter_mut().zip(&mut hints) {
@@ -204,30 +212,8 @@ fn a_one_proxy_scene_at_the_identity_steps_as_the_plain_step_bit_for_bit() {
 /// instance moves away and back (the scene's form while it moves).
 #[test]
 fn a_static_scene_stepped_as_the_plain_step_keeps_the_scenes_sides_and_report() {
-    let mesh = scenes::merge(&[
-        scenes::uv_sphere([0.0, 0.0, 0.0], 0.6, 20, 10),
-        scenes::slab([0.0, -0.8, 0.0], [3.0, 0.1, 3.0]),
-    ]);
-    let words = bake_mesh(&mesh, 7);
-    let view = ProxyView::new(&words).unwrap();
-    let mut particles = lattice(Vec3::new(-1.4, -0.7, -1.4), Vec3::new(1.4, 1.5, 1.4), 16, 5);
-    for (k, p) in particles.iter_mut().enumerate() {
-        p.side = initial_side(&view, p.position);
-        p.velocity = [
-            ((k % 7) as f32 - 3.0) * 0.5,
-            0.0,
-            ((k % 5) as f32 - 2.0) * 0.5,
-        ];
-    }
+    let (words, particles, sides) = ball_on_a_slab(16);
     let params = params([0.0, -9.81, 0.0]);
-    let sides: Vec<SceneSides> = particles
-        .iter()
-        .map(|p| {
-            let mut s = SceneSides::EMPTY;
-            s.set_side(0, p.side);
-            s
-        })
-        .collect();
     // One scene for each backend, moved alike.
     let make = || {
         let mut scene = Scene::new();

@@ -1030,3 +1030,54 @@ fn passes_that_reuse_what_the_last_found_give_the_same_bytes() {
     }
     assert!(several >= 3, "only {several} bakes took more than one pass");
 }
+
+/// Offset surfaces with hollows in their band (each thick part leaves one, so `matter_of`
+/// has closed parts to take), and one of overlapping parts whose offset merges them: baked
+/// without the winding numbers of the "in matter" rule (`Regions::OneBand`, as
+/// `bake_offset` does) they give the bytes of the bake that asks them, for the reason
+/// `Regions::OneBand` gives.
+#[test]
+fn an_offset_bake_skips_only_what_cannot_apply() {
+    use crate::scenes::{merge, slab, uv_sphere};
+    let scenes = [
+        // A tray: a floor and four walls overlapping at the corners.
+        (
+            vec![
+                slab([0.0, -0.2, 0.0], [3.0, 0.4, 3.0]),
+                slab([1.35, 0.4, 0.0], [0.3, 0.8, 3.0]),
+                slab([-1.35, 0.4, 0.0], [0.3, 0.8, 3.0]),
+                slab([0.0, 0.4, 1.35], [3.0, 0.8, 0.3]),
+                slab([0.0, 0.4, -1.35], [3.0, 0.8, 0.3]),
+            ],
+            6,
+            0.1,
+        ),
+        // A thick plate through a ball, and a thin fin through both.
+        (
+            vec![merge(&[
+                uv_sphere([0.0; 3], 0.5, 24, 12),
+                slab([0.0; 3], [1.4, 0.3, 0.6]),
+                slab([0.1, 0.0, 0.0], [0.01, 1.2, 0.5]),
+            ])],
+            6,
+            0.05,
+        ),
+    ];
+    for (i, (meshes, dmax, radius)) in scenes.iter().enumerate() {
+        let refs: Vec<MeshRef<'_>> = meshes.iter().map(MeshRef::from).collect();
+        let surface = offset::OffsetSurface::new(&refs, *radius, *dmax, &()).unwrap();
+        let band = [surface.mesh_ref()];
+        let tris = gather(&band, &mut BuildReport::default()).unwrap();
+        assert!(
+            matter_of(&tris).is_some(),
+            "scene {i}: no hollow in the band"
+        );
+        let params = BuildParams {
+            dmax: *dmax,
+            ..BuildParams::default()
+        };
+        let (a, _) = bake_regions(&band, &params, &(), MAX_PASSES, true, Regions::OneBand).unwrap();
+        let (b, _) = bake_regions(&band, &params, &(), MAX_PASSES, true, Regions::Parts).unwrap();
+        assert!(a == b, "scene {i}: the proxies differ");
+    }
+}

@@ -195,7 +195,10 @@ impl Sides {
                 matter = part.truth;
             }
         }
-        if closed_parts > 1 {
+        if closed_parts > 1 && closed_parts == parts.len() {
+            // Every part closed: the closed triangles are all of them, in the same order.
+            matter = Some(0);
+        } else if closed_parts > 1 {
             let tris: Vec<[u32; 3]> = triangles
                 .iter()
                 .zip(&part_of)
@@ -419,59 +422,54 @@ impl Sides {
         particles: &mut [Particle],
         keep_given: bool,
     ) -> CageCounts {
-        particles
-            .par_iter_mut()
-            .map(|p| {
-                let mut c = CageCounts::default();
-                if keep_given && p.is_caged() {
-                    c.kept = 1;
-                    return c;
-                }
-                let bits = self.cage(view, p.position, p.side);
-                p.side = (p.side & SIDE_MASK) | bits;
-                if bits != 0 {
-                    c.caged = 1;
-                    c.without_exit = (bits == SIDE_CAGED) as usize;
-                }
-                c
-            })
-            .reduce(CageCounts::default, |a, b| CageCounts {
-                caged: a.caged + b.caged,
-                without_exit: a.without_exit + b.without_exit,
-                kept: a.kept + b.kept,
-            })
+        cage_each(particles, keep_given, |p| {
+            self.cage(view, p.position, p.side)
+        })
     }
 
     /// Gives every particle of `particles` its side by [the rule](self), in parallel; or, with
     /// `keep_given`, leaves each its own and counts those that contradict the mesh.
     pub fn assign(&self, particles: &mut [Particle], keep_given: bool) -> SideCounts {
-        particles
-            .par_iter_mut()
-            .map_init(Vec::new, |near, p| {
-                let mut c = SideCounts::default();
-                if !p.position.iter().all(|x| x.is_finite()) {
-                    c.non_finite = 1;
-                    return c;
-                }
-                let side = self.verdict_with(p.position, near).side;
-                if keep_given {
-                    c.kept = 1;
-                    c.contradicting = (p.side & SIDE_MASK != side) as usize;
-                } else {
-                    c.assigned = 1;
-                    p.side = side;
-                }
-                c.behind = (p.side & SIDE_MASK == SIDE_BACK) as usize;
-                c
-            })
-            .reduce(SideCounts::default, |a, b| SideCounts {
-                assigned: a.assigned + b.assigned,
-                kept: a.kept + b.kept,
-                contradicting: a.contradicting + b.contradicting,
-                behind: a.behind + b.behind,
-                non_finite: a.non_finite + b.non_finite,
-            })
+        assign_each(particles, keep_given, |p, near| {
+            self.verdict_with(p, near).side
+        })
     }
+}
+
+/// Gives every particle of `particles` with a finite position the side `side` says, in
+/// parallel (its scratch list is per thread); or, with `keep_given`, leaves each its own and
+/// counts those that contradict it.
+pub(crate) fn assign_each(
+    particles: &mut [Particle],
+    keep_given: bool,
+    side: impl Fn([f32; 3], &mut Vec<NearTriangle>) -> u32 + Sync,
+) -> SideCounts {
+    particles
+        .par_iter_mut()
+        .map_init(Vec::new, |near, p| {
+            let mut c = SideCounts::default();
+            if !p.position.iter().all(|x| x.is_finite()) {
+                c.non_finite = 1;
+                return c;
+            }
+            let side = side(p.position, near);
+            if keep_given {
+                c.kept = 1;
+                c.contradicting = (p.side & SIDE_MASK != side) as usize;
+            } else {
+                c.assigned = 1;
+                p.side = side;
+            }
+            c.behind = (p.side & SIDE_MASK == SIDE_BACK) as usize;
+            c
+        })
+        .reduce(SideCounts::default, |a, b| SideCounts {
+            assigned: a.assigned + b.assigned,
+            kept: a.kept + b.kept,
+            contradicting: a.contradicting + b.contradicting,
+            behind: a.behind + b.behind,
+            non_finite: a.non_finite + b.non_finite,
+        })
 }
 
 /// Segments (a scene's rim edges) in a bounding-volume hierarchy, for "does any touch this
@@ -627,6 +625,36 @@ pub fn count_in_solid(view: &ProxyView<'_>, particles: &[Particle]) -> usize {
         .par_iter()
         .filter(|p| in_solid_leaf(view, p.position))
         .count()
+}
+
+/// Gives every particle of `particles` the cage bits `cage` makes for it, in parallel,
+/// keeping its side; with `keep_given`, a particle already caged keeps its cage.
+pub(crate) fn cage_each(
+    particles: &mut [Particle],
+    keep_given: bool,
+    cage: impl Fn(&Particle) -> u32 + Sync,
+) -> CageCounts {
+    particles
+        .par_iter_mut()
+        .map(|p| {
+            let mut c = CageCounts::default();
+            if keep_given && p.is_caged() {
+                c.kept = 1;
+                return c;
+            }
+            let bits = cage(p);
+            p.side = (p.side & SIDE_MASK) | bits;
+            if bits != 0 {
+                c.caged = 1;
+                c.without_exit = (bits == SIDE_CAGED) as usize;
+            }
+            c
+        })
+        .reduce(CageCounts::default, |a, b| CageCounts {
+            caged: a.caged + b.caged,
+            without_exit: a.without_exit + b.without_exit,
+            kept: a.kept + b.kept,
+        })
 }
 
 /// Whether `p` is strictly inside a solid (two-sided) surface leaf of `view`, where a

@@ -6,7 +6,7 @@ use octoproxy_core::{Particle, ProxyView};
 use octoproxy_cpu::bake::offset::{OffsetSurface, PlaceCounts};
 use octoproxy_cpu::ground_truth::GroundTruth;
 use octoproxy_cpu::io::Mesh;
-use octoproxy_cpu::{bake_offset, scenes, BuildParams, MeshRef, Sides};
+use octoproxy_cpu::{bake_offset, scenes, BuildParams, MeshRef};
 
 /// A scene baked for a radius.
 pub struct RadiusScene {
@@ -49,10 +49,8 @@ impl RadiusScene {
     pub fn start(&self, ps: &mut [Particle]) -> PlaceCounts {
         let view = ProxyView::new(&self.words).unwrap();
         let placed = self.surface.place(ps, Some(&view));
-        let offset = [self.surface.mesh_ref()];
-        let sides = Sides::new(&offset);
-        sides.assign(ps, false);
-        sides.cages(&view, ps, false);
+        self.surface.assign_sides(ps, false);
+        self.surface.cages(&view, ps, false);
         placed
     }
 }

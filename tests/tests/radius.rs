@@ -98,9 +98,28 @@ fn campaign(meshes: &[Mesh], dmax: u32, leaves: f32, n: usize, steps: u32, seed:
         );
     }
     ps.extend(emitted);
+    let raw = ps.clone();
     let placed = surface.place(&mut ps, Some(&view));
     let offset_mesh = [surface.mesh_ref()];
     let sides = Sides::new(&offset_mesh);
+    // The offset surface's own sides and cages (by its band, with no ground truth of its
+    // own unless a particle is in a solid leaf) are those of its mesh: placed, and where the
+    // particles started (many in the band, some in solid leaves).
+    for (what, set) in [("placed", &ps), ("unplaced", &raw)] {
+        let (mut a, mut b) = (set.clone(), set.clone());
+        let counts = (
+            sides.assign(&mut a, false),
+            sides.cages(&view, &mut a, false),
+        );
+        let band = (
+            surface.assign_sides(&mut b, false),
+            surface.cages(&view, &mut b, false),
+        );
+        assert_eq!(counts, band, "{what}");
+        let differ = a.iter().zip(&b).filter(|(p, q)| p.side != q.side).count();
+        assert_eq!(differ, 0, "{what}: sides or cages differ");
+        eprintln!("{what}: {counts:?}");
+    }
     sides.assign(&mut ps, false);
     sides.cages(&view, &mut ps, false);
 

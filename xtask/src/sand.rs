@@ -11,7 +11,7 @@ use glam::Vec3;
 use octoproxy_core::{pair_substeps, PairParams, Particle, StepParams};
 use octoproxy_cpu::emit::Rng;
 use octoproxy_cpu::scenes;
-use octoproxy_cpu::{BuildParams, Sides};
+use octoproxy_cpu::BuildParams;
 
 use crate::backends::{select_backend, BackendChoice};
 use crate::render::{Camera, Canvas};
@@ -65,7 +65,6 @@ pub fn run(
         .offset
         .as_ref()
         .expect("a bake for a radius keeps its offset surface");
-    let sides = Sides::new(&[offset.mesh_ref()]);
     let params = StepParams {
         radius: RADIUS,
         restitution: 0.1,
@@ -120,7 +119,7 @@ pub fn run(
                     layer.push(Particle::new(p.to_array(), v.to_array()));
                 }
             }
-            sides.assign(&mut layer, false);
+            offset.assign_sides(&mut layer, false);
             grains.extend(layer);
             stepper.upload_particles(&grains)?;
         }

@@ -432,12 +432,10 @@ fn starting_sides(
                 String::new()
             }
         );
-        let refs = [offset.mesh_ref()];
-        let sides = Sides::new(&refs);
-        let counts = sides.assign(&mut cloud.particles, cloud.has_side);
+        let counts = offset.assign_sides(&mut cloud.particles, cloud.has_side);
         let ms = t.elapsed().as_secs_f64() * 1e3;
         eprintln!(
-            "sides: from the offset surface (exact, {ms:.0} ms): {} in front, {} behind{}",
+            "sides: from the offset surface (its band, exact but for its vertices' rounding to f32, {ms:.0} ms): {} in front, {} behind{}",
             n - counts.behind - counts.non_finite,
             counts.behind,
             if cloud.has_side {
@@ -449,7 +447,7 @@ fn starting_sides(
                 String::new()
             }
         );
-        let cages = sides.cages(view, &mut cloud.particles, cloud.has_side);
+        let cages = offset.cages(view, &mut cloud.particles, cloud.has_side);
         report_cages(&cages, n);
         return Ok(());
     }

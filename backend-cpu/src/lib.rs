@@ -81,7 +81,7 @@ pub use bake::{
 };
 pub use octoproxy_core::SceneStepReport;
 pub use scene::{place_in_bands, starting_scene_sides, Scene, SceneBuildError, SceneStepError};
-pub use sides::{starting_sides, CageCounts, Sides, StartCounts};
+pub use sides::{starting_sides, CageCounts, Sides, StartCounts, StartSides};
 
 /// The README's examples, compiled and run as doctests.
 #[doc = include_str!("../../README.md")]

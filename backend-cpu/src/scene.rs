@@ -615,11 +615,12 @@ fn build_node(items: &mut [(u32, Aabb)], nodes: &mut Vec<BroadNode>) -> Aabb {
 /// pose), the side of the mesh there by [the rule of starting sides](crate::sides), and its
 /// cage when it starts strictly inside a solid leaf. Elsewhere the empty leaf's label is the
 /// side, and the step takes it from there. `sides[proxy]` prepares proxy `proxy`'s meshes
-/// ([`crate::Sides::new`] on what was baked into it). Returns each particle's
+/// ([`crate::Sides::new`] on what was baked into it; for proxies baked for a radius, their
+/// [`crate::bake::offset::OffsetSurface`]s, which answer from the band). Returns each particle's
 /// [`octoproxy_core::SceneSides`] and how many sides came from a mesh.
-pub fn starting_scene_sides(
+pub fn starting_scene_sides<S: crate::sides::StartSides>(
     scene: &Scene,
-    sides: &[crate::Sides],
+    sides: &[S],
     particles: &[octoproxy_core::Particle],
 ) -> (Vec<octoproxy_core::SceneSides>, usize) {
     use octoproxy_core::{LeafKind, SceneSides};

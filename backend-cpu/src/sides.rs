@@ -627,6 +627,35 @@ pub fn count_in_solid(view: &ProxyView<'_>, particles: &[Particle]) -> usize {
         .count()
 }
 
+/// Starting sides and cages against one proxy's surface, in the proxy's own frame, for
+/// [`crate::starting_scene_sides`]: [`Sides`] (from a scene's meshes) or, for a proxy baked for
+/// a radius, its [`crate::bake::offset::OffsetSurface`] (from the band, without the offset
+/// surface's own ground truths unless a particle starts in a solid leaf).
+pub trait StartSides: Sync {
+    /// The side of a particle at `p`.
+    fn side(&self, p: [f32; 3]) -> u32;
+    /// The cage bits of a particle at `p` on `side` in `view`'s proxy.
+    fn cage(&self, view: &ProxyView<'_>, p: [f32; 3], side: u32) -> u32;
+}
+
+impl StartSides for Sides {
+    fn side(&self, p: [f32; 3]) -> u32 {
+        Sides::side(self, p)
+    }
+    fn cage(&self, view: &ProxyView<'_>, p: [f32; 3], side: u32) -> u32 {
+        Sides::cage(self, view, p, side)
+    }
+}
+
+impl StartSides for crate::bake::offset::OffsetSurface {
+    fn side(&self, p: [f32; 3]) -> u32 {
+        crate::bake::offset::OffsetSurface::side(self, p)
+    }
+    fn cage(&self, view: &ProxyView<'_>, p: [f32; 3], side: u32) -> u32 {
+        crate::bake::offset::OffsetSurface::cage(self, view, p, side)
+    }
+}
+
 /// Gives every particle of `particles` the cage bits `cage` makes for it, in parallel,
 /// keeping its side; with `keep_given`, a particle already caged keeps its cage.
 pub(crate) fn cage_each(

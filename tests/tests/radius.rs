@@ -410,6 +410,12 @@ fn a_gltf_scene_baked_for_a_radius_keeps_centres_at_the_radius_from_every_scaled
         .map(|o| Sides::new(&[o.mesh_ref()]))
         .collect();
     let (sides, _) = octoproxy_cpu::starting_scene_sides(&scene, &sides_by_proxy, &ps);
+    // The offset surfaces answer from their bands what their meshes answer.
+    let (by_band, _) = octoproxy_cpu::starting_scene_sides(&scene, &offsets, &ps);
+    assert!(
+        sides == by_band,
+        "the bands' sides differ from the offset meshes'"
+    );
     // Those wedged between bands start behind an offset surface: no claim is made for them.
     let keep: Vec<bool> = ps
         .iter()

@@ -738,13 +738,20 @@ fn run_scene(o: Opts) -> Result<()> {
                     }
                 );
             }
-            let per_proxy = inst.sides();
-            let Some(all): Option<Vec<Sides>> = per_proxy.into_iter().collect() else {
-                bail!("the scene's proxies came without their meshes");
-            };
             let t = Instant::now();
-            let (sides, from_mesh) =
-                octoproxy_cpu::starting_scene_sides(&inst.scene, &all, &cloud.particles);
+            let (sides, from_mesh) = match &inst.offsets {
+                // Particles of a radius: from each proxy's band.
+                Some(offsets) => {
+                    octoproxy_cpu::starting_scene_sides(&inst.scene, offsets, &cloud.particles)
+                }
+                None => {
+                    let per_proxy = inst.sides();
+                    let Some(all): Option<Vec<Sides>> = per_proxy.into_iter().collect() else {
+                        bail!("the scene's proxies came without their meshes");
+                    };
+                    octoproxy_cpu::starting_scene_sides(&inst.scene, &all, &cloud.particles)
+                }
+            };
             eprintln!(
                 "sides: {from_mesh} of {} particles start in an instance's surface leaf and take their side from its {} (exact, {:.0} ms); the others take it from the empty leaf they are in",
                 cloud.particles.len(),

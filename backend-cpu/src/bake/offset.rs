@@ -565,6 +565,8 @@ pub struct OffsetSurface {
     grid: OffsetGrid,
     truth: GroundTruth,
     mesh: OffsetMesh,
+    /// The mesh's own ground truths, for cages, built when first asked ([`Self::cage`]).
+    mesh_sides: std::sync::OnceLock<Sides>,
 }
 
 impl OffsetSurface {
@@ -581,7 +583,12 @@ impl OffsetSurface {
         let grid = OffsetGrid::new(meshes, radius, dmax)?;
         let truth = scene_truth(meshes);
         let mesh = extract(&grid, &truth, progress)?;
-        Ok(OffsetSurface { grid, truth, mesh })
+        Ok(OffsetSurface {
+            grid,
+            truth,
+            mesh,
+            mesh_sides: std::sync::OnceLock::new(),
+        })
     }
 
     /// The radius.
@@ -671,13 +678,28 @@ impl OffsetSurface {
     /// its own side and those that contradict the band are counted. After [`Self::place`]
     /// every particle it moved, and every one it did not need to, is in front.
     pub fn assign_sides(&self, particles: &mut [Particle], keep_given: bool) -> SideCounts {
-        assign_each(particles, keep_given, |p, _| {
-            if self.grid.outside(&self.truth, p, 0.0) {
-                octoproxy_core::SIDE_FRONT
-            } else {
-                octoproxy_core::SIDE_BACK
-            }
-        })
+        assign_each(particles, keep_given, |p, _| self.side(p))
+    }
+
+    /// The side of a particle at `p` against this surface ([`Self::assign_sides`]).
+    pub fn side(&self, p: [f32; 3]) -> u32 {
+        if self.grid.outside(&self.truth, p, 0.0) {
+            octoproxy_core::SIDE_FRONT
+        } else {
+            octoproxy_core::SIDE_BACK
+        }
+    }
+
+    /// The cage bits of a particle at `p` on `side` in `view`, the proxy baked from this
+    /// surface: [`crate::Sides::cage`] on [`Self::mesh_ref`], whose ground truths are built
+    /// the first time a particle is strictly inside a solid leaf, and kept.
+    pub fn cage(&self, view: &ProxyView<'_>, p: [f32; 3], side: u32) -> u32 {
+        if !in_solid_leaf(view, p) {
+            return 0;
+        }
+        self.mesh_sides
+            .get_or_init(|| Sides::new(&[self.mesh_ref()]))
+            .cage(view, p, side)
     }
 
     /// Cages the particles that start strictly inside a solid leaf of `view`, the proxy
@@ -691,14 +713,8 @@ impl OffsetSurface {
         particles: &mut [Particle],
         keep_given: bool,
     ) -> CageCounts {
-        let sides = std::sync::OnceLock::new();
         cage_each(particles, keep_given, |p| {
-            if !in_solid_leaf(view, p.position) {
-                return 0;
-            }
-            sides
-                .get_or_init(|| Sides::new(&[self.mesh_ref()]))
-                .cage(view, p.position, p.side)
+            self.cage(view, p.position, p.side)
         })
     }
 

@@ -62,16 +62,42 @@ impl Labels {
     }
 }
 
+/// One vote of a surface leaf for an empty leaf (`parent * 8 + octant`), in 8 bytes: a bake
+/// of a few hundred thousand surface leaves holds millions of them at once.
 #[derive(Clone, Copy)]
 struct Vote {
     empty: u32,
-    /// The empty leaf's centre.
-    centre: DVec3,
-    surface: u32,
-    front: bool,
-    closed: bool,
+    /// [`Vote::FRONT`], [`Vote::CLOSED`] and [`Vote::AGAINST`].
+    bits: u8,
+}
+
+impl Vote {
+    /// The triangle hit nearest the empty leaf faces it.
+    const FRONT: u8 = 1;
+    /// That triangle is in a closed component.
+    const CLOSED: u8 = 2;
     /// The surface that decided the vote faces against the surface leaf's normal.
-    against: bool,
+    const AGAINST: u8 = 4;
+
+    fn new(empty: u32, (front, closed, against): (bool, bool, bool)) -> Self {
+        let bits = front as u8 * Self::FRONT | closed as u8 * Self::CLOSED;
+        Self {
+            empty,
+            bits: bits | against as u8 * Self::AGAINST,
+        }
+    }
+
+    fn front(self) -> bool {
+        self.bits & Self::FRONT != 0
+    }
+
+    fn closed(self) -> bool {
+        self.bits & Self::CLOSED != 0
+    }
+
+    fn against(self) -> bool {
+        self.bits & Self::AGAINST != 0
+    }
 }
 
 /// A surface leaf's votes across the bake's passes (leaves of at least [`REUSE_TRIANGLES`]),
@@ -122,17 +148,25 @@ pub(crate) fn label(
             v
         })
         .collect();
-    let mut votes = Vec::new();
+    // Each surface leaf's votes stay in its own list (`tree.surface`'s order): the counts,
+    // the centres and the conflicts below do not depend on the order of the votes.
     let mut next = HashMap::new();
+    let mut lists = Vec::with_capacity(found.len());
     for (v, pairs) in found {
-        votes.extend(v);
+        lists.push(v);
         next.extend(pairs);
     }
+    let votes = || {
+        tree.surface
+            .iter()
+            .zip(&lists)
+            .flat_map(|(&s, l)| l.iter().map(move |&v| (s, v)))
+    };
     cache.0 = next;
     // counts: closed front, closed back, open front, open back.
     let mut counts = vec![[0u32; 4]; tree.nodes.len() * 8];
-    for v in &votes {
-        let k = (!v.closed as usize) * 2 + (!v.front as usize);
+    for (_, v) in votes() {
+        let k = (!v.closed() as usize) * 2 + (!v.front() as usize);
         counts[v.empty as usize][k] += 1;
     }
     // Inside other parts: an empty leaf that a closed surface sees from its front, but that
@@ -141,17 +175,16 @@ pub(crate) fn label(
     // number at the centre holds for the whole leaf.
     let mut in_matter = vec![false; counts.len()];
     if let Some(gt) = matter {
-        let mut centres: Vec<(u32, DVec3)> = votes
-            .iter()
-            .filter(|v| v.closed && v.front)
-            .map(|v| (v.empty, v.centre))
+        let mut empties: Vec<u32> = votes()
+            .filter(|(_, v)| v.closed() && v.front())
+            .map(|(_, v)| v.empty)
             .collect();
-        centres.sort_unstable_by_key(|c| c.0);
-        centres.dedup_by_key(|c| c.0);
-        let inside: Vec<u32> = centres
+        empties.sort_unstable();
+        empties.dedup();
+        let inside: Vec<u32> = empties
             .par_iter()
-            .filter(|(_, c)| gt.is_inside(c.as_vec3().to_array()))
-            .map(|c| c.0)
+            .filter(|&&e| gt.is_inside(empty_centre(tree, grid, e).as_vec3().to_array()))
+            .copied()
             .collect();
         for e in inside {
             in_matter[e as usize] = true;
@@ -161,9 +194,9 @@ pub(crate) fn label(
     let mut conflicts = 0;
     let disagree = |c: &[u32; 4]| (c[0] + c[2] > 0) && (c[1] + c[3] > 0);
     let mut conflicted = vec![false; tree.nodes.len()];
-    for v in &votes {
-        if v.against || in_matter[v.empty as usize] || disagree(&counts[v.empty as usize]) {
-            conflicted[v.surface as usize] = true;
+    for (surface, v) in votes() {
+        if v.against() || in_matter[v.empty as usize] || disagree(&counts[v.empty as usize]) {
+            conflicted[surface as usize] = true;
         }
     }
     let bits = counts
@@ -224,11 +257,6 @@ fn leaf_votes(
     // The leaf's triangles' boxes, found once for all its pairs' segments.
     let mut boxes = None;
     tree.for_each_touching_empty(lo, hi, |empty, elo, ehi| {
-        let centre = DVec3::new(
-            (grid.plane(0, elo.x) + grid.plane(0, ehi.x)) * 0.5,
-            (grid.plane(1, elo.y) + grid.plane(1, ehi.y)) * 0.5,
-            (grid.plane(2, elo.z) + grid.plane(2, ehi.z)) * 0.5,
-        );
         let found = was.and_then(|w| {
             let at = (elo.to_array(), ehi.to_array());
             w.binary_search_by(|p| p.order().cmp(&at))
@@ -242,14 +270,7 @@ fn leaf_votes(
         out.extend(
             pair.votes[..pair.len as usize]
                 .iter()
-                .map(|&(front, closed, against)| Vote {
-                    empty,
-                    centre,
-                    surface: leaf,
-                    front,
-                    closed,
-                    against,
-                }),
+                .map(|&vote| Vote::new(empty, vote)),
         );
         if heavy {
             pairs.push(pair);
@@ -258,6 +279,21 @@ fn leaf_votes(
     // Sorted by the empty leaf's box, for the next pass's search.
     pairs.sort_unstable_by_key(PairVotes::order);
     (out, heavy.then_some((key, pairs)))
+}
+
+/// The centre of the empty leaf `empty` (`parent * 8 + octant`): the midpoints of its grid
+/// planes, as [`Flat::for_each_touching_empty`] gives them.
+fn empty_centre(tree: &Flat, grid: &Grid, empty: u32) -> DVec3 {
+    let parent = &tree.nodes[(empty / 8) as usize];
+    let o = empty % 8;
+    let c = parent.cell * 2 + UVec3::new(o & 1, (o >> 1) & 1, (o >> 2) & 1);
+    let s = octoproxy_core::MAX_DEPTH - parent.depth - 1;
+    let (lo, hi) = (c << s, (c + 1) << s);
+    DVec3::new(
+        (grid.plane(0, lo.x) + grid.plane(0, hi.x)) * 0.5,
+        (grid.plane(1, lo.y) + grid.plane(1, hi.y)) * 0.5,
+        (grid.plane(2, lo.z) + grid.plane(2, hi.z)) * 0.5,
+    )
 }
 
 /// The boxes of the triangles `list`, in its order.

@@ -60,7 +60,9 @@ impl Crowding {
 
     /// Per flat node: whether it is a crowded surface leaf. `boxes`: each triangle's
     /// [`outward_box`], a cheap first test of whether it can meet a grown box, before the
-    /// exact one reads the triangle.
+    /// exact one reads the triangle. `embedded`: the surface crosses itself nowhere (an
+    /// offset surface: [`super::Regions::OneBand`]), so no leaf's triangles are tested for
+    /// crossing each other.
     pub(crate) fn crowded(
         &mut self,
         tree: &Flat,
@@ -68,6 +70,7 @@ impl Crowding {
         boxes: &[[f32; 6]],
         grid: &Grid,
         dmax: u32,
+        embedded: bool,
     ) -> Vec<bool> {
         let key = |leaf: u32| {
             let n = &tree.nodes[leaf as usize];
@@ -86,7 +89,7 @@ impl Crowding {
                 let known = heavy(leaf).then(|| crosses.get(&key(leaf))).flatten();
                 let c = match (known, &tree.nodes[leaf as usize].kind) {
                     (Some(&c), _) => c,
-                    (None, Kind::Surface(s)) => crosses_itself(&s.tris, tris),
+                    (None, Kind::Surface(s)) => !embedded && crosses_itself(&s.tris, tris),
                     (None, Kind::Internal { .. }) => false,
                 };
                 (leaf, c)

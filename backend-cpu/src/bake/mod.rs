@@ -488,7 +488,10 @@ pub(crate) enum Regions {
     /// hollows inside it, none crossing another). A vote sees the surface it hits first
     /// along a segment from the empty leaf, so an empty leaf seen from a front is outside
     /// the region (winding number 0): the rule can never apply, and its winding numbers,
-    /// most of such a bake's time (50 of 80 s for a tray at `dmax` 8), are skipped.
+    /// most of such a bake's time (50 of 80 s for a tray at `dmax` 8), are skipped. No
+    /// triangle of it crosses another either (each lies in one tetrahedron of the grid it was
+    /// cut from, where the distance is linear), so no leaf is tested for crossing itself:
+    /// a sixth of such a bake's time (2.8 of 19 s for fandisk at radius 0.05).
     /// `an_offset_bake_skips_only_what_cannot_apply` bakes both ways and compares bytes.
     OneBand,
 }
@@ -513,6 +516,7 @@ pub(crate) fn bake_regions(
         Regions::Parts => matter_of(&tris),
         Regions::OneBand => None,
     };
+    let embedded = regions == Regions::OneBand;
     report.root_min = grid.root_min;
     report.root_size = grid.root_size;
 
@@ -573,7 +577,7 @@ pub(crate) fn bake_regions(
         report.timings.push(("label", t.elapsed()));
 
         let t = Instant::now();
-        let crowded = crowding.crowded(&tree, &tris, &boxes, &grid, params.dmax);
+        let crowded = crowding.crowded(&tree, &tris, &boxes, &grid, params.dmax, embedded);
         report.timings.push(("crowded", t.elapsed()));
 
         let big: Vec<(u32, UVec3)> = tree

@@ -80,10 +80,12 @@ impl Vote {
     const AGAINST: u8 = 4;
 
     fn new(empty: u32, (front, closed, against): (bool, bool, bool)) -> Self {
-        let bits = front as u8 * Self::FRONT | closed as u8 * Self::CLOSED;
+        let flag = |on: bool, bit: u8| if on { bit } else { 0 };
         Self {
             empty,
-            bits: bits | against as u8 * Self::AGAINST,
+            bits: flag(front, Self::FRONT)
+                | flag(closed, Self::CLOSED)
+                | flag(against, Self::AGAINST),
         }
     }
 

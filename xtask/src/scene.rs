@@ -226,3 +226,26 @@ pub fn bytes(n: usize) -> String {
         format!("{n} B")
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::stages;
+    use std::time::Duration;
+
+    #[test]
+    fn a_stage_repeated_by_passes_is_summed_where_it_first_ran() {
+        let ms = Duration::from_millis;
+        let timings = [
+            ("gather", ms(50)),
+            ("subdivide", ms(1200)),
+            ("label", ms(300)),
+            ("subdivide", ms(800)),
+            ("label", ms(250)),
+            ("encode", ms(12_500)),
+        ];
+        assert_eq!(
+            stages(&timings),
+            "gather 0.050 s, subdivide 2.00 s over 2 passes, label 0.550 s over 2 passes, encode 12.5 s"
+        );
+    }
+}

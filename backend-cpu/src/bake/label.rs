@@ -288,14 +288,9 @@ fn leaf_votes(
 fn empty_centre(tree: &Flat, grid: &Grid, empty: u32) -> DVec3 {
     let parent = &tree.nodes[(empty / 8) as usize];
     let o = empty % 8;
-    let c = parent.cell * 2 + UVec3::new(o & 1, (o >> 1) & 1, (o >> 2) & 1);
-    let s = octoproxy_core::MAX_DEPTH - parent.depth - 1;
-    let (lo, hi) = (c << s, (c + 1) << s);
-    DVec3::new(
-        (grid.plane(0, lo.x) + grid.plane(0, hi.x)) * 0.5,
-        (grid.plane(1, lo.y) + grid.plane(1, hi.y)) * 0.5,
-        (grid.plane(2, lo.z) + grid.plane(2, hi.z)) * 0.5,
-    )
+    let cell = parent.cell * 2 + UVec3::new(o & 1, (o >> 1) & 1, (o >> 2) & 1);
+    let (lo, hi) = grid.cell_box(cell, parent.depth + 1);
+    (lo + hi) * 0.5
 }
 
 /// The boxes of the triangles `list`, in its order.

@@ -68,7 +68,7 @@ fn main() {
     let view = ProxyView::new(&words).unwrap();
     let r = view.root_aabb();
     let leaf = view.finest_leaf_size();
-    let mut particles = emit_box(1_000_000, r.min, r.max, 2.0 * leaf * 60.0, 1);
+    let mut particles = emit_box(1_000_000, r.min, r.max, 2.0 * leaf * 60.0, 1).expect("fits");
     for p in &mut particles {
         p.side = initial_side(&view, p.position);
     }

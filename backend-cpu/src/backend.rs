@@ -148,6 +148,22 @@ pub enum CpuError {
         /// Length given.
         got: usize,
     },
+    /// More particles than 32-bit indices name (hit events and the pass index particles by
+    /// `u32`).
+    #[error("{particles} particles: at most {} can be stepped (particles are indexed by 32-bit numbers)", u32::MAX)]
+    TooManyParticles {
+        /// Particles given.
+        particles: usize,
+    },
+    /// The backend's copy of the particles and their state could not be allocated; what it
+    /// held before is kept.
+    #[error("{particles} particles: their state ({bytes} bytes) could not be allocated")]
+    OutOfMemory {
+        /// Particles given.
+        particles: usize,
+        /// The bytes the backend asked for (saturated).
+        bytes: u64,
+    },
 }
 
 /// Steps particles on the CPU, in parallel over particles. Stepping allocates nothing (but
@@ -1066,6 +1082,28 @@ impl Backend for CpuBackend {
     }
 
     fn upload_particles(&mut self, particles: &[Particle]) -> Result<(), CpuError> {
+        let n = particles.len();
+        if n > u32::MAX as usize {
+            return Err(CpuError::TooManyParticles { particles: n });
+        }
+        // Room for everything first, so that a failed allocation leaves the state as it was.
+        fn room<T>(v: &mut Vec<T>, n: usize) -> bool {
+            v.try_reserve(n.saturating_sub(v.len())).is_ok()
+        }
+        if !(room(&mut self.particles, n)
+            && room(&mut self.hints, n)
+            && room(&mut self.scene_hints, n)
+            && room(&mut self.scene_slots, n))
+        {
+            let each = core::mem::size_of::<Particle>()
+                + core::mem::size_of::<LeafHint>()
+                + core::mem::size_of::<SceneHint>()
+                + core::mem::size_of::<SceneSlots>();
+            return Err(CpuError::OutOfMemory {
+                particles: n,
+                bytes: (n as u64).saturating_mul(each as u64),
+            });
+        }
         // Every particle's state is replaced.
         self.drop_plain_scene();
         self.particles.clear();

@@ -52,20 +52,47 @@ impl Rng {
     }
 }
 
+/// An emitter asked for more particles than memory holds: the allocation failed, and nothing
+/// was emitted (an error where `Vec::with_capacity` would abort the process).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("{particles} particles ({bytes} bytes) could not be allocated")]
+pub struct EmitError {
+    /// Particles asked for.
+    pub particles: usize,
+    /// The bytes they need (saturated).
+    pub bytes: u64,
+}
+
+/// An empty list with room for `n` particles, or [`EmitError`] where memory has none.
+pub fn reserve_particles(n: usize) -> Result<Vec<Particle>, EmitError> {
+    let mut out = Vec::new();
+    out.try_reserve_exact(n).map_err(|_| EmitError {
+        particles: n,
+        bytes: (n as u64).saturating_mul(core::mem::size_of::<Particle>() as u64),
+    })?;
+    Ok(out)
+}
+
 /// `n` particles uniformly in the box `[min, max]`, each moving in a random direction at
-/// `speed`.
-pub fn emit_box(n: usize, min: Vec3, max: Vec3, speed: f32, seed: u64) -> Vec<Particle> {
+/// `speed`. [`EmitError`] when `n` particles do not fit in memory.
+pub fn emit_box(
+    n: usize,
+    min: Vec3,
+    max: Vec3,
+    speed: f32,
+    seed: u64,
+) -> Result<Vec<Particle>, EmitError> {
     let mut rng = Rng::new(seed);
-    (0..n)
-        .map(|_| {
-            let p = Vec3::new(
-                rng.range(min.x, max.x),
-                rng.range(min.y, max.y),
-                rng.range(min.z, max.z),
-            );
-            Particle::new(p.to_array(), (rng.unit_vector() * speed).to_array())
-        })
-        .collect()
+    let mut out = reserve_particles(n)?;
+    out.extend((0..n).map(|_| {
+        let p = Vec3::new(
+            rng.range(min.x, max.x),
+            rng.range(min.y, max.y),
+            rng.range(min.z, max.z),
+        );
+        Particle::new(p.to_array(), (rng.unit_vector() * speed).to_array())
+    }));
+    Ok(out)
 }
 
 /// Uniform random points on the surface of meshes: triangles picked by area, points uniform
@@ -148,13 +175,14 @@ const DRAWS_PER_PARTICLE: usize = 64;
 /// So every particle is within `offset` of its face; pass one `dmax` leaf for the command
 /// line's emitter. Deterministic for a given seed. Fewer than `n` come back only where the
 /// surface has no such points (after 64 draws per particle); none where it has no area.
+/// [`EmitError`] when `n` particles do not fit in memory.
 pub fn emit_surface(
     n: usize,
     meshes: &[MeshRef<'_>],
     offset: f32,
     speed: f32,
     seed: u64,
-) -> Vec<Particle> {
+) -> Result<Vec<Particle>, EmitError> {
     emit_surface_where(n, meshes, 0.0, offset, speed, seed, |_| true)
 }
 
@@ -176,7 +204,7 @@ pub fn emit_surface_for(
     radius: Option<&OffsetSurface>,
     speed: f32,
     seed: u64,
-) -> Vec<Particle> {
+) -> Result<Vec<Particle>, EmitError> {
     let base = radius.map_or(0.0, |s| s.radius() as f64);
     emit_surface_where(n, meshes, base, view.finest_leaf_size(), speed, seed, |p| {
         !in_solid_leaf(view, p)
@@ -193,14 +221,14 @@ fn emit_surface_where(
     speed: f32,
     seed: u64,
     accept: impl Fn([f32; 3]) -> bool,
-) -> Vec<Particle> {
+) -> Result<Vec<Particle>, EmitError> {
+    let mut out = reserve_particles(n)?;
     let surface = SurfaceSampler::new(meshes);
     if surface.is_empty() || !(offset > 0.0) || !offset.is_finite() {
-        return Vec::new();
+        return Ok(Vec::new());
     }
     let sides = Sides::new(meshes);
     let mut rng = Rng::new(seed);
-    let mut out = Vec::with_capacity(n);
     for _ in 0..n.saturating_mul(DRAWS_PER_PARTICLE) {
         if out.len() == n {
             break;
@@ -222,7 +250,7 @@ fn emit_surface_where(
             d *= 0.5;
         }
     }
-    out
+    Ok(out)
 }
 
 #[cfg(test)]
@@ -231,8 +259,8 @@ mod tests {
 
     #[test]
     fn box_emission_stays_in_the_box_and_is_deterministic() {
-        let a = emit_box(1000, Vec3::splat(-1.0), Vec3::new(2.0, 3.0, 4.0), 2.0, 7);
-        let b = emit_box(1000, Vec3::splat(-1.0), Vec3::new(2.0, 3.0, 4.0), 2.0, 7);
+        let a = emit_box(1000, Vec3::splat(-1.0), Vec3::new(2.0, 3.0, 4.0), 2.0, 7).unwrap();
+        let b = emit_box(1000, Vec3::splat(-1.0), Vec3::new(2.0, 3.0, 4.0), 2.0, 7).unwrap();
         assert_eq!(a, b);
         for p in &a {
             let x = Vec3::from_array(p.position);
@@ -254,11 +282,32 @@ mod tests {
             0.25,
             0.0,
             3,
-        );
+        )
+        .unwrap();
         assert_eq!(p.len(), 100);
         for q in p {
             assert!((q.position[1] - 0.25).abs() < 1e-6, "{:?}", q.position);
         }
+    }
+
+    #[test]
+    fn more_particles_than_memory_holds_is_an_error_not_an_abort() {
+        // `usize::MAX / 2` particles: more bytes than any allocator gives.
+        let n = usize::MAX / 2;
+        let e = emit_box(n, Vec3::ZERO, Vec3::ONE, 0.0, 1).unwrap_err();
+        assert_eq!(e.particles, n);
+        assert_eq!(e.bytes, u64::MAX);
+        let positions = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]];
+        let triangles = [[0, 1, 2]];
+        let mesh = [MeshRef {
+            positions: &positions,
+            triangles: &triangles,
+        }];
+        assert_eq!(
+            emit_surface(n, &mesh, 0.25, 0.0, 3).unwrap_err().particles,
+            n
+        );
+        assert!(e.to_string().contains("could not be allocated"), "{e}");
     }
 
     #[test]
@@ -286,7 +335,7 @@ mod tests {
             let all = scenes::merge(meshes);
             let gt = GroundTruth::new(&all.positions, &all.triangles);
             let closed = scenes::is_closed(&all);
-            let p = emit_surface(3000, &refs, offset, 1.0, 5);
+            let p = emit_surface(3000, &refs, offset, 1.0, 5).unwrap();
             assert_eq!(p.len(), 3000);
             let sides = Sides::new(&refs);
             for q in &p {
@@ -309,7 +358,7 @@ mod tests {
             };
             let (words, _) = crate::bake(&refs, &params, &()).unwrap();
             let view = ProxyView::new(&words).unwrap();
-            let p = emit_surface_for(&view, 2000, &refs, None, 1.0, 5);
+            let p = emit_surface_for(&view, 2000, &refs, None, 1.0, 5).unwrap();
             assert_eq!(p.len(), 2000);
             let mut caged = p.clone();
             sides.cages(&view, &mut caged, false);

@@ -197,7 +197,9 @@ impl Starter<'_> {
                 near_surface_particles(self.meshes, self.sides, n, 1.5 * leaf, speeds, seed)
             }
             Start::Emitted => {
-                let mut ps = emit_surface_for(self.view, n, self.meshes, None, 0.0, seed);
+                // None where `n` particles do not fit in memory.
+                let mut ps = emit_surface_for(self.view, n, self.meshes, None, 0.0, seed)
+                    .unwrap_or_default();
                 let mut rng = Rng::new(seed);
                 for (k, p) in ps.iter_mut().enumerate() {
                     p.velocity = (rng.unit_vector() * speed(k)).to_array();

@@ -1149,8 +1149,9 @@ fn penetration_inner(u: &mut Unstructured<'_>) -> Result<()> {
             }
         } else if u.ratio(1u8, 3)? {
             let seed = u.arbitrary::<u64>()?;
-            if let Some(e) =
-                emit_surface_for(&view, 1, &[MeshRef::from(&mesh)], None, 0.0, seed).first()
+            if let Some(e) = emit_surface_for(&view, 1, &[MeshRef::from(&mesh)], None, 0.0, seed)
+                .ok()
+                .and_then(|e| e.first().copied())
             {
                 position = Vec3::from_array(e.position);
                 emitted_side = Some(e.side);

@@ -55,6 +55,7 @@ fn particles(n: usize) -> Vec<Particle> {
         2.0,
         3,
     )
+    .expect("fits in memory")
 }
 
 #[test]

@@ -88,7 +88,8 @@ fn campaign(meshes: &[Mesh], dmax: u32, leaves: f32, n: usize, steps: u32, seed:
             Particle::new(p.to_array(), (rng.unit_vector() * per_step / dt).to_array())
         })
         .collect();
-    let emitted = emit_surface_for(&view, n / 2, &refs, Some(&surface), size / dt * 0.05, seed);
+    let emitted = emit_surface_for(&view, n / 2, &refs, Some(&surface), size / dt * 0.05, seed)
+        .expect("fits in memory");
     assert!(!emitted.is_empty());
     for e in &emitted {
         let d = gt.distance(e.position);

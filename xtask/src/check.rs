@@ -130,6 +130,15 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     if particles_file.is_some() && (emit.is_some() || starts.is_some()) {
         bail!("give either --particles or --emit (with --starts), not both");
     }
+    if let Some(n) = emit {
+        let each = 2 * std::mem::size_of::<octoproxy_core::Particle>() as u64;
+        flags::fits_in_memory(
+            "--emit",
+            n,
+            each,
+            "the particles (32 bytes each, emitted and the backend's copy)",
+        )?;
+    }
     if let Some(name) = &builtin_name {
         let path = PathBuf::from(name);
         if SceneFile::of(&path).is_some() {
@@ -319,7 +328,7 @@ fn check_scene(
 ) -> Result<()> {
     use glam::Vec3;
     use octoproxy_core::{Backend, ProxyView, SceneSides};
-    use octoproxy_cpu::emit::emit_box;
+    use octoproxy_cpu::emit::{emit_box, reserve_particles};
     use octoproxy_cpu::harness::scene::{traced_pieces, SceneCheck, Tally};
     use octoproxy_cpu::CpuBackend;
 
@@ -392,10 +401,10 @@ fn check_scene(
         None => {
             let n = emit.unwrap_or(20_000);
             let speeds = [0.1 * leaf, leaf, 5.0 * leaf, 0.25 * size, size];
-            let mut ps = Vec::with_capacity(n);
+            let mut ps = reserve_particles(n)?;
             for (k, s) in speeds.iter().enumerate() {
                 let count = n / speeds.len() + (k < n % speeds.len()) as usize;
-                ps.extend(emit_box(count, lo, hi, s / params.dt, seed + k as u64));
+                ps.extend(emit_box(count, lo, hi, s / params.dt, seed + k as u64)?);
             }
             ps
         }

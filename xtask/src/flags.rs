@@ -47,6 +47,47 @@ pub fn number<T: std::str::FromStr>(parser: &mut lexopt::Parser, name: &str) -> 
         .map_err(|_| anyhow::anyhow!("{name}: {s:?} is not a valid number"))
 }
 
+/// Refuses a count whose memory alone, `bytes_each` per item (a lower bound of what the
+/// command will hold: `what` says of what), is more than this machine's memory and swap,
+/// before any work is done: a clear error instead of an allocation that aborts the process
+/// later, perhaps after a long bake. No check where the machine's memory is not known (only
+/// Linux's `/proc/meminfo` is read); the allocations then fail with their own errors.
+pub fn fits_in_memory(name: &str, count: usize, bytes_each: u64, what: &str) -> Result<()> {
+    fits_in(name, count, bytes_each, what, memory_and_swap())
+}
+
+fn fits_in(name: &str, count: usize, bytes_each: u64, what: &str, have: Option<u64>) -> Result<()> {
+    let need = (count as u64).saturating_mul(bytes_each);
+    match have {
+        Some(have) if need > have => bail!(
+            "{name} {count}: {what} need at least {}, more than this machine's {} of memory and swap",
+            gib(need),
+            gib(have)
+        ),
+        _ => Ok(()),
+    }
+}
+
+fn gib(bytes: u64) -> String {
+    format!("{:.1} GiB", bytes as f64 / (1u64 << 30) as f64)
+}
+
+/// `MemTotal` plus `SwapTotal` from `/proc/meminfo`, in bytes.
+fn memory_and_swap() -> Option<u64> {
+    let info = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let field = |key: &str| -> Option<u64> {
+        let line = info.lines().find(|l| l.starts_with(key))?;
+        let kib: u64 = line[key.len()..]
+            .trim()
+            .trim_end_matches("kB")
+            .trim()
+            .parse()
+            .ok()?;
+        Some(kib.saturating_mul(1024))
+    };
+    Some(field("MemTotal:")?.saturating_add(field("SwapTotal:").unwrap_or(0)))
+}
+
 /// Parses `N` comma-separated finite floats (negative numbers fine: `--gravity 0,-9.81,0`).
 pub fn floats<const N: usize>(parser: &mut lexopt::Parser, name: &str) -> Result<[f32; N]> {
     let s = string(parser, name)?;
@@ -260,5 +301,40 @@ pub fn substeps_said(params: &octoproxy_core::StepParams, pairs: &PairParams) ->
         )
     } else {
         format!("{gravity} a step for gravity")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_count_beyond_memory_is_refused_with_the_sizes() {
+        let e = fits_in("--emit", 4_000_000_000, 64, "the particles", Some(24 << 30))
+            .unwrap_err()
+            .to_string();
+        assert_eq!(
+            e,
+            "--emit 4000000000: the particles need at least 238.4 GiB, more than this machine's 24.0 GiB of memory and swap"
+        );
+        assert!(fits_in("--emit", 1_000_000, 64, "the particles", Some(24 << 30)).is_ok());
+        // Unknown memory: no check. An overflowing product saturates and is refused.
+        assert!(fits_in("--emit", usize::MAX, 64, "the particles", None).is_ok());
+        assert!(fits_in(
+            "--emit",
+            usize::MAX,
+            64,
+            "the particles",
+            Some(u64::MAX - 1)
+        )
+        .is_err());
+    }
+
+    #[test]
+    fn this_machines_memory_is_read_where_linux_tells_it() {
+        if cfg!(target_os = "linux") {
+            let have = memory_and_swap().expect("/proc/meminfo has MemTotal");
+            assert!(have >= 1 << 26, "{have} bytes");
+        }
     }
 }

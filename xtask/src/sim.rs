@@ -234,8 +234,39 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     if o.pairs.any_option() && !o.pairs.collide {
         bail!("--particle-* options go with --collide-particles");
     }
+    if let Some(n) = o.emit {
+        let each = 2 * std::mem::size_of::<octoproxy_core::Particle>() as u64;
+        flags::fits_in_memory(
+            "--emit",
+            n,
+            each,
+            "the particles (32 bytes each, emitted and the backend's copy)",
+        )?;
+    }
+    if let (Some(c), Some(_)) = (o.event_capacity, &o.events) {
+        let each = 2 * std::mem::size_of::<octoproxy_core::HitEvent>() as u64;
+        flags::fits_in_memory(
+            "--event-capacity",
+            c,
+            each,
+            "the events (44 bytes each, the backend's and this command's)",
+        )?;
+    }
+    // The particle file before the scene: a bad file is found before a long bake.
+    let file = match &o.particles {
+        Some(path) => {
+            let cloud = read_particles(path)?;
+            eprintln!(
+                "read {} particles from {}",
+                cloud.particles.len(),
+                path.display()
+            );
+            Some(cloud)
+        }
+        None => None,
+    };
     if o.scene.is_some() || o.hits || o.events.is_some() {
-        return run_scene(o);
+        return run_scene(o, file);
     }
     if o.start_time.is_some() {
         bail!("--start-time goes with an animated --scene");
@@ -268,7 +299,7 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
 
     // The particles.
     let refs: Vec<MeshRef<'_>> = scene.meshes.iter().map(MeshRef::from).collect();
-    let mut cloud = particles_in(&o, &view, &refs, scene.offset.as_ref(), || {
+    let mut cloud = particles_in(&o, file, &view, &refs, scene.offset.as_ref(), || {
         scene_box(&scene, &view)
     })?;
     if o.emit_surface {
@@ -619,7 +650,7 @@ fn one_instance(o: &Opts) -> Result<(Instanced, Option<OffsetSurface>, f32)> {
 
 /// `sim` through the scene API: a scene file, or a mesh or proxy as a scene of one instance,
 /// with hit records, events and each particle's sides for the instances it is near.
-fn run_scene(o: Opts) -> Result<()> {
+fn run_scene(o: Opts, file: Option<ParticleCloud>) -> Result<()> {
     let out = o.out.clone().context("sim needs --out FILE (or -o FILE)")?;
     let defaults = StepParams::default();
     let mut params = StepParams {
@@ -675,9 +706,14 @@ fn run_scene(o: Opts) -> Result<()> {
 
     // The particles and their sides.
     let refs: Vec<MeshRef<'_>> = inst.meshes[0].iter().map(MeshRef::from).collect();
-    let mut cloud = particles_in(&o, &only_view(&inst.scene), &refs, offset.as_ref(), || {
-        inst.world_box()
-    })?;
+    let mut cloud = particles_in(
+        &o,
+        file,
+        &only_view(&inst.scene),
+        &refs,
+        offset.as_ref(),
+        || inst.world_box(),
+    )?;
     let sides = match take_slots(&mut cloud)? {
         Some(sides) => {
             eprintln!(
@@ -802,7 +838,13 @@ fn run_scene(o: Opts) -> Result<()> {
         particle: 0,
         hit: octoproxy_core::Hit::NONE,
     };
-    let mut event_buf = vec![none; if o.events.is_some() { capacity } else { 0 }];
+    let mut event_buf = Vec::new();
+    if o.events.is_some() {
+        event_buf.try_reserve_exact(capacity).map_err(|_| {
+            anyhow::anyhow!("--event-capacity {capacity}: the events could not be allocated")
+        })?;
+        event_buf.resize(capacity, none);
+    }
     let mut lost = 0u64;
     let bar = crate::progress::bar(steps as u64, "stepping");
     let mut stepping = Duration::ZERO;
@@ -882,22 +924,17 @@ fn run_scene(o: Opts) -> Result<()> {
     Ok(())
 }
 
-/// The particles: a file's, or `--emit N` of them, on the surface of `meshes` (baked into
-/// `view`) or in the box given, else in `scene_box()`.
+/// The particles: the file's (`file`, read before the scene), or `--emit N` of them, on the
+/// surface of `meshes` (baked into `view`) or in the box given, else in `scene_box()`.
 fn particles_in(
     o: &Opts,
+    file: Option<ParticleCloud>,
     view: &octoproxy_core::ProxyView<'_>,
     meshes: &[MeshRef<'_>],
     offset: Option<&OffsetSurface>,
     scene_box: impl FnOnce() -> (Vec3, Vec3),
 ) -> Result<ParticleCloud> {
-    if let Some(path) = &o.particles {
-        let cloud = read_particles(path)?;
-        eprintln!(
-            "read {} particles from {}",
-            cloud.particles.len(),
-            path.display()
-        );
+    if let Some(cloud) = file {
         return Ok(cloud);
     }
     let n = o
@@ -906,13 +943,13 @@ fn particles_in(
     let speed = o.emit_speed.unwrap_or(0.0);
     let seed = o.seed.unwrap_or(1);
     let particles = if o.emit_surface {
-        emit_surface_for(view, n, meshes, offset, speed, seed)
+        emit_surface_for(view, n, meshes, offset, speed, seed)?
     } else {
         let (min, max) = match o.emit_box {
             Some(b) => (Vec3::new(b[0], b[1], b[2]), Vec3::new(b[3], b[4], b[5])),
             None => scene_box(),
         };
-        emit_box(n, min, max, speed, seed)
+        emit_box(n, min, max, speed, seed)?
     };
     Ok(ParticleCloud::from_particles(particles))
 }

@@ -316,11 +316,67 @@ fn bad_input_gets_one_readable_line() {
             "overwrite",
         ),
         (&["frobnicate"], "unknown command"),
+        // Counts beyond any machine's memory: an error before any work, not an abort.
+        (
+            &[
+                "sim",
+                "--mesh",
+                "box.obj",
+                "--emit",
+                "1000000000000000",
+                "-o",
+                "o.ply",
+            ],
+            "--emit 1000000000000000",
+        ),
+        (
+            &[
+                "sim",
+                "--mesh",
+                "box.obj",
+                "--emit",
+                "5",
+                "-o",
+                "o.ply",
+                "--events",
+                "e.ply",
+                "--event-capacity",
+                "1000000000000000",
+            ],
+            "--event-capacity 1000000000000000",
+        ),
+        (
+            &["demo", "--particles", "1000000000000000"],
+            "--particles 1000000000000000",
+        ),
+        (
+            &["check", "--mesh", "box.obj", "--emit", "1000000000000000"],
+            "--emit 1000000000000000",
+        ),
     ];
     for (args, needle) in cases {
         let out = octoproxy(args, &dir);
         assert_one_line_error(&out, needle);
     }
+    // A bad particle file is found before the mesh is baked.
+    let out = octoproxy(
+        &[
+            "sim",
+            "--mesh",
+            "box.obj",
+            "--particles",
+            "noz.ply",
+            "-o",
+            "o.ply",
+        ],
+        &dir,
+    );
+    assert_one_line_error(&out, "noz.ply");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !err.contains("bake time") && !err.contains("loaded"),
+        "{err}"
+    );
 }
 
 /// Whether wgpu finds an adapter here; under `CI=true` it must (lavapipe).

@@ -44,6 +44,7 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     let Some(out) = out else {
         bail!("bake needs --out FILE (or -o FILE)")
     };
+    flags::writable(&out, "--out")?;
     if let Some(path) = scene_file {
         if !meshes.is_empty() {
             bail!("give either --mesh or --scene, not both");

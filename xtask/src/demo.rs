@@ -90,6 +90,15 @@ struct Setup<'a> {
     cam: &'a Camera,
 }
 
+/// The picture's folder, made as its save would make it, and whether the picture can be
+/// written there: found before the run, not after it.
+fn picture_writable(out: &Path) -> Result<()> {
+    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    flags::writable(out, "--out")
+}
+
 pub fn run(args: Vec<OsString>) -> Result<()> {
     let mut n = 20_000usize;
     let mut steps = 90u32;
@@ -137,6 +146,7 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
         } else {
             out
         };
+        picture_writable(&out)?;
         return crate::sand::run(
             n_set.unwrap_or(3000),
             steps_set.unwrap_or(480),
@@ -147,6 +157,7 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     }
     n = n_set.unwrap_or(n);
     steps = steps_set.unwrap_or(steps);
+    picture_writable(&out)?;
 
     let build = BuildParams {
         dmax: 7,

@@ -47,6 +47,44 @@ pub fn number<T: std::str::FromStr>(parser: &mut lexopt::Parser, name: &str) -> 
         .map_err(|_| anyhow::anyhow!("{name}: {s:?} is not a valid number"))
 }
 
+/// Refuses an output path that cannot be written, before any work (a bake or a simulation
+/// that ends in an error at its last write loses all of it): an existing folder, a folder
+/// that does not exist, or one this process may not create files in (tried with a probe file
+/// beside the output, removed at once).
+pub fn writable(path: &std::path::Path, name: &str) -> Result<()> {
+    if path.is_dir() {
+        bail!("{name} {}: is a folder", path.display());
+    }
+    let file = path
+        .file_name()
+        .with_context(|| format!("{name} {}: names no file", path.display()))?;
+    let folder = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    if !folder.is_dir() {
+        bail!(
+            "{name} {}: the folder {} does not exist",
+            path.display(),
+            folder.display()
+        );
+    }
+    let mut probe_name = file.to_os_string();
+    probe_name.push(format!(".octoproxy-probe-{}", std::process::id()));
+    let probe = folder.join(probe_name);
+    match std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&probe)
+    {
+        Ok(_) => {
+            let _ = std::fs::remove_file(&probe);
+            Ok(())
+        }
+        Err(e) => bail!("{name} {}: cannot write there: {e}", path.display()),
+    }
+}
+
 /// Refuses a count whose memory alone, `bytes_each` per item (a lower bound of what the
 /// command will hold: `what` says of what), is more than this machine's memory and swap,
 /// before any work is done: a clear error instead of an allocation that aborts the process
@@ -328,6 +366,22 @@ mod tests {
             Some(u64::MAX - 1)
         )
         .is_err());
+    }
+
+    #[test]
+    fn outputs_that_cannot_be_written_are_found_first() {
+        let dir = std::env::temp_dir().join(format!("octoproxy-writable-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        assert!(writable(&dir.join("out.ply"), "--out").is_ok());
+        // The probe is gone, and nothing else was made.
+        assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 0);
+        let e = writable(&dir, "--out").unwrap_err().to_string();
+        assert!(e.ends_with("is a folder"), "{e}");
+        let e = writable(&dir.join("missing").join("out.ply"), "--out")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("does not exist"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

@@ -216,6 +216,10 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     let Some(out) = o.out.clone() else {
         bail!("sim needs --out FILE (or -o FILE)")
     };
+    flags::writable(&out, "--out")?;
+    if let Some(events) = &o.events {
+        flags::writable(events, "--events")?;
+    }
     if let Some(input) = &o.particles {
         if same_file(input, &out) {
             bail!(

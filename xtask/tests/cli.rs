@@ -316,6 +316,41 @@ fn bad_input_gets_one_readable_line() {
             "overwrite",
         ),
         (&["frobnicate"], "unknown command"),
+        // Outputs that cannot be written: found before the bake and the steps.
+        (
+            &["bake", "--mesh", "box.obj", "-o", "missing/x.octoproxy"],
+            "the folder missing does not exist",
+        ),
+        (
+            &[
+                "sim",
+                "--mesh",
+                "box.obj",
+                "--emit",
+                "5",
+                "-o",
+                "missing/o.ply",
+            ],
+            "the folder missing does not exist",
+        ),
+        (
+            &["sim", "--mesh", "box.obj", "--emit", "5", "-o", "."],
+            "is a folder",
+        ),
+        (
+            &[
+                "sim",
+                "--mesh",
+                "box.obj",
+                "--emit",
+                "5",
+                "-o",
+                "o.ply",
+                "--events",
+                "missing/e.ply",
+            ],
+            "--events missing/e.ply",
+        ),
         // Counts beyond any machine's memory: an error before any work, not an abort.
         (
             &[
@@ -377,6 +412,20 @@ fn bad_input_gets_one_readable_line() {
         !err.contains("bake time") && !err.contains("loaded"),
         "{err}"
     );
+    // So is an output that cannot be written.
+    let out = octoproxy(
+        &[
+            "sim",
+            "--mesh",
+            "box.obj",
+            "--emit",
+            "5",
+            "-o",
+            "missing/o.ply",
+        ],
+        &dir,
+    );
+    assert!(!String::from_utf8_lossy(&out.stderr).contains("loaded"));
 }
 
 /// Whether wgpu finds an adapter here; under `CI=true` it must (lavapipe).

@@ -166,6 +166,7 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
             let pairs = pair_flags.params(&params)?;
             return check_scene(
                 scene,
+                &path,
                 particles_file.as_deref(),
                 emit,
                 seed,
@@ -319,6 +320,7 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
 #[allow(clippy::too_many_arguments)]
 fn check_scene(
     mut inst: Instanced,
+    file: &std::path::Path,
     particles_file: Option<&std::path::Path>,
     emit: Option<usize>,
     seed: u64,
@@ -377,7 +379,7 @@ fn check_scene(
     }
     let duration = inst.duration();
     let steps = if duration > 0.0 && steps_given == 100 {
-        (duration / params.dt as f64).ceil().max(1.0) as u32
+        flags::animation_steps(file, duration, 0.0, params.dt)?
     } else {
         steps_given
     };

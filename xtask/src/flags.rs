@@ -47,6 +47,21 @@ pub fn number<T: std::str::FromStr>(parser: &mut lexopt::Parser, name: &str) -> 
         .map_err(|_| anyhow::anyhow!("{name}: {s:?} is not a valid number"))
 }
 
+/// The steps of `dt` seconds that play an animation of `duration` seconds from `start`: at
+/// least one, and an error naming the count where it is more than a run can take (a `u32`)
+/// instead of a count silently cut to it.
+pub fn animation_steps(file: &std::path::Path, duration: f64, start: f64, dt: f32) -> Result<u32> {
+    let steps = ((duration - start) / dt as f64).ceil().max(1.0);
+    if !(steps <= u32::MAX as f64) {
+        bail!(
+            "{}: the animation runs {duration} s from {start} s: {steps:.3e} steps of {dt} s, more than {} a run can take; give --steps",
+            file.display(),
+            u32::MAX
+        );
+    }
+    Ok(steps as u32)
+}
+
 /// Refuses an output path that cannot be written, before any work (a bake or a simulation
 /// that ends in an error at its last write loses all of it): an existing folder, a folder
 /// that does not exist, or one this process may not create files in (tried with a probe file
@@ -382,6 +397,20 @@ mod tests {
             .to_string();
         assert!(e.contains("does not exist"), "{e}");
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn an_animation_too_long_to_play_is_an_error_not_a_cut() {
+        let file = std::path::Path::new("long.gltf");
+        assert_eq!(animation_steps(file, 1.0, 0.0, 0.25).unwrap(), 4);
+        assert_eq!(animation_steps(file, 1.0, 2.0, 0.25).unwrap(), 1);
+        let e = animation_steps(file, 2e30, 0.0, 1.0 / 60.0)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("long.gltf: the animation runs") && e.contains("give --steps"),
+            "{e}"
+        );
     }
 
     #[test]

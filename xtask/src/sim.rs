@@ -691,7 +691,13 @@ fn run_scene(o: Opts, file: Option<ParticleCloud>) -> Result<()> {
     let duration = inst.duration();
     let steps = match o.steps {
         Some(n) => n,
-        None if duration > 0.0 => ((duration - start) / params.dt as f64).ceil().max(1.0) as u32,
+        None if duration > 0.0 => {
+            let file = o
+                .scene
+                .as_deref()
+                .unwrap_or(std::path::Path::new("the scene"));
+            flags::animation_steps(file, duration, start, params.dt)?
+        }
         None => 100,
     };
     let instances = inst.scene.instances().len();

@@ -11,7 +11,7 @@ use octoproxy_core::{
 };
 use octoproxy_cpu::bake::offset::OffsetSurface;
 use octoproxy_cpu::emit::{emit_box, emit_surface_for};
-use octoproxy_cpu::io::{read_particles, write_particles, ParticleCloud, PlyEncoding};
+use octoproxy_cpu::io::{read_particles, write_particles, Mesh, ParticleCloud, PlyEncoding};
 use octoproxy_cpu::sides::{count_in_shell, count_in_solid, CageCounts, Sides};
 use octoproxy_cpu::MeshRef;
 
@@ -304,7 +304,7 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     // The particles.
     let refs: Vec<MeshRef<'_>> = scene.meshes.iter().map(MeshRef::from).collect();
     let mut cloud = particles_in(&o, file, &view, &refs, scene.offset.as_ref(), || {
-        scene_box(&scene, &view)
+        scene_box(&scene.meshes, &view)
     })?;
     if o.emit_surface {
         eprintln!(
@@ -539,10 +539,10 @@ fn starting_sides(
 }
 
 /// The scene's box grown by 10 % (the meshes' box when there are meshes, else the root cube).
-fn scene_box(scene: &scene::Scene, view: &octoproxy_core::ProxyView<'_>) -> (Vec3, Vec3) {
+fn scene_box(meshes: &[Mesh], view: &octoproxy_core::ProxyView<'_>) -> (Vec3, Vec3) {
     let mut lo = Vec3::splat(f32::INFINITY);
     let mut hi = Vec3::splat(f32::NEG_INFINITY);
-    for m in &scene.meshes {
+    for m in meshes {
         for t in &m.triangles {
             for &i in t {
                 if let Some(p) = m.positions.get(i as usize) {
@@ -722,7 +722,13 @@ fn run_scene(o: Opts, file: Option<ParticleCloud>) -> Result<()> {
         &only_view(&inst.scene),
         &refs,
         offset.as_ref(),
-        || inst.world_box(),
+        // A mesh or proxy as a scene of one instance emits where the plain step would
+        // (`--hits` and `--events` add columns and files, not other particles); a glTF scene
+        // in the box its instances sweep.
+        || match &o.scene {
+            None => scene_box(&inst.meshes[0], &only_view(&inst.scene)),
+            Some(_) => inst.world_box(),
+        },
     )?;
     let sides = match take_slots(&mut cloud)? {
         Some(sides) => {

@@ -670,6 +670,7 @@ const TWINS: &[(&str, &str, Twin)] = &[
     ("pose.wgsl", "max_element", NoTwin("glam's Vec3::max_element")),
     ("pose.wgsl", "length3", NoTwin("glam's Vec3::length: sqrt of dot3")),
     ("pose.wgsl", "ulp", Rust("view.rs", "ulp")),
+    ("pose.wgsl", "wide_length3", Rust("view.rs", "wide_length")),
     ("pose.wgsl", "rotate", Rust("scene.rs", "rotate")),
     ("pose.wgsl", "conjugate", Rust("scene.rs", "conjugate")),
     ("pose.wgsl", "sin_poly", Rust("scene.rs", "sin_poly")),

@@ -45,7 +45,7 @@ use crate::step::{
     initial_side, march_after, pinch, step_hinted_observed, step_particle_hinted, LeafHint,
     MarchObserver, StepOutcome, StepParams,
 };
-use crate::view::{ulp, ProxyView};
+use crate::view::{ulp, wide_length, ProxyView};
 
 /// Flag: the last step's collisions with several instances did not resolve within
 /// [`MAX_ROUNDS`] rounds (a particle pressed between converging colliders); it was left at its
@@ -2039,7 +2039,7 @@ fn step_particle_scene_general<T: PathTrace, E: HitEvents>(
     let v0 = Vec3::from_array(p.velocity);
     let dt = params.dt;
     let v = v0 + Vec3::from_array(params.gravity) * dt;
-    let reach = v.length() * dt;
+    let reach = wide_length(v) * dt;
     if !x0.is_finite() || !v0.is_finite() || !reach.is_finite() || !(dt > 0.0) {
         p.flags |= FLAG_INVALID;
         return StepOutcome::Invalid;
@@ -2286,7 +2286,7 @@ fn step_in_rounds<T: PathTrace, E: HitEvents>(
         // Against static colliders a particle stays within `|v| rest` of where it is (no
         // response speeds it up): with one static instance there, the whole rest of the step
         // is marched in its frame.
-        let reach = v.length() * rest + pad;
+        let reach = wide_length(v) * rest + pad;
         let ball = Aabb {
             min: x - reach,
             max: x + reach,

@@ -1108,3 +1108,27 @@ fn inline_floor_is_floorf() {
         );
     }
 }
+
+#[test]
+fn wide_length_is_length_where_that_is_finite_and_finite_beyond() {
+    use crate::view::wide_length;
+    for v in [
+        Vec3::new(3.0, 4.0, 12.0),
+        Vec3::new(-1e-30, 2e-20, 0.0),
+        Vec3::new(1e18, -1e18, 1e18),
+        Vec3::ZERO,
+    ] {
+        assert_eq!(wide_length(v).to_bits(), v.length().to_bits(), "{v}");
+    }
+    for (v, want) in [
+        (Vec3::new(3e20, 4e20, 0.0), 5e20f32),
+        (Vec3::new(0.0, -1e30, 0.0), 1e30),
+        (Vec3::new(1e38, 0.0, 0.0), 1e38),
+    ] {
+        assert!(!v.length().is_finite());
+        let l = wide_length(v);
+        assert!((l - want).abs() <= 1e-6 * want, "{v}: {l:e}");
+    }
+    assert!(wide_length(Vec3::new(f32::NAN, 0.0, 0.0)).is_nan());
+    assert!(wide_length(Vec3::new(f32::INFINITY, 0.0, 0.0)).is_infinite());
+}

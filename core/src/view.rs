@@ -462,6 +462,24 @@ fn root_box_is_valid(root_min: Vec3, root_size: f32, tree_depth: u32) -> bool {
     cell >= 4.0 * ulp(mag)
 }
 
+/// `|v|` without the overflow of its squares: `v.length()` where that is finite (the same
+/// bits), else, for a finite `v`, `m·|v/m|` with `m` its largest magnitude, finite up to about
+/// `1.9e38`. A particle at `1e20` per second has a reach, where `v.length()` is infinite
+/// (its squares pass `f32::MAX` from about `1.8e19`) and would have made it invalid. WGSL's
+/// `wide_length3` is the same operations.
+#[inline]
+pub fn wide_length(v: Vec3) -> f32 {
+    let l = v.length();
+    if l.is_finite() {
+        return l;
+    }
+    let m = v.abs().max_element();
+    if !(m > 0.0 && m.is_finite()) {
+        return l;
+    }
+    m * (v / m).length()
+}
+
 /// Distance from `x` to the next larger `f32`.
 pub fn ulp(x: f32) -> f32 {
     let x = x.abs();

@@ -521,3 +521,68 @@ fn random_moving_scenes_step_the_same_on_both_backends() {
         );
     }
 }
+
+#[test]
+fn particles_faster_than_their_squares_can_hold_step_the_same_on_both_backends() {
+    // At 1e20 to 1e30 per second a velocity's squared length passes `f32::MAX`; its reach
+    // is still finite, so the particles stay valid (as the plain step keeps them), past a
+    // static box and a moving one and through the one-static-instance path.
+    let cube = scenes::cube([-0.4; 3], [0.4; 3]);
+    let mut scene = scene_of(
+        &[&cube],
+        6,
+        &[
+            (0, Pose::IDENTITY),
+            (0, pose([1.5, 0.0, 0.0], Quat::IDENTITY, 1.0)),
+        ],
+    );
+    let mut rng = Rng::new(21);
+    let mut particles = lattice(Vec3::new(-0.8, -0.8, -0.8), Vec3::new(2.3, 0.8, 0.8), 8, 4);
+    for (k, p) in particles.iter_mut().enumerate() {
+        let speed = [1e20f32, 1e25, 1e30, 1.0][k % 4];
+        p.velocity = (rng.unit_vector() * speed).to_array();
+    }
+    let moving = |step: u32, i: u32| {
+        (i == 1).then(|| pose([1.5, 0.1 * (step + 1) as f32, 0.0], Quat::IDENTITY, 1.0))
+    };
+    // Every particle valid after each step, on the CPU (the comparison covers the GPU).
+    let mut cpu = CpuBackend::new();
+    cpu.scene_setup(&scene, &particles, 0);
+    for step in 0..3 {
+        if let Some(p) = moving(step, 1) {
+            scene.move_to(1, p).expect("a valid pose");
+        }
+        scene.prepare().expect("a valid scene");
+        cpu.scene_step(&scene, &params([0.0, -9.81, 0.0]), true);
+        scene.hold();
+        let now = cpu.particles_now();
+        let invalid = now.iter().filter(|p| p.flags & FLAG_INVALID != 0).count();
+        assert_eq!(
+            invalid,
+            0,
+            "step {step}: {invalid} of {} invalid",
+            now.len()
+        );
+    }
+    let mut scene = scene_of(
+        &[&cube],
+        6,
+        &[
+            (0, Pose::IDENTITY),
+            (0, pose([1.5, 0.0, 0.0], Quat::IDENTITY, 1.0)),
+        ],
+    );
+    differential(
+        "speeds of 1e20 to 1e30",
+        &mut scene,
+        &particles,
+        &params([0.0, -9.81, 0.0]),
+        3,
+        1 << 14,
+        moving,
+        Expect {
+            collisions: 0,
+            crushed: None,
+        },
+    );
+}

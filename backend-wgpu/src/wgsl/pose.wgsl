@@ -136,6 +136,19 @@ fn length3(v: vec3<f32>) -> f32 {
     return sqrt(dot3(v, v));
 }
 
+// core's `wide_length`: |v| without the overflow of its squares for a finite v.
+fn wide_length3(v: vec3<f32>) -> f32 {
+    let l = length3(v);
+    if is_finite(l) {
+        return l;
+    }
+    let m = max_element(abs(v));
+    if !(m > 0.0 && is_finite(m)) {
+        return l;
+    }
+    return m * length3(v / m);
+}
+
 // core's `ulp`: the gap from |x| to the next float up.
 fn ulp(x: f32) -> f32 {
     let a = abs(x);

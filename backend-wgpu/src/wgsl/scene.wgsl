@@ -412,7 +412,7 @@ fn step_particle_scene_general(p: ptr<function, Particle>, sides: ptr<function, 
     let v0 = (*p).velocity;
     let dt = params.dt;
     let v = v0 + params.gravity * dt;
-    let reach = length3(v) * dt;
+    let reach = wide_length3(v) * dt;
     if !is_finite3(x0) || !is_finite3(v0) || !is_finite(reach) || !(dt > 0.0) {
         (*p).flags |= FLAG_INVALID;
         return STEP_INVALID;
@@ -585,7 +585,7 @@ fn step_in_rounds(p: ptr<function, Particle>, sides: ptr<function, SceneSides>, 
         let rest = (1.0 - u) * dt;
         let end = x + v * rest;
         let pad = 4.0 * ulp(max_element(vmax(abs(x), abs(end)))) + PATH_PAD;
-        let reach = length3(v) * rest + pad;
+        let reach = wide_length3(v) * rest + pad;
         let ball = Aabb(x - reach, x + reach);
         let near = count_candidates(ball);
         var only = near.first;

@@ -202,6 +202,60 @@ fn bake_then_sim_keeps_every_particle_in_order() {
 }
 
 #[test]
+fn hits_add_columns_not_other_particles() {
+    // `--hits` steps a mesh through the scene API; it emits where the plain step does and
+    // gives its particles the very same bits, fast ones included.
+    let dir = scratch("hits-same");
+    std::fs::write(dir.join("box.obj"), BOX_OBJ).unwrap();
+    for speed in ["3", "1e20"] {
+        let mut files = Vec::new();
+        for hits in [false, true] {
+            let out_name = format!("o-{speed}-{hits}.ply");
+            let mut args = vec![
+                "sim",
+                "--mesh",
+                "box.obj",
+                "--emit",
+                "400",
+                "--emit-speed",
+                speed,
+                "--steps",
+                "5",
+                "--dmax",
+                "6",
+                "-o",
+                &out_name,
+            ];
+            if hits {
+                args.push("--hits");
+            }
+            let out = octoproxy(&args, &dir);
+            assert!(
+                out.status.success(),
+                "{}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+            files.push(octoproxy_cpu::io::read_particles(&dir.join(&out_name)).unwrap());
+        }
+        let (plain, scene) = (&files[0].particles, &files[1].particles);
+        assert_eq!(plain.len(), 400);
+        for (k, (a, b)) in plain.iter().zip(scene).enumerate() {
+            let bits = |p: &octoproxy_core::Particle| {
+                let f = [p.position, p.velocity].concat();
+                let f: Vec<u32> = f.iter().map(|x| x.to_bits()).collect();
+                (f, p.side, p.flags)
+            };
+            assert_eq!(bits(a), bits(b), "speed {speed}, particle {k}");
+            assert_eq!(
+                a.flags & octoproxy_core::FLAG_INVALID,
+                0,
+                "speed {speed}, particle {k}"
+            );
+        }
+    }
+}
+
+#[test]
 fn bad_input_gets_one_readable_line() {
     let dir = scratch("errors");
     std::fs::write(dir.join("box.obj"), BOX_OBJ).unwrap();

@@ -265,6 +265,11 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
                 cloud.particles.len(),
                 path.display()
             );
+            // The run's radius where it is known before the scene: the flag's, or a mesh's 0.
+            let known = o.build.radius.or((!o.meshes.is_empty()).then_some(0.0));
+            if let Some(note) = radius_property_note(&cloud, path, known) {
+                eprintln!("{note}");
+            }
             Some(cloud)
         }
         None => None,
@@ -938,6 +943,65 @@ fn run_scene(o: Opts, file: Option<ParticleCloud>) -> Result<()> {
     }
     println!("wrote {}", out.display());
     Ok(())
+}
+
+/// A note for a particle file that carries per-particle radii (a `radius` or, as Houdini
+/// writes it, `pscale` property): they are carried to the output, not used, since every
+/// particle of a run steps at its one radius; the note gives the range and the radius that
+/// keeps every particle's distance. `run`: the run's radius, `None` where a proxy or a scene
+/// file brings it. `None` for a file without one.
+fn radius_property_note(cloud: &ParticleCloud, path: &Path, run: Option<f32>) -> Option<String> {
+    let props = &cloud.extra.properties;
+    let k = props.iter().position(|(name, _)| {
+        name.eq_ignore_ascii_case("radius") || name.eq_ignore_ascii_case("pscale")
+    })?;
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for i in 0..cloud.particles.len() {
+        if let Some(r) = cloud
+            .extra
+            .row(i)
+            .map(|row| row[k])
+            .filter(|r| r.is_finite())
+        {
+            lo = lo.min(r);
+            hi = hi.max(r);
+        }
+    }
+    // As the `f32` a radius is (the largest rounded up, so that it covers the file's).
+    let (lo, hi) = (lo as f32, {
+        let h = hi as f32;
+        if (h as f64) < hi {
+            h.next_up()
+        } else {
+            h
+        }
+    });
+    let name = &props[k].0;
+    let advice = match run {
+        Some(r) if hi.is_finite() && hi > r => {
+            format!("; --radius {hi} keeps every particle's distance from the scene")
+        }
+        None if hi.is_finite() => {
+            format!("; a proxy baked with --radius {hi} keeps every particle's distance")
+        }
+        _ => String::new(),
+    };
+    let run = match run {
+        Some(r) if r > 0.0 => format!("--radius {r}"),
+        Some(_) => "0: points".to_string(),
+        None => "the one its proxy was baked for".to_string(),
+    };
+    let range = if !(lo <= hi) {
+        "none finite".to_string()
+    } else if lo == hi {
+        format!("all {lo}")
+    } else {
+        format!("{lo} to {hi}")
+    };
+    Some(format!(
+        "note: {} has per-particle radii (`{name}`: {range}); they are carried to the output, not used: every particle steps at the run's one radius ({run}){advice}",
+        path.display()
+    ))
 }
 
 /// The particles: the file's (`file`, read before the scene), or `--emit N` of them, on the

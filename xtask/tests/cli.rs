@@ -202,6 +202,40 @@ fn bake_then_sim_keeps_every_particle_in_order() {
 }
 
 #[test]
+fn a_files_per_particle_radii_are_named_not_silently_dropped() {
+    let dir = scratch("pscale");
+    std::fs::write(dir.join("box.obj"), BOX_OBJ).unwrap();
+    let ply = "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\nproperty float pscale\nend_header\n\
+0 3 0 0.05\n0.5 3 0 0.25\n";
+    std::fs::write(dir.join("in.ply"), ply).unwrap();
+    let out = octoproxy(
+        &[
+            "sim",
+            "--mesh",
+            "box.obj",
+            "--particles",
+            "in.ply",
+            "-o",
+            "o.ply",
+            "--dmax",
+            "6",
+        ],
+        &dir,
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(
+        err.contains("in.ply has per-particle radii (`pscale`: 0.05 to 0.25)")
+            && err.contains("(0: points); --radius 0.25 keeps every particle's distance"),
+        "{err}"
+    );
+    // Carried to the output unchanged.
+    let out = octoproxy_cpu::io::read_particles(&dir.join("o.ply")).unwrap();
+    assert_eq!(out.extra.properties[0].0, "pscale");
+    assert_eq!(out.extra.values, [0.05f32 as f64, 0.25]);
+}
+
+#[test]
 fn hits_add_columns_not_other_particles() {
     // `--hits` steps a mesh through the scene API; it emits where the plain step does and
     // gives its particles the very same bits, fast ones included.

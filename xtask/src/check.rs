@@ -131,13 +131,7 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
         bail!("give either --particles or --emit (with --starts), not both");
     }
     if let Some(n) = emit {
-        let each = 2 * std::mem::size_of::<octoproxy_core::Particle>() as u64;
-        flags::fits_in_memory(
-            "--emit",
-            n,
-            each,
-            "the particles (32 bytes each, emitted and the backend's copy)",
-        )?;
+        flags::particles_fit("--emit", n)?;
     }
     if let Some(name) = &builtin_name {
         let path = PathBuf::from(name);

@@ -129,13 +129,7 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
         anyhow::bail!("--particles must be at least 1");
     }
     if let Some(n) = n_set {
-        let each = 2 * std::mem::size_of::<octoproxy_core::Particle>() as u64;
-        flags::fits_in_memory(
-            "--particles",
-            n,
-            each,
-            "the particles (32 bytes each, emitted and the backend's copy)",
-        )?;
+        flags::particles_fit("--particles", n)?;
     }
     if mesh.is_some() && !sand {
         anyhow::bail!("--mesh is for --sand (the built-in demo's scene is its own)");

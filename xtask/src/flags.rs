@@ -100,6 +100,18 @@ pub fn writable(path: &std::path::Path, name: &str) -> Result<()> {
     }
 }
 
+/// [`fits_in_memory`] for `n` particles made by the command: each held twice, emitted and in
+/// the backend.
+pub fn particles_fit(name: &str, n: usize) -> Result<()> {
+    let each = 2 * std::mem::size_of::<octoproxy_core::Particle>() as u64;
+    fits_in_memory(
+        name,
+        n,
+        each,
+        "the particles (32 bytes each, emitted and the backend's copy)",
+    )
+}
+
 /// Refuses a count whose memory alone, `bytes_each` per item (a lower bound of what the
 /// command will hold: `what` says of what), is more than this machine's memory and swap,
 /// before any work is done: a clear error instead of an allocation that aborts the process

@@ -239,13 +239,7 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
         bail!("--particle-* options go with --collide-particles");
     }
     if let Some(n) = o.emit {
-        let each = 2 * std::mem::size_of::<octoproxy_core::Particle>() as u64;
-        flags::fits_in_memory(
-            "--emit",
-            n,
-            each,
-            "the particles (32 bytes each, emitted and the backend's copy)",
-        )?;
+        flags::particles_fit("--emit", n)?;
     }
     if let (Some(c), Some(_)) = (o.event_capacity, &o.events) {
         let each = 2 * std::mem::size_of::<octoproxy_core::HitEvent>() as u64;

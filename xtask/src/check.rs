@@ -7,7 +7,7 @@ use std::ffi::OsString;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::{bail, Result};
+use anyhow::{bail, Context, Result};
 use octoproxy_core::{PairParams, StepParams};
 use octoproxy_cpu::bake::offset::OffsetSurface;
 use octoproxy_cpu::ground_truth::GroundTruth;
@@ -441,7 +441,12 @@ fn check_scene(
     let t = Instant::now();
     for k in 1..=steps {
         inst.pose_at(k as f64 * params.dt as f64)?;
-        inst.scene.prepare()?;
+        inst.scene.prepare().with_context(|| {
+            format!(
+                "{}: step {k} (`octoproxy sim --scene FILE --list-instances` names each instance)",
+                file.display()
+            )
+        })?;
         inst.scene.upload_proxies(&mut cpu)?;
         let instances = inst.scene.instances().to_vec();
         let mut after = vec![octoproxy_core::Particle::default(); before.len()];

@@ -865,11 +865,13 @@ fn run_scene(o: Opts, file: Option<ParticleCloud>) -> Result<()> {
     let mut stepping = Duration::ZERO;
     for k in 1..=steps {
         let t = Instant::now();
-        inst.pose_at(start + k as f64 * params.dt as f64)?;
+        let now = start + k as f64 * params.dt as f64;
+        inst.pose_at(now)?;
         match &pairs {
-            Some(pairs) => backend.step_scene_pairs(&mut inst.scene, &params, pairs, o.hits)?,
-            None => backend.step_scene(&mut inst.scene, &params, o.hits)?,
+            Some(pairs) => backend.step_scene_pairs(&mut inst.scene, &params, pairs, o.hits),
+            None => backend.step_scene(&mut inst.scene, &params, o.hits),
         }
+        .with_context(|| stepping_at(&o, k, now))?;
         if o.events.is_some() {
             let count = backend.take_events(&mut event_buf)?;
             events.extend_from_slice(&event_buf[..count.stored]);
@@ -996,6 +998,21 @@ fn radius_property_note(cloud: &ParticleCloud, path: &Path, run: Option<f32>) ->
         "note: {} has per-particle radii (`{name}`: {range}); they are carried to the output, not used: every particle steps at the run's one radius ({run}){advice}",
         path.display()
     ))
+}
+
+/// What a failed scene step says first: the scene and the step (an instance's number is
+/// the one `--list-instances` prints, with its node and mesh).
+fn stepping_at(o: &Opts, k: u32, t: f64) -> String {
+    let scene = match (&o.scene, &o.proxy, o.meshes.first()) {
+        (Some(p), _, _) | (None, Some(p), _) | (None, None, Some(p)) => p.display().to_string(),
+        _ => "the scene".to_string(),
+    };
+    let hint = if o.scene.is_some() {
+        "; --list-instances names each instance"
+    } else {
+        ""
+    };
+    format!("{scene}: step {k} (to {t:.4} s{hint})")
 }
 
 /// The particles: the file's (`file`, read before the scene), or `--emit N` of them, on the

@@ -446,6 +446,17 @@ fn bad_scenes_get_one_readable_line() {
         ),
         "not supported yet",
     );
+    // A scene too far from the origin for f32 at its dmax fails at its first step, which
+    // the error names with the file.
+    let far = r#"{"asset": {"version": "2.0"}, "buffers": [{"uri": "data:application/octet-stream;base64,AAAAAAAAAAAAAAAAAACAPwAAAAAAAAAAAAAAAAAAgD8AAAAAAAAAAAAAAAAAAIA/AAACAAEAAAABAAMAAAADAAIAAQACAAMA", "byteLength": 72}], "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 48}, {"buffer": 0, "byteOffset": 48, "byteLength": 24}], "accessors": [{"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 1]}, {"bufferView": 1, "componentType": 5123, "count": 12, "type": "SCALAR"}], "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}], "nodes": [{"name": "far", "mesh": 0, "translation": [1000000.0, 0, 0]}], "scenes": [{"nodes": [0]}], "scene": 0}"#;
+    std::fs::write(d.join("far.gltf"), far).unwrap();
+    assert_one_line_error(
+        &octoproxy(
+            &["sim", "--scene", "far.gltf", "--emit", "10", "-o", "o.ply"],
+            d,
+        ),
+        "far.gltf: step 1 (to 0.0167 s; --list-instances names each instance): instance 0 is too far",
+    );
     // A truncated GLB names the file.
     let glb = std::fs::read(fixture("blender/blender_sampled.glb")).unwrap();
     std::fs::write(d.join("cut.glb"), &glb[..glb.len() / 2]).unwrap();

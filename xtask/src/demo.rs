@@ -285,10 +285,10 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     );
     println!(
         "  proxy:         dome {} (nodes {}, lookup table {}), paddle {}",
-        scene::bytes(view.words().len() * 4),
-        scene::bytes(view.node_bytes()),
-        scene::bytes(view.lut_bytes()),
-        scene::bytes(paddle_view.words().len() * 4)
+        scene::bytes((view.words().len() * 4) as u64),
+        scene::bytes(view.node_bytes() as u64),
+        scene::bytes(view.lut_bytes() as u64),
+        scene::bytes((paddle_view.words().len() * 4) as u64)
     );
     println!("  bake time:     {:.1} ms", bake_time.as_secs_f64() * 1e3);
     println!("  instances:     2 (the dome, still; the paddle, turning {PADDLE_TURN_DEG}° a step)");

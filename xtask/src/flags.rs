@@ -126,15 +126,11 @@ fn fits_in(name: &str, count: usize, bytes_each: u64, what: &str, have: Option<u
     match have {
         Some(have) if need > have => bail!(
             "{name} {count}: {what} need at least {}, more than this machine's {} of memory and swap",
-            gib(need),
-            gib(have)
+            crate::scene::bytes(need),
+            crate::scene::bytes(have)
         ),
         _ => Ok(()),
     }
-}
-
-fn gib(bytes: u64) -> String {
-    format!("{:.1} GiB", bytes as f64 / (1u64 << 30) as f64)
 }
 
 /// `MemTotal` plus `SwapTotal` from `/proc/meminfo`, in bytes.
@@ -380,7 +376,7 @@ mod tests {
             .to_string();
         assert_eq!(
             e,
-            "--emit 4000000000: the particles need at least 238.4 GiB, more than this machine's 24.0 GiB of memory and swap"
+            "--emit 4000000000: the particles need at least 238.42 GiB, more than this machine's 24.00 GiB of memory and swap"
         );
         assert!(fits_in("--emit", 1_000_000, 64, "the particles", Some(24 << 30)).is_ok());
         // Unknown memory: no check. An overflowing product saturates and is refused.

@@ -165,9 +165,9 @@ pub fn print_bake_summary(scene: &Scene) -> Result<()> {
     );
     eprintln!(
         "size: {} (node array {}, lookup table {})",
-        bytes(view.words().len() * 4),
-        bytes(view.node_bytes()),
-        bytes(view.lut_bytes())
+        bytes((view.words().len() * 4) as u64),
+        bytes(view.node_bytes() as u64),
+        bytes(view.lut_bytes() as u64)
     );
     if let Some(t) = scene.bake_time {
         let stages = scene.report.as_ref().map(|r| stages(&r.timings));
@@ -217,8 +217,10 @@ fn seconds(t: Duration) -> String {
 }
 
 /// Human-readable byte count.
-pub fn bytes(n: usize) -> String {
-    if n >= 1 << 20 {
+pub fn bytes(n: u64) -> String {
+    if n >= 1 << 30 {
+        format!("{:.2} GiB", n as f64 / (1u64 << 30) as f64)
+    } else if n >= 1 << 20 {
         format!("{:.2} MiB", n as f64 / (1u64 << 20) as f64)
     } else if n >= 1 << 10 {
         format!("{:.1} KiB", n as f64 / 1024.0)

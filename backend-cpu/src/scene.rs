@@ -107,6 +107,22 @@ pub enum SceneBuildError {
     },
 }
 
+impl SceneBuildError {
+    /// The instances the error is about (none where it names no instance), for a caller to
+    /// say which nodes or objects they are.
+    pub fn instances(&self) -> Vec<u32> {
+        match self {
+            SceneBuildError::Scene(e) => e.instance().into_iter().collect(),
+            SceneBuildError::NoSuchInstance(k) | SceneBuildError::Removed(k) => vec![*k],
+            SceneBuildError::BadPose { instance, .. } => vec![*instance],
+            SceneBuildError::TooManyOverlapping { instances } => instances.clone(),
+            SceneBuildError::Proxy { .. }
+            | SceneBuildError::NoSuchProxy(_)
+            | SceneBuildError::TooManyInstances => Vec::new(),
+        }
+    }
+}
+
 /// What [`Scene::step`] can report: the scene's own errors, or the backend's.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]

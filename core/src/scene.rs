@@ -562,6 +562,27 @@ pub enum SceneError {
     },
 }
 
+impl SceneError {
+    /// The instance the error is about, where it names one (a caller can then say which
+    /// node or object that is).
+    pub fn instance(&self) -> Option<u32> {
+        match *self {
+            SceneError::BadProxy { instance, .. }
+            | SceneError::BadPose { instance }
+            | SceneError::BadTurn { instance }
+            | SceneError::TurnsTooFast { instance, .. }
+            | SceneError::TooFarOut { instance }
+            | SceneError::NotInBroadPhase { instance }
+            | SceneError::RadiusMismatch { instance, .. }
+            | SceneError::ScaledRadius { instance } => Some(instance),
+            SceneError::TooManyInstances(_)
+            | SceneError::BadBroadPhase { .. }
+            | SceneError::BroadBoxTooSmall { .. }
+            | SceneError::BroadTooDeep => None,
+        }
+    }
+}
+
 impl core::fmt::Display for SceneError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match *self {

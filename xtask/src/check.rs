@@ -155,7 +155,13 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
             } else {
                 Some(build.params()?)
             };
-            let scene = Instanced::from_file(&path, build.as_ref(), radius_flag)?;
+            let mut scene = Instanced::from_file(&path, build.as_ref(), radius_flag)?;
+            scene.prepare().with_context(|| {
+                format!(
+                    "{}: the scene at 0 s, before the first step",
+                    path.display()
+                )
+            })?;
             params.radius = scene.radius();
             let pairs = pair_flags.params(&params)?;
             return check_scene(
@@ -440,13 +446,10 @@ fn check_scene(
     let bar = crate::progress::bar(steps as u64, "checking");
     let t = Instant::now();
     for k in 1..=steps {
-        inst.pose_at(k as f64 * params.dt as f64)?;
-        inst.scene.prepare().with_context(|| {
-            format!(
-                "{}: step {k} (`octoproxy sim --scene FILE --list-instances` names each instance)",
-                file.display()
-            )
-        })?;
+        let now = k as f64 * params.dt as f64;
+        inst.pose_at(now)?;
+        inst.prepare()
+            .with_context(|| format!("{}: step {k} (to {now:.4} s)", file.display()))?;
         inst.scene.upload_proxies(&mut cpu)?;
         let instances = inst.scene.instances().to_vec();
         let mut after = vec![octoproxy_core::Particle::default(); before.len()];

@@ -100,7 +100,39 @@ impl Instanced {
         if inst.radius() > 0.0 {
             inst.offsets = offsets;
         }
+        if let Some(note) = inst.hidden_note()? {
+            eprintln!("{}: {note}", path.display());
+        }
         Ok(inst)
+    }
+
+    /// Which instances a scale of 0 hides for the whole animation (glTF's way to hide a
+    /// node), if any: particles pass where they are, which a user should hear about.
+    pub fn hidden_note(&self) -> Result<Option<String>> {
+        let Some(baked) = &self.baked else {
+            return Ok(None);
+        };
+        let mut hidden = Vec::new();
+        for (k, i) in self.scene.instances().iter().enumerate() {
+            if i.start.scale == 0.0 && baked.graph().scale_range(k as u32)?.max == 0.0 {
+                hidden.push(k as u32);
+            }
+        }
+        if hidden.is_empty() {
+            return Ok(None);
+        }
+        let shown = &hidden[..hidden.len().min(3)];
+        let more = if hidden.len() > shown.len() {
+            format!("; and {} more", hidden.len() - shown.len())
+        } else {
+            String::new()
+        };
+        Ok(Some(format!(
+            "{} of {} instances have scale 0 throughout, hidden: particles pass where they are ({}{more})",
+            hidden.len(),
+            self.scene.instances().len(),
+            baked.describe_instances(shown)
+        )))
     }
 
     /// The scene of a baked scene, at time 0.
@@ -212,7 +244,22 @@ impl Instanced {
         for (i, pose) in poses.into_iter().enumerate() {
             self.scene.set_motion(i as u32, pose, pose)?;
         }
-        Ok(())
+        self.prepare()
+            .with_context(|| format!("the scene at {t} s, before the first step"))
+    }
+
+    /// Builds the broad phase and checks the scene as it stands ([`Scene::prepare`]; the
+    /// step then finds it done). An error that names instances says which nodes they are.
+    pub fn prepare(&mut self) -> Result<()> {
+        self.scene.prepare().map_err(|e| {
+            let ids = e.instances();
+            match &self.baked {
+                Some(baked) if !ids.is_empty() => {
+                    anyhow::anyhow!("{e} ({})", baked.describe_instances(&ids))
+                }
+                _ => anyhow::Error::new(e),
+            }
+        })
     }
 
     /// The box of every instance's root cube at its start pose, grown by 10 %.

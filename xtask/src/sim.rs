@@ -686,7 +686,7 @@ fn run_scene(o: Opts, file: Option<ParticleCloud>) -> Result<()> {
     };
     let pairs = o.pairs.params(&params)?;
     let start = o.start_time.unwrap_or(0.0);
-    inst.hold_at(start)?;
+    inst.hold_at(start).with_context(|| scene_name(&o))?;
     let duration = inst.duration();
     let steps = match o.steps {
         Some(n) => n,
@@ -867,6 +867,7 @@ fn run_scene(o: Opts, file: Option<ParticleCloud>) -> Result<()> {
         let t = Instant::now();
         let now = start + k as f64 * params.dt as f64;
         inst.pose_at(now)?;
+        inst.prepare().with_context(|| stepping_at(&o, k, now))?;
         match &pairs {
             Some(pairs) => backend.step_scene_pairs(&mut inst.scene, &params, pairs, o.hits),
             None => backend.step_scene(&mut inst.scene, &params, o.hits),
@@ -1000,19 +1001,18 @@ fn radius_property_note(cloud: &ParticleCloud, path: &Path, run: Option<f32>) ->
     ))
 }
 
-/// What a failed scene step says first: the scene and the step (an instance's number is
-/// the one `--list-instances` prints, with its node and mesh).
+/// What a failed scene step says first: the scene and the step (an error about an instance
+/// of a scene file names its node; `--list-instances` prints them all).
 fn stepping_at(o: &Opts, k: u32, t: f64) -> String {
-    let scene = match (&o.scene, &o.proxy, o.meshes.first()) {
+    format!("{}: step {k} (to {t:.4} s)", scene_name(o))
+}
+
+/// The file the scene came from, as errors name it.
+fn scene_name(o: &Opts) -> String {
+    match (&o.scene, &o.proxy, o.meshes.first()) {
         (Some(p), _, _) | (None, Some(p), _) | (None, None, Some(p)) => p.display().to_string(),
         _ => "the scene".to_string(),
-    };
-    let hint = if o.scene.is_some() {
-        "; --list-instances names each instance"
-    } else {
-        ""
-    };
-    format!("{scene}: step {k} (to {t:.4} s{hint})")
+    }
 }
 
 /// The particles: the file's (`file`, read before the scene), or `--emit N` of them, on the

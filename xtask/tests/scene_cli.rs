@@ -446,8 +446,8 @@ fn bad_scenes_get_one_readable_line() {
         ),
         "not supported yet",
     );
-    // A scene too far from the origin for f32 at its dmax fails at its first step, which
-    // the error names with the file.
+    // A scene too far from the origin for f32 at its dmax fails before its first step,
+    // naming the file and the node.
     let far = r#"{"asset": {"version": "2.0"}, "buffers": [{"uri": "data:application/octet-stream;base64,AAAAAAAAAAAAAAAAAACAPwAAAAAAAAAAAAAAAAAAgD8AAAAAAAAAAAAAAAAAAIA/AAACAAEAAAABAAMAAAADAAIAAQACAAMA", "byteLength": 72}], "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 48}, {"buffer": 0, "byteOffset": 48, "byteLength": 24}], "accessors": [{"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 1]}, {"bufferView": 1, "componentType": 5123, "count": 12, "type": "SCALAR"}], "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}], "nodes": [{"name": "far", "mesh": 0, "translation": [1000000.0, 0, 0]}], "scenes": [{"nodes": [0]}], "scene": 0}"#;
     std::fs::write(d.join("far.gltf"), far).unwrap();
     assert_one_line_error(
@@ -455,8 +455,58 @@ fn bad_scenes_get_one_readable_line() {
             &["sim", "--scene", "far.gltf", "--emit", "10", "-o", "o.ply"],
             d,
         ),
-        "far.gltf: step 1 (to 0.0167 s; --list-instances names each instance): instance 0 is too far",
+        "far.gltf: the scene at 0 s, before the first step: instance 0 is too far",
     );
+    let out = octoproxy(&["check", "--scene", "far.gltf"], d);
+    assert_one_line_error(&out, "far.gltf: the scene at 0 s");
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains(r#"(instance 0 is node 0 "far", mesh 0)"#)
+    );
+    // Scale 0 hides a node (glTF's way): it runs, and says so.
+    std::fs::write(
+        d.join("hidden.gltf"),
+        far.replace(
+            r#""translation": [1000000.0, 0, 0]"#,
+            r#""scale": [0, 0, 0]"#,
+        ),
+    )
+    .unwrap();
+    let out = octoproxy(
+        &[
+            "sim",
+            "--scene",
+            "hidden.gltf",
+            "--emit",
+            "10",
+            "-o",
+            "o.ply",
+        ],
+        d,
+    );
+    let said = ok(&out);
+    assert!(
+        said.contains(r#"1 of 1 instances have scale 0 throughout, hidden: particles pass where they are (instance 0 is node 0 "far", mesh 0)"#),
+        "{said}"
+    );
+    // One flung that far in its first step: the step and the node are named.
+    let flung = r#"{"asset": {"version": "2.0"}, "buffers": [{"uri": "data:application/octet-stream;base64,AAAAAAAAAAAAAAAAAACAPwAAAAAAAAAAAAAAAAAAgD8AAAAAAAAAAAAAAAAAAIA/AAACAAEAAAABAAMAAAADAAIAAQACAAMAAAAAAAAAgD8AAAAAAAAAAAAAAAAAJHRJAAAAAAAAAAA=", "byteLength": 104}], "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 48}, {"buffer": 0, "byteOffset": 48, "byteLength": 24}, {"buffer": 0, "byteOffset": 72, "byteLength": 8}, {"buffer": 0, "byteOffset": 80, "byteLength": 24}], "accessors": [{"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 1]}, {"bufferView": 1, "componentType": 5123, "count": 12, "type": "SCALAR"}, {"bufferView": 2, "componentType": 5126, "count": 2, "type": "SCALAR", "min": [0], "max": [1]}, {"bufferView": 3, "componentType": 5126, "count": 2, "type": "VEC3"}], "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}], "nodes": [{"name": "flung", "mesh": 0, "translation": [0, 0, 0]}], "scenes": [{"nodes": [0]}], "scene": 0, "animations": [{"samplers": [{"input": 2, "output": 3}], "channels": [{"sampler": 0, "target": {"node": 0, "path": "translation"}}]}]}"#;
+    std::fs::write(d.join("flung.gltf"), flung).unwrap();
+    for command in ["sim", "check"] {
+        let mut args = vec![command, "--scene", "flung.gltf"];
+        if command == "sim" {
+            args.extend(["--emit", "10", "-o", "o.ply"]);
+        }
+        let out = octoproxy(&args, d);
+        assert_one_line_error(
+            &out,
+            "flung.gltf: step 1 (to 0.0167 s): instance 0 is too far",
+        );
+        assert!(
+            String::from_utf8_lossy(&out.stderr)
+                .contains(r#"(instance 0 is node 0 "flung", mesh 0)"#),
+            "{command}"
+        );
+    }
     // A truncated GLB names the file.
     let glb = std::fs::read(fixture("blender/blender_sampled.glb")).unwrap();
     std::fs::write(d.join("cut.glb"), &glb[..glb.len() / 2]).unwrap();

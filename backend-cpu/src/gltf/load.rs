@@ -210,25 +210,72 @@ fn components(t: Type) -> usize {
     }
 }
 
-impl Packed {
-    fn describe(&self) -> String {
-        format!(
-            "{}{} {}",
-            if self.normalized { "normalized " } else { "" },
-            component_name(self.component),
-            type_name(self.ty)
-        )
-    }
+/// `normalized UNSIGNED_SHORT VEC4`, for messages.
+fn describe(component: ComponentType, ty: Type, normalized: bool) -> String {
+    format!(
+        "{}{} {}",
+        if normalized { "normalized " } else { "" },
+        component_name(component),
+        type_name(ty)
+    )
+}
 
+/// What a use of an accessor asks of its elements. It is checked before the accessor's bytes
+/// are read, so an accessor of the wrong kind is named as such, not by where bytes of that
+/// kind would run.
+#[derive(Clone, Copy)]
+enum Want {
+    /// `FLOAT` of this type.
+    Floats(Type),
+    /// `FLOAT VEC3` positions (quantized ones are an extension octoproxy does not read).
+    Positions,
+    /// `FLOAT`, or a normalized 8- or 16-bit integer, of this type (rotations).
+    FloatsOrNormalized(Type),
+    /// An unsigned integer `SCALAR`, not normalized (indices).
+    Indices,
+}
+
+impl Want {
+    fn check(self, component: ComponentType, ty: Type, normalized: bool) -> Result<(), String> {
+        use ComponentType as C;
+        let float = |t: Type| ty == t && component == C::F32;
+        let ok = match self {
+            Want::Floats(t) => float(t),
+            Want::Positions => float(Type::Vec3) && !normalized,
+            Want::FloatsOrNormalized(t) => {
+                float(t)
+                    || (ty == t
+                        && normalized
+                        && matches!(component, C::I8 | C::U8 | C::I16 | C::U16))
+            }
+            Want::Indices => {
+                ty == Type::Scalar && !normalized && matches!(component, C::U8 | C::U16 | C::U32)
+            }
+        };
+        if ok {
+            return Ok(());
+        }
+        let is = describe(component, ty, normalized);
+        Err(match self {
+            Want::Floats(t) => format!("must be FLOAT {}, not {is}", type_name(t)),
+            Want::Positions => format!(
+                "is {is}, but positions must be FLOAT VEC3 (KHR_mesh_quantization is not supported)"
+            ),
+            Want::FloatsOrNormalized(t) => format!(
+                "must be FLOAT {0}, or normalized BYTE, UNSIGNED_BYTE, SHORT or UNSIGNED_SHORT {0}, not {is}",
+                type_name(t)
+            ),
+            Want::Indices => {
+                format!("must be UNSIGNED_BYTE, UNSIGNED_SHORT or UNSIGNED_INT SCALAR, not {is}")
+            }
+        })
+    }
+}
+
+impl Packed {
     /// The floats of a `FLOAT` accessor of type `ty`.
     fn floats(&self, ty: Type) -> Result<Vec<f32>, String> {
-        if self.ty != ty || self.component != ComponentType::F32 {
-            return Err(format!(
-                "must be FLOAT {}, not {}",
-                type_name(ty),
-                self.describe()
-            ));
-        }
+        Want::Floats(ty).check(self.component, self.ty, self.normalized)?;
         Ok(self
             .bytes
             .chunks_exact(4)
@@ -238,9 +285,7 @@ impl Packed {
 
     /// The floats of a `FLOAT` accessor or a normalized integer one (decoded as glTF says).
     fn floats_or_normalized(&self, ty: Type) -> Result<Vec<f32>, String> {
-        if self.component == ComponentType::F32 || !self.normalized || self.ty != ty {
-            return self.floats(ty);
-        }
+        Want::FloatsOrNormalized(ty).check(self.component, self.ty, self.normalized)?;
         let b = &self.bytes;
         Ok(match self.component {
             ComponentType::I8 => b
@@ -262,12 +307,7 @@ impl Packed {
 
     /// The values of an unsigned integer `SCALAR` accessor (indices).
     fn indices(&self) -> Result<Vec<u32>, String> {
-        if self.ty != Type::Scalar || self.normalized {
-            return Err(format!(
-                "must be UNSIGNED_BYTE, UNSIGNED_SHORT or UNSIGNED_INT SCALAR, not {}",
-                self.describe()
-            ));
-        }
+        Want::Indices.check(self.component, self.ty, self.normalized)?;
         let b = &self.bytes;
         Ok(match self.component {
             ComponentType::U8 => b.iter().map(|&x| x as u32).collect(),
@@ -275,16 +315,10 @@ impl Packed {
                 .chunks_exact(2)
                 .map(|c| u16::from_le_bytes([c[0], c[1]]) as u32)
                 .collect(),
-            ComponentType::U32 => b
+            _ => b
                 .chunks_exact(4)
                 .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
                 .collect(),
-            _ => {
-                return Err(format!(
-                    "must be UNSIGNED_BYTE, UNSIGNED_SHORT or UNSIGNED_INT SCALAR, not {}",
-                    self.describe()
-                ))
-            }
         })
     }
 }
@@ -542,7 +576,11 @@ impl Loader<'_> {
                 .as_u64()
                 .and_then(|a| usize::try_from(a).ok())
                 .ok_or_else(|| format!("{name} is not an accessor index"))?;
-            let packed = self.packed(acc).map_err(|m| format!("{name}: {m}"))?;
+            let kind = match want {
+                1 => Want::FloatsOrNormalized(Type::Vec4),
+                _ => Want::Floats(Type::Vec3),
+            };
+            let packed = self.packed(acc, kind).map_err(|m| format!("{name}: {m}"))?;
             let values = match want {
                 1 => packed.floats_or_normalized(Type::Vec4),
                 _ => packed.floats(Type::Vec3),
@@ -692,7 +730,7 @@ impl Loader<'_> {
 
     /// Accessor `index`'s elements, tightly packed (its view's stride removed, its sparse
     /// substitution applied).
-    fn packed(&mut self, index: usize) -> Result<Packed, String> {
+    fn packed(&mut self, index: usize, want: Want) -> Result<Packed, String> {
         let root = self.root;
         let acc = root.accessors.get(index).ok_or_else(|| {
             format!(
@@ -708,6 +746,8 @@ impl Loader<'_> {
         let Checked::Valid(ty) = acc.type_ else {
             return Err(format!("{what} has an unknown type"));
         };
+        want.check(component, ty, acc.normalized)
+            .map_err(|m| format!("{what} {m}"))?;
         let elem = component_size(component) * components(ty);
         let count = usize::try_from(acc.count.0).map_err(|_| format!("{what}: count too large"))?;
         let total = count
@@ -915,17 +955,8 @@ impl Loader<'_> {
                 .ok_or_else(|| err(self, "it has no POSITION attribute".into()))?
                 .value();
             let packed = self
-                .packed(pos)
+                .packed(pos, Want::Positions)
                 .map_err(|msg| err(self, format!("POSITION: {msg}")))?;
-            if packed.ty != Type::Vec3
-                || packed.component != ComponentType::F32
-                || packed.normalized
-            {
-                return Err(err(self, format!(
-                    "POSITION: accessor {pos} is {}, but positions must be FLOAT VEC3 (KHR_mesh_quantization is not supported)",
-                    packed.describe()
-                )));
-            }
             let floats = packed
                 .floats(Type::Vec3)
                 .map_err(|msg| err(self, format!("POSITION: accessor {pos} {msg}")))?;
@@ -940,7 +971,7 @@ impl Loader<'_> {
                 Some(ix) => {
                     let ix = ix.value();
                     let packed = self
-                        .packed(ix)
+                        .packed(ix, Want::Indices)
                         .map_err(|msg| err(self, format!("indices: {msg}")))?;
                     let v = packed
                         .indices()
@@ -1096,7 +1127,7 @@ impl Loader<'_> {
                 };
                 let input = sampler.input.value();
                 let times = self
-                    .packed(input)
+                    .packed(input, Want::Floats(Type::Scalar))
                     .and_then(|p| {
                         p.floats(Type::Scalar)
                             .map_err(|m| format!("accessor {input} {m}"))
@@ -1109,7 +1140,14 @@ impl Loader<'_> {
                     Type::Vec3
                 };
                 let values = self
-                    .packed(output)
+                    .packed(
+                        output,
+                        if path == ChannelPath::Rotation {
+                            Want::FloatsOrNormalized(want)
+                        } else {
+                            Want::Floats(want)
+                        },
+                    )
                     .and_then(|p| {
                         if path == ChannelPath::Rotation {
                             p.floats_or_normalized(want)

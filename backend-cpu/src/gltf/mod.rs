@@ -169,6 +169,34 @@ fn list_instances(
         .collect())
 }
 
+/// See [`BakedScene::describe_instances`].
+fn describe_instances(graph: &SceneGraph, meshes: &[SceneMesh], ids: &[u32]) -> String {
+    let one = |k: u32| {
+        let Some(inst) = graph.instances().get(k as usize) else {
+            return format!("instance {k} does not exist");
+        };
+        let copy = if inst.copy > 0 {
+            format!(", copy {}", inst.copy)
+        } else {
+            String::new()
+        };
+        let mesh = meshes
+            .get(inst.mesh as usize)
+            .map_or("", |m| m.name.as_str());
+        let mesh = if mesh.is_empty() {
+            format!("mesh {}", inst.mesh)
+        } else {
+            format!("mesh{}", quoted(mesh))
+        };
+        format!(
+            "instance {k} is node {}{}{copy}, {mesh}",
+            inst.node,
+            quoted(graph.node_name(k))
+        )
+    };
+    ids.iter().map(|&k| one(k)).collect::<Vec<_>>().join("; ")
+}
+
 impl SceneDescription {
     /// The world pose of instance `instance` at time `t` in seconds.
     pub fn pose_at(&self, instance: u32, t: f64) -> Result<Pose, PoseError> {
@@ -200,6 +228,12 @@ impl BakedScene {
     /// Every instance with its node, mesh and pose at time 0 (for `--list-instances`).
     pub fn list_instances(&self) -> Result<Vec<InstanceInfo>, PoseError> {
         list_instances(self.graph(), self.meshes())
+    }
+
+    /// Which nodes instances `ids` hang on, for an error that names instances by number:
+    /// `instance 0 is node 4 "wheel", mesh "tyre"`, joined by `; `.
+    pub fn describe_instances(&self, ids: &[u32]) -> String {
+        describe_instances(self.graph(), self.meshes(), ids)
     }
 }
 

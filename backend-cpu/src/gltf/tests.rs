@@ -849,6 +849,45 @@ fn a_zero_scale_hides_the_instance_with_the_identity_rotation() {
     assert!(p.is_valid());
 }
 
+/// Indices stored as floats take 4 bytes each, twice the `UNSIGNED_SHORT` they replace: the
+/// error names the kind, not the bytes that kind would need.
+#[test]
+fn an_accessor_of_the_wrong_kind_is_named_before_its_bytes_are_read() {
+    let mut d = Doc::default();
+    let p = d.vec3s(&TET);
+    let bytes: Vec<u8> = TET_INDICES.iter().flat_map(|x| x.to_le_bytes()).collect();
+    let view = d.view(&bytes);
+    let ix = d.raw_accessor(format!(
+        r#"{{"bufferView": {view}, "componentType": 5126, "count": 12, "type": "SCALAR"}}"#
+    ));
+    d.mesh(format!(
+        r#"{{"primitives": [{{"attributes": {{"POSITION": {p}}}, "indices": {ix}}}]}}"#
+    ));
+    d.node(r#"{"mesh": 0}"#);
+    let e = load_err(&d.gltf(&[0]));
+    assert_says(&e, &["indices", "UNSIGNED_INT SCALAR, not FLOAT SCALAR"]);
+    assert!(!e.contains("run past"), "{e}");
+    // Four positions said to be VEC4: 64 bytes, past the view of four VEC3.
+    let mut d = Doc::default();
+    let bytes: Vec<u8> = TET.concat().iter().flat_map(|x| x.to_le_bytes()).collect();
+    let view = d.view(&bytes);
+    let p = d.raw_accessor(format!(
+        r#"{{"bufferView": {view}, "componentType": 5126, "count": 4, "type": "VEC4"}}"#
+    ));
+    d.mesh(format!(
+        r#"{{"primitives": [{{"attributes": {{"POSITION": {p}}}}}]}}"#
+    ));
+    d.node(r#"{"mesh": 0}"#);
+    let e = load_err(&d.gltf(&[0]));
+    assert_says(
+        &e,
+        &[
+            "POSITION",
+            "is FLOAT VEC4, but positions must be FLOAT VEC3",
+        ],
+    );
+}
+
 #[test]
 fn quantized_and_compressed_meshes_name_the_mesh() {
     let mut d = Doc::default();

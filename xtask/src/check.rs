@@ -132,6 +132,10 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     }
     if let Some(n) = emit {
         flags::particles_fit("--emit", n)?;
+        // Where memory is not known up front (not Linux), a count whose particles cannot be
+        // held is the error here, not an abort in the harness's emitters (which reserve as
+        // much; untouched pages cost nothing).
+        drop(octoproxy_cpu::emit::reserve_particles(n).with_context(|| format!("--emit {n}"))?);
     }
     if let Some(name) = &builtin_name {
         let path = PathBuf::from(name);
@@ -403,10 +407,13 @@ fn check_scene(
         None => {
             let n = emit.unwrap_or(20_000);
             let speeds = [0.1 * leaf, leaf, 5.0 * leaf, 0.25 * size, size];
-            let mut ps = reserve_particles(n)?;
+            let mut ps = reserve_particles(n).with_context(|| format!("--emit {n}"))?;
             for (k, s) in speeds.iter().enumerate() {
                 let count = n / speeds.len() + (k < n % speeds.len()) as usize;
-                ps.extend(emit_box(count, lo, hi, s / params.dt, seed + k as u64)?);
+                ps.extend(
+                    emit_box(count, lo, hi, s / params.dt, seed + k as u64)
+                        .with_context(|| format!("--emit {n}"))?,
+                );
             }
             ps
         }

@@ -14,7 +14,7 @@ use octoproxy_core::{
     Backend, Hit, Particle, Pose, ProxyView, SceneSides, SceneStepReport, StepParams, SIDE_BACK,
     SIDE_MASK,
 };
-use octoproxy_cpu::emit::Rng;
+use octoproxy_cpu::emit::{reserve_particles, Rng};
 use octoproxy_cpu::io::Mesh;
 use octoproxy_cpu::{
     bake, starting_scene_sides, starting_sides, BuildParams, MeshRef, Scene, Sides,
@@ -169,30 +169,29 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
 
     // Rain above the dome, and a fountain beneath it.
     let mut rng = Rng::new(1);
-    let mut particles: Vec<Particle> = (0..n)
-        .map(|i| {
-            if i % 2 == 0 {
-                let p = Vec3::new(
-                    rng.range(-1.1, 1.1),
-                    rng.range(1.3, 2.4),
-                    rng.range(-1.1, 1.1),
-                );
-                Particle::new(p.to_array(), [0.0; 3])
-            } else {
-                let (r, th) = (
-                    0.55 * rng.f32().sqrt(),
-                    rng.range(0.0, std::f32::consts::TAU),
-                );
-                let p = Vec3::new(r * th.cos(), rng.range(-0.7, -0.35), r * th.sin());
-                let v = Vec3::new(
-                    rng.range(-0.6, 0.6),
-                    rng.range(5.0, 6.0),
-                    rng.range(-0.6, 0.6),
-                );
-                Particle::new(p.to_array(), v.to_array())
-            }
-        })
-        .collect();
+    let mut particles = reserve_particles(n).with_context(|| format!("--particles {n}"))?;
+    particles.extend((0..n).map(|i| {
+        if i % 2 == 0 {
+            let p = Vec3::new(
+                rng.range(-1.1, 1.1),
+                rng.range(1.3, 2.4),
+                rng.range(-1.1, 1.1),
+            );
+            Particle::new(p.to_array(), [0.0; 3])
+        } else {
+            let (r, th) = (
+                0.55 * rng.f32().sqrt(),
+                rng.range(0.0, std::f32::consts::TAU),
+            );
+            let p = Vec3::new(r * th.cos(), rng.range(-0.7, -0.35), r * th.sin());
+            let v = Vec3::new(
+                rng.range(-0.6, 0.6),
+                rng.range(5.0, 6.0),
+                rng.range(-0.6, 0.6),
+            );
+            Particle::new(p.to_array(), v.to_array())
+        }
+    }));
     // Each particle's side of the dome, from its mesh (the colour it starts with).
     let dome_refs: Vec<MeshRef<'_>> = dome.meshes.iter().map(MeshRef::from).collect();
     starting_sides(&dome_refs, &view, &mut particles);

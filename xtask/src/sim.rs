@@ -259,11 +259,7 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
                 cloud.particles.len(),
                 path.display()
             );
-            // The run's radius where it is known before the scene: the flag's, or a mesh's 0.
-            let known = o.build.radius.or((!o.meshes.is_empty()).then_some(0.0));
-            if let Some(note) = radius_property_note(&cloud, path, known) {
-                eprintln!("{note}");
-            }
+            print_radius_note(&o, Some(&cloud), None);
             Some(cloud)
         }
         None => None,
@@ -298,6 +294,7 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     scene::print_bake_summary(&scene)?;
     let view = scene.view()?;
     params.radius = stepped_radius(&o, view.header().radius)?;
+    print_radius_note(&o, file.as_ref(), Some(params.radius));
     let pairs = o.pairs.params(&params)?;
 
     // The particles.
@@ -684,6 +681,7 @@ fn run_scene(o: Opts, file: Option<ParticleCloud>) -> Result<()> {
             (inst, offset)
         }
     };
+    print_radius_note(&o, file.as_ref(), Some(params.radius));
     let pairs = o.pairs.params(&params)?;
     let start = o.start_time.unwrap_or(0.0);
     inst.hold_at(start).with_context(|| scene_name(&o))?;
@@ -942,12 +940,46 @@ fn run_scene(o: Opts, file: Option<ParticleCloud>) -> Result<()> {
     Ok(())
 }
 
+/// Whether the command bakes its scene itself (meshes, or a glTF scene), so that `--radius`
+/// is the run's radius; else a proxy or a baked scene file brings its own.
+fn bakes_here(o: &Opts) -> bool {
+    match &o.scene {
+        Some(path) => {
+            SceneFile::of(path) == Some(SceneFile::Gltf)
+                || (SceneFile::of(path).is_none() && !looks_baked(path))
+        }
+        None => o.proxy.is_none(),
+    }
+}
+
+/// [`radius_property_note`] printed once the run's radius is known: before the scene for a
+/// scene baked here (`bakes_here`; `baked` is `None` then), else once the file's is read.
+fn print_radius_note(o: &Opts, cloud: Option<&ParticleCloud>, baked: Option<f32>) {
+    let (Some(cloud), Some(path)) = (cloud, &o.particles) else {
+        return;
+    };
+    let here = bakes_here(o);
+    if here != baked.is_none() {
+        return;
+    }
+    let run = baked.unwrap_or_else(|| o.build.radius.unwrap_or(0.0));
+    if let Some(note) = radius_property_note(cloud, path, run, here) {
+        eprintln!("{note}");
+    }
+}
+
 /// A note for a particle file that carries per-particle radii (a `radius` or, as Houdini
 /// writes it, `pscale` property): they are carried to the output, not used, since every
-/// particle of a run steps at its one radius; the note gives the range and the radius that
-/// keeps every particle's distance. `run`: the run's radius, `None` where a proxy or a scene
-/// file brings it. `None` for a file without one.
-fn radius_property_note(cloud: &ParticleCloud, path: &Path, run: Option<f32>) -> Option<String> {
+/// particle of a run steps at its one radius; the note gives the range and what keeps every
+/// particle's distance: `--radius` where the scene is baked here (`bakes_here`), else a
+/// proxy or scene baked for that radius. `run`: the run's radius. `None` for a file without
+/// one.
+fn radius_property_note(
+    cloud: &ParticleCloud,
+    path: &Path,
+    run: f32,
+    bakes_here: bool,
+) -> Option<String> {
     let props = &cloud.extra.properties;
     let k = props.iter().position(|(name, _)| {
         name.eq_ignore_ascii_case("radius") || name.eq_ignore_ascii_case("pscale")
@@ -974,19 +1006,17 @@ fn radius_property_note(cloud: &ParticleCloud, path: &Path, run: Option<f32>) ->
         }
     });
     let name = &props[k].0;
-    let advice = match run {
-        Some(r) if hi.is_finite() && hi > r => {
-            format!("; --radius {hi} keeps every particle's distance from the scene")
-        }
-        None if hi.is_finite() => {
-            format!("; a proxy baked with --radius {hi} keeps every particle's distance")
-        }
-        _ => String::new(),
+    let advice = if !(hi.is_finite() && hi > run) {
+        String::new()
+    } else if bakes_here {
+        format!("; --radius {hi} keeps every particle's distance from the scene")
+    } else {
+        format!("; baked again with --radius {hi}, the scene keeps every particle's distance")
     };
-    let run = match run {
-        Some(r) if r > 0.0 => format!("--radius {r}"),
-        Some(_) => "0: points".to_string(),
-        None => "the one its proxy was baked for".to_string(),
+    let run = if run > 0.0 {
+        format!("radius {run}")
+    } else {
+        "0: points".to_string()
     };
     let range = if !(lo <= hi) {
         "none finite".to_string()
@@ -1034,13 +1064,14 @@ fn particles_in(
     let speed = o.emit_speed.unwrap_or(0.0);
     let seed = o.seed.unwrap_or(1);
     let particles = if o.emit_surface {
-        emit_surface_for(view, n, meshes, offset, speed, seed)?
+        emit_surface_for(view, n, meshes, offset, speed, seed)
     } else {
         let (min, max) = match o.emit_box {
             Some(b) => (Vec3::new(b[0], b[1], b[2]), Vec3::new(b[3], b[4], b[5])),
             None => scene_box(),
         };
-        emit_box(n, min, max, speed, seed)?
-    };
+        emit_box(n, min, max, speed, seed)
+    }
+    .with_context(|| format!("--emit {n}"))?;
     Ok(ParticleCloud::from_particles(particles))
 }

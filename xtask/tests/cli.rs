@@ -233,6 +233,46 @@ fn a_files_per_particle_radii_are_named_not_silently_dropped() {
     let out = octoproxy_cpu::io::read_particles(&dir.join("o.ply")).unwrap();
     assert_eq!(out.extra.properties[0].0, "pscale");
     assert_eq!(out.extra.values, [0.05f32 as f64, 0.25]);
+    // A proxy brings its radius: the note gives it, and the advice is a bake for the file's
+    // largest (--radius alone would not match the proxy); none where the proxy's covers it.
+    for (baked, advice) in [("0.1", true), ("0.3", false)] {
+        let proxy = format!("r{baked}.octoproxy");
+        let args = [
+            "bake", "--mesh", "box.obj", "--dmax", "6", "--radius", baked, "-o", &proxy,
+        ];
+        let out = octoproxy(&args, &dir);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let args = [
+            "sim",
+            "--proxy",
+            &proxy,
+            "--particles",
+            "in.ply",
+            "-o",
+            "o.ply",
+            "--steps",
+            "2",
+        ];
+        let out = octoproxy(&args, &dir);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{err}");
+        assert!(
+            err.contains(&format!("the run's one radius (radius {baked})")),
+            "{err}"
+        );
+        assert_eq!(
+            err.contains(
+                "; baked again with --radius 0.25, the scene keeps every particle's distance"
+            ),
+            advice,
+            "{err}"
+        );
+        assert!(!err.contains("; --radius"), "{err}");
+    }
 }
 
 #[test]
@@ -272,7 +312,7 @@ fn hits_add_columns_not_other_particles() {
             files.push(octoproxy_cpu::io::read_particles(&dir.join(&out_name)).unwrap());
         }
         let (plain, scene) = (&files[0].particles, &files[1].particles);
-        assert_eq!(plain.len(), 400);
+        assert_eq!((plain.len(), scene.len()), (400, 400));
         for (k, (a, b)) in plain.iter().zip(scene).enumerate() {
             let bits = |p: &octoproxy_core::Particle| {
                 let f = [p.position, p.velocity].concat();

@@ -36,10 +36,11 @@ pub const DEFAULT_CHUNK_PARTICLES: u32 = 1 << 22;
 pub struct RunParams {
     /// 1 to enter through the lookup table, 0 to descend from the root.
     pub use_lut: u32,
-    /// Padding.
-    pub _pad0: u32,
-    /// Padding.
-    pub _pad1: u32,
+    /// The plain step's invocations per workgroup (the split step's `args_kernel` sizes
+    /// `march_kernel`'s dispatch with it).
+    pub workgroup_size: u32,
+    /// The widest row of workgroups of one dispatch (likewise).
+    pub fold_width: u32,
     /// Padding.
     pub _pad2: u32,
 }
@@ -154,12 +155,26 @@ pub enum WgpuError {
 pub(crate) struct Kernel {
     layout: wgpu::BindGroupLayout,
     pipeline_layout: wgpu::PipelineLayout,
-    /// Invocations per workgroup of `step` and `integrate`.
+    /// `args_kernel`'s: the run's settings, the queue and the indirect arguments.
+    args_layout: wgpu::BindGroupLayout,
+    args_pipeline_layout: wgpu::PipelineLayout,
+    /// Invocations per workgroup of the plain step's kernels and the floor's.
     workgroup_size: u32,
-    step: wgpu::ComputePipeline,
-    integrate: wgpu::ComputePipeline,
+    pipelines: PlainPipelines,
+    /// Whether a step is the split step's three dispatches ([`WgpuBackend::set_split_step`]).
+    split: bool,
     pub(crate) params: wgpu::Buffer,
     run: wgpu::Buffer,
+}
+
+/// The plain kernel's pipelines, at one workgroup size.
+#[derive(Debug)]
+pub(crate) struct PlainPipelines {
+    pub(crate) step: wgpu::ComputePipeline,
+    integrate: wgpu::ComputePipeline,
+    settle: wgpu::ComputePipeline,
+    args: wgpu::ComputePipeline,
+    march: wgpu::ComputePipeline,
 }
 
 /// A run of particles bound as one storage binding.
@@ -171,6 +186,12 @@ pub(crate) struct Chunk {
     pub(crate) params: wgpu::Buffer,
     /// The chunk's particles' `LeafHint`s (8 bytes each), kept between steps.
     pub(crate) hints: wgpu::Buffer,
+    /// The split step's queue: the particles that did not settle (4 bytes each), its length
+    /// (`Queue`), `march_kernel`'s indirect arguments and `args_kernel`'s bind group.
+    queued: wgpu::Buffer,
+    queue: wgpu::Buffer,
+    args: wgpu::Buffer,
+    args_group: wgpu::BindGroup,
     bind_group: Option<wgpu::BindGroup>,
     /// The chunk's particles' scene state, made at the first scene step.
     pub(crate) scene: Option<crate::scene::ChunkScene>,
@@ -214,18 +235,20 @@ fn step_size_limit(limits: &wgpu::Limits) -> u32 {
         .min(limits.max_compute_workgroup_size_x)
 }
 
-/// The plain kernel's pipelines, `step_kernel` and `integrate_kernel`, built with
-/// `workgroup_size` invocations per workgroup.
+/// The plain kernel's pipelines (`step_kernel`, `integrate_kernel` and the split step's
+/// three), built with `workgroup_size` invocations per workgroup; `args_kernel` with
+/// `args_layout`, the others with `layout`.
 fn plain_pipelines(
     device: &wgpu::Device,
     layout: &wgpu::PipelineLayout,
+    args_layout: &wgpu::PipelineLayout,
     workgroup_size: u32,
-) -> (wgpu::ComputePipeline, wgpu::ComputePipeline) {
+) -> PlainPipelines {
     let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
         label: Some("octoproxy step"),
         source: wgpu::ShaderSource::Wgsl(shader::source_with_workgroup_size(workgroup_size).into()),
     });
-    let pipeline = |entry: &str| {
+    let pipeline = |entry: &str, layout: &wgpu::PipelineLayout| {
         device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
             label: Some(entry),
             layout: Some(layout),
@@ -235,7 +258,13 @@ fn plain_pipelines(
             cache: None,
         })
     };
-    (pipeline("step_kernel"), pipeline("integrate_kernel"))
+    PlainPipelines {
+        step: pipeline("step_kernel", layout),
+        integrate: pipeline("integrate_kernel", layout),
+        settle: pipeline("settle_kernel", layout),
+        args: pipeline("args_kernel", args_layout),
+        march: pipeline("march_kernel", layout),
+    }
 }
 
 /// A compute shader's storage-buffer binding.
@@ -369,6 +398,8 @@ impl WgpuBackend {
                 uniform(3, core::mem::size_of::<RunParams>() as u64),
                 uniform(4, core::mem::size_of::<ChunkParams>() as u64),
                 storage(5, false),
+                storage(6, false),
+                storage(7, false),
             ],
         });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -376,11 +407,25 @@ impl WgpuBackend {
             bind_group_layouts: &[Some(&layout)],
             immediate_size: 0,
         });
+        let args_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("octoproxy march args"),
+            entries: &[
+                uniform(3, core::mem::size_of::<RunParams>() as u64),
+                storage(7, false),
+                storage(8, false),
+            ],
+        });
+        let args_pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("octoproxy march args"),
+            bind_group_layouts: &[Some(&args_layout)],
+            immediate_size: 0,
+        });
         let limits = device.limits();
         // The default size, lowered to a power of two the device allows.
         let step_size = STEP_WORKGROUP_SIZE.min(step_size_limit(&limits)).max(1);
         let step_size = 1 << step_size.ilog2();
-        let (step, integrate) = plain_pipelines(&device, &pipeline_layout, step_size);
+        let pipelines =
+            plain_pipelines(&device, &pipeline_layout, &args_pipeline_layout, step_size);
         let uniform_buffer = |label, size: usize| {
             device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(label),
@@ -400,9 +445,11 @@ impl WgpuBackend {
             kernel: Kernel {
                 layout,
                 pipeline_layout,
+                args_layout,
+                args_pipeline_layout,
                 workgroup_size: step_size,
-                step,
-                integrate,
+                pipelines,
+                split: false,
                 params,
                 run,
             },
@@ -461,12 +508,32 @@ impl WgpuBackend {
         }
         self.check_health()?;
         let scope = ErrorScope::push(&self.device);
-        let (step, integrate) = plain_pipelines(&self.device, &self.kernel.pipeline_layout, size);
+        let pipelines = plain_pipelines(
+            &self.device,
+            &self.kernel.pipeline_layout,
+            &self.kernel.args_pipeline_layout,
+            size,
+        );
         scope.pop().map_err(WgpuError::Shader)?;
-        self.kernel.step = step;
-        self.kernel.integrate = integrate;
+        self.kernel.pipelines = pipelines;
         self.kernel.workgroup_size = size;
         Ok(())
+    }
+
+    /// Whether the plain step is split in three dispatches per chunk (off by default): one
+    /// that steps the particles that settle in their hinted leaf and queues the others, one
+    /// that sizes the next from the queue, and one, dispatched indirectly, that steps the
+    /// queued particles. The same bits either way (each particle gets the same step); on a
+    /// GPU, a workgroup of the third holds only particles that march, so lanes that settle do
+    /// not wait on lanes that march. Off: one dispatch per chunk, every particle stepped by
+    /// `step_kernel`. Not yet measured on a hardware GPU, so not the default.
+    pub fn set_split_step(&mut self, on: bool) {
+        self.kernel.split = on;
+    }
+
+    /// Whether the plain step is split ([`WgpuBackend::set_split_step`]).
+    pub fn split_step(&self) -> bool {
+        self.kernel.split
     }
 
     /// Invocations per workgroup of the plain step ([`WgpuBackend::set_workgroup_size`]).
@@ -581,12 +648,54 @@ impl WgpuBackend {
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
+        let storage_buffer = |label, size: u64, usage: wgpu::BufferUsages| {
+            self.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size,
+                usage: wgpu::BufferUsages::STORAGE | usage,
+                mapped_at_creation: false,
+            })
+        };
+        let queued = storage_buffer(
+            "octoproxy split queue",
+            (count as u64 * 4).max(4),
+            wgpu::BufferUsages::empty(),
+        );
+        // Zeroed: an empty queue, and no workgroups.
+        let queue = storage_buffer(
+            "octoproxy split queue length",
+            16,
+            wgpu::BufferUsages::empty(),
+        );
+        let args = storage_buffer("octoproxy march args", 16, wgpu::BufferUsages::INDIRECT);
+        let args_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("octoproxy march args"),
+            layout: &self.kernel.args_layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 3,
+                    resource: self.kernel.run.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 7,
+                    resource: queue.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 8,
+                    resource: args.as_entire_binding(),
+                },
+            ],
+        });
         Chunk {
             buffer,
             offset,
             count,
             params,
             hints,
+            queued,
+            queue,
+            args,
+            args_group,
             bind_group: None,
             scene: None,
         }
@@ -652,6 +761,14 @@ impl WgpuBackend {
                     wgpu::BindGroupEntry {
                         binding: 5,
                         resource: chunk.hints.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 6,
+                        resource: chunk.queued.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 7,
+                        resource: chunk.queue.as_entire_binding(),
                     },
                 ],
             }));
@@ -755,6 +872,8 @@ impl WgpuBackend {
             .write_buffer(&self.kernel.params, 0, bytemuck::bytes_of(params));
         let run = RunParams {
             use_lut: self.use_lut as u32,
+            workgroup_size: self.kernel.workgroup_size,
+            fold_width: self.fold_width,
             ..Default::default()
         };
         self.queue
@@ -764,18 +883,30 @@ impl WgpuBackend {
     /// Records one plain step of every chunk (one dispatch each) in `pass`; with `floor`,
     /// the integration alone ([`WgpuBackend::integrate_only`]).
     pub(crate) fn record_step(&self, pass: &mut wgpu::ComputePass<'_>, floor: bool) {
-        pass.set_pipeline(if floor {
-            &self.kernel.integrate
-        } else {
-            &self.kernel.step
-        });
+        let k = &self.kernel.pipelines;
+        let split = self.kernel.split && !floor;
+        if !split {
+            pass.set_pipeline(if floor { &k.integrate } else { &k.step });
+        }
         for chunk in &self.chunks {
             let Some(group) = &chunk.bind_group else {
                 continue;
             };
             let (x, y) = self.fold(chunk.count.div_ceil(self.kernel.workgroup_size));
+            if !split {
+                pass.set_bind_group(0, group, &[]);
+                pass.dispatch_workgroups(x, y, 1);
+                continue;
+            }
+            pass.set_pipeline(&k.settle);
             pass.set_bind_group(0, group, &[]);
             pass.dispatch_workgroups(x, y, 1);
+            pass.set_pipeline(&k.args);
+            pass.set_bind_group(0, &chunk.args_group, &[]);
+            pass.dispatch_workgroups(1, 1, 1);
+            pass.set_pipeline(&k.march);
+            pass.set_bind_group(0, group, &[]);
+            pass.dispatch_workgroups_indirect(&chunk.args, 0);
         }
     }
 

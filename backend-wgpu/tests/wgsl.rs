@@ -48,7 +48,16 @@ type ModuleFiles = (
 
 /// The three modules, each with its files and entry points.
 const MODULES: [ModuleFiles; 3] = [
-    (&FILES, &["step_kernel", "integrate_kernel"]),
+    (
+        &FILES,
+        &[
+            "step_kernel",
+            "settle_kernel",
+            "args_kernel",
+            "march_kernel",
+            "integrate_kernel",
+        ],
+    ),
     (&SCENE_FILES, &["scene_kernel", "scene_support_kernel"]),
     (
         &PAIR_FILES,
@@ -215,8 +224,8 @@ fn uniform_layouts_match_rust() {
             "RunParams",
             owned(&[
                 ("use_lut", offset_of!(RunParams, use_lut)),
-                ("_pad0", offset_of!(RunParams, _pad0)),
-                ("_pad1", offset_of!(RunParams, _pad1)),
+                ("workgroup_size", offset_of!(RunParams, workgroup_size)),
+                ("fold_width", offset_of!(RunParams, fold_width)),
                 ("_pad2", offset_of!(RunParams, _pad2)),
             ]),
             size_of::<RunParams>(),
@@ -760,6 +769,9 @@ const TWINS: &[(&str, &str, Twin)] = &[
     // kernel.wgsl
     ("kernel.wgsl", "particle_index", NoTwin("a particle's index from the dispatch grid; the CPU backend iterates")),
     ("kernel.wgsl", "step_kernel", NoTwin("entry point: one step of one particle; CpuBackend's loop over particles")),
+    ("kernel.wgsl", "settle_kernel", NoTwin("entry point: the split step's first dispatch, step_particle_hinted's first settle or a place in the queue; CpuBackend steps each particle whole")),
+    ("kernel.wgsl", "args_kernel", NoTwin("entry point: the split step's indirect dispatch size from the queue's length; nothing to size on the CPU")),
+    ("kernel.wgsl", "march_kernel", NoTwin("entry point: the split step's queued particles, each stepped by step_particle_hinted as step_kernel does")),
     ("kernel.wgsl", "integrate_kernel", NoTwin("entry point: the bench's floor, integration without collision")),
 ];
 
@@ -795,6 +807,7 @@ const HOST_ONLY: &[(&str, &str, &str)] = &[
     ("query.rs", "locate_leaf_from", "a checked public query; the step uses locate_next"),
     ("scene.rs", "default", "Default impls: the host fills the buffers"),
     ("scene.rs", "fmt", "SceneError's Display and SceneView's Debug: the host's"),
+    ("scene.rs", "instance", "SceneError::instance: which instance an error names, for the host's messages"),
     ("scene.rs", "half_turn", "the host computes an instance's half turn once (Instance::new); the step reads it"),
     ("scene.rs", "is_valid", "Pose::is_valid: SceneView::new's check, on the host"),
     ("scene.rs", "swept_box", "the host builds the broad phase's boxes"),

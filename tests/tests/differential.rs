@@ -693,7 +693,9 @@ fn every_workgroup_size_steps_the_same_bits() {
     // The plain step rebuilt with other workgroup sizes (what the bench sweeps) steps every
     // particle to the same bytes as the default size: each invocation steps one particle
     // alone. Chunks of 1000 particles in dispatch rows of 3 workgroups make every size
-    // dispatch a folded grid whose last workgroups are partly empty.
+    // dispatch a folded grid whose last workgroups are partly empty. The split step (the
+    // particles that settle, then the queued rest, dispatched indirectly) and the single
+    // dispatch (the default) step the same bytes at every size.
     let Some(mut gpu) = gpu() else { return };
     let mesh = scenes::merge(&[
         scenes::wedge(8.0, 2.0, 1.0),
@@ -714,7 +716,8 @@ fn every_workgroup_size_steps_the_same_bits() {
         dt: DT,
         ..StepParams::default()
     };
-    let run = |gpu: &mut WgpuBackend, size: u32, floor: bool| {
+    let run = |gpu: &mut WgpuBackend, size: u32, floor: bool, split: bool| {
+        gpu.set_split_step(split);
         gpu.set_workgroup_size(size).unwrap();
         assert_eq!(gpu.workgroup_size(), size);
         gpu.upload_particles(&particles).unwrap();
@@ -733,24 +736,31 @@ fn every_workgroup_size_steps_the_same_bits() {
         octoproxy_wgpu::shader::STEP_WORKGROUP_SIZE
             .min(gpu.device().limits().max_compute_invocations_per_workgroup)
     );
-    let expected = run(&mut gpu, default, false);
-    let expected_floor = run(&mut gpu, default, true);
+    assert!(!gpu.split_step(), "one dispatch by default");
+    let expected = run(&mut gpu, default, false, false);
+    let expected_floor = run(&mut gpu, default, true, false);
     let collided = expected.iter().filter(|p| p.collisions() > 0).count();
     assert!(collided > 100, "only {collided} particles collided");
-    for size in [1, 32, 64, 128, 256].into_iter().filter(|&s| s != default) {
-        for (floor, want) in [(false, &expected), (true, &expected_floor)] {
-            let got = run(&mut gpu, size, floor);
-            let differ = got
-                .iter()
-                .zip(want.iter())
-                .filter(|(g, e)| bytemuck::bytes_of(*g) != bytemuck::bytes_of(*e))
-                .count();
-            assert_eq!(
-                differ, 0,
-                "workgroup size {size} (floor: {floor}): {differ} particles differ"
-            );
+    for size in [1, 32, 64, 128, 256] {
+        for split in [true, false] {
+            if size == default && !split {
+                continue;
+            }
+            for (floor, want) in [(false, &expected), (true, &expected_floor)] {
+                let got = run(&mut gpu, size, floor, split);
+                let differ = got
+                    .iter()
+                    .zip(want.iter())
+                    .filter(|(g, e)| bytemuck::bytes_of(*g) != bytemuck::bytes_of(*e))
+                    .count();
+                assert_eq!(
+                    differ, 0,
+                    "workgroup size {size} (floor: {floor}, split: {split}): {differ} particles differ"
+                );
+            }
         }
     }
+    gpu.set_split_step(false);
     gpu.set_workgroup_size(128).unwrap();
     for bad in [0, 48, 1 << 20] {
         let e = gpu.set_workgroup_size(bad).unwrap_err().to_string();

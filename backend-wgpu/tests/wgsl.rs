@@ -808,6 +808,7 @@ const HOST_ONLY: &[(&str, &str, &str)] = &[
     ("scene.rs", "default", "Default impls: the host fills the buffers"),
     ("scene.rs", "fmt", "SceneError's Display and SceneView's Debug: the host's"),
     ("scene.rs", "instance", "SceneError::instance: which instance an error names, for the host's messages"),
+    ("scene.rs", "trace_ride", "a ride's chords for the CPU harness's trace (PathTrace); the GPU traces no paths"),
     ("scene.rs", "half_turn", "the host computes an instance's half turn once (Instance::new); the step reads it"),
     ("scene.rs", "is_valid", "Pose::is_valid: SceneView::new's check, on the host"),
     ("scene.rs", "swept_box", "the host builds the broad phase's boxes"),

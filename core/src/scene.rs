@@ -1517,13 +1517,62 @@ const _: () = assert!(core::mem::size_of::<HitEvent>() == 44);
 /// Receives the straight pieces of a particle's world path in a scene step, with the
 /// fractions of the step at their ends ([`step_particle_scene_traced`]; `()` receives nothing).
 pub trait PathTrace {
+    /// Whether pieces are wanted: `false` skips the work of making them (a ride's chords).
+    const ON: bool = true;
+
     /// The particle moved from `a` at fraction `ua` of the step to `b` at `ub`.
     fn piece(&mut self, a: Vec3, b: Vec3, ua: f32, ub: f32);
 }
 
 impl PathTrace for () {
+    const ON: bool = false;
+
     #[inline(always)]
     fn piece(&mut self, _: Vec3, _: Vec3, _: f32, _: f32) {}
+}
+
+/// A carried particle's ride with instance `inst` from `x` at fraction `u` of the step to
+/// `end` at its end, holding its point in the instance's frame, as chords of that path: each
+/// off the path by at most a tenth of `diagonal` (world units), at most 256 of them.
+fn trace_ride<T: PathTrace>(
+    trace: &mut T,
+    inst: &Instance,
+    x: Vec3,
+    u: f32,
+    end: Vec3,
+    diagonal: f32,
+) {
+    if !T::ON {
+        return;
+    }
+    let local = inst.pose_at(u).to_local(x);
+    // The turn left, and the largest distance of the point from the instance's origin.
+    let turn = 2.0 * inst.half_turn * (1.0 - u);
+    let r = local.length() * inst.start.scale.max(inst.end.scale);
+    // A chord of angle `a` at radius `r` is off its arc by `r (1 - cos(a / 2)) <= r a² / 8`.
+    let tol = 0.1 * diagonal;
+    let a = if r > 0.0 {
+        math::sqrt(8.0 * tol / r)
+    } else {
+        turn
+    };
+    let n = if a > 0.0 && turn > 0.0 {
+        (turn / a).min(256.0) as u32 + 1
+    } else {
+        1
+    };
+    let mut from = x;
+    for k in 1..=n {
+        let uk = u + (1.0 - u) * k as f32 / n as f32;
+        let to = if k == n {
+            end
+        } else {
+            inst.pose_at(uk).to_world(local)
+        };
+        let uf = u + (1.0 - u) * (k - 1) as f32 / n as f32;
+        trace.piece(from, to, uf, uk);
+        from = to;
+    }
 }
 
 impl<F: FnMut(Vec3, Vec3, f32, f32)> PathTrace for F {
@@ -2295,7 +2344,10 @@ fn step_in_rounds<T: PathTrace, E: HitEvents>(
                 } else {
                     Vec3::ZERO
                 };
-                trace.piece(x, end, u, 1.0);
+                let view = &scene.proxies[inst.proxy as usize];
+                let diagonal =
+                    1.732_050_8 * view.finest_leaf_size() * inst.start.scale.min(inst.end.scale);
+                trace_ride(trace, inst, x, u, end, diagonal);
                 x = end;
             }
             break;
@@ -2572,6 +2624,51 @@ fn step_in_rounds<T: PathTrace, E: HitEvents>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_ride_is_traced_as_chords_of_its_arc() {
+        // An instance 2 units out turning 170 degrees about y in one step (and moving, and
+        // growing): a point carried from a third of the step keeps its place in the frame.
+        // The pieces join up, end where the ride ends, and every end and midpoint is within
+        // a tenth of the diagonal of the point the frame carries; one straight piece from
+        // `x` to `end` would pass 2 units from it.
+        let turn = 170f32.to_radians();
+        let start = Pose {
+            translation: [2.0, 0.0, 0.0],
+            scale: 1.0,
+            rotation: [0.0, 0.0, 0.0, 1.0],
+        };
+        let end = Pose {
+            translation: [2.5, 0.3, 0.0],
+            scale: 1.2,
+            rotation: [0.0, (turn / 2.0).sin(), 0.0, (turn / 2.0).cos()],
+        };
+        let inst = Instance::new(0, start, end);
+        let u = 1.0 / 3.0;
+        let local = Vec3::new(0.0, 0.5, 1.5);
+        let x = inst.pose_at(u).to_world(local);
+        let ride_end = inst.end.to_world(local);
+        let diagonal = 0.05;
+        let mut pieces: std::vec::Vec<(Vec3, Vec3, f32, f32)> = std::vec::Vec::new();
+        let mut trace = |a, b, ua, ub| pieces.push((a, b, ua, ub));
+        trace_ride(&mut trace, &inst, x, u, ride_end, diagonal);
+        assert!(pieces.len() > 10, "{} pieces", pieces.len());
+        assert_eq!(pieces[0].0, x);
+        assert_eq!(pieces[0].2, u);
+        assert_eq!(pieces.last().unwrap().1, ride_end);
+        assert_eq!(pieces.last().unwrap().3, 1.0);
+        for w in pieces.windows(2) {
+            assert_eq!((w[0].1, w[0].3), (w[1].0, w[1].2));
+        }
+        for &(a, b, ua, ub) in &pieces {
+            for (point, t) in [(a, ua), (b, ub), ((a + b) * 0.5, (ua + ub) * 0.5)] {
+                let off = inst.pose_at(t).to_world(local).distance(point);
+                assert!(off <= 0.1 * diagonal * 1.2 + 1e-5, "{off} off at {t}");
+            }
+        }
+        // Nothing is made for a trace that wants nothing.
+        trace_ride(&mut (), &inst, x, u, ride_end, diagonal);
+    }
 
     /// A broad phase over `items` (instance, swept box) in depth-first order, split at the
     /// median of the boxes' centres along `x`, `y`, `z` in turn.

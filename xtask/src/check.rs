@@ -318,6 +318,51 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
     Ok(())
 }
 
+/// The box of the instances' root cubes over a run of `seconds` (sampled at its start, its
+/// end and 62 times between, as the animation poses them; the box grown by 10 %), and the
+/// finest leaf any of them has there: what the particles of `check --scene` are spread over
+/// and their speeds are measured in. An instance hidden (scale 0) at one time counts where it
+/// shows at another; a scene hidden throughout is an error.
+fn run_extent(inst: &Instanced, seconds: f64) -> Result<(glam::Vec3, glam::Vec3, f32)> {
+    use glam::Vec3;
+    let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+    let mut leaf = f32::INFINITY;
+    let samples = if inst.duration() > 0.0 && seconds > 0.0 {
+        64
+    } else {
+        1
+    };
+    for k in 0..samples {
+        let t = seconds * k as f64 / (samples - 1).max(1) as f64;
+        let poses: Vec<octoproxy_core::Pose> = match &inst.baked {
+            Some(baked) => baked.poses_at(t)?,
+            None => inst.scene.instances().iter().map(|i| i.start).collect(),
+        };
+        for (i, pose) in inst.scene.instances().iter().zip(poses) {
+            let live = octoproxy_core::scene::Instance {
+                start: pose,
+                end: pose,
+                ..*i
+            };
+            if !live.is_active() {
+                continue;
+            }
+            let view = inst.scene.proxies()[i.proxy as usize].view();
+            let b = live.swept_box(&view);
+            lo = lo.min(b.min);
+            hi = hi.max(b.max);
+            leaf = leaf.min(view.finest_leaf_size() * pose.scale);
+        }
+    }
+    if !(lo.cmple(hi).all() && leaf.is_finite()) {
+        bail!(
+            "no instance of the scene shows (every one has scale 0) over the {seconds} s checked"
+        );
+    }
+    let grow = (hi - lo) * 0.05;
+    Ok((lo - grow, hi + grow, leaf))
+}
+
 /// `check --scene FILE`: particles stepped through a scene of moving instances on the CPU,
 /// every piece of every path checked against each instance's own mesh in its frame at the
 /// pose of each moment (`octoproxy_cpu::harness::scene`).
@@ -387,21 +432,10 @@ fn check_scene(
     } else {
         steps_given
     };
-    // Speeds from a tenth of the finest leaf to the whole scene per step.
-    let (lo, hi) = inst.world_box();
+    // Speeds from a tenth of the finest leaf to the whole scene per step, in the box the
+    // instances take over the run (one hidden at the start counts where it shows).
+    let (lo, hi, leaf) = run_extent(&inst, steps as f64 * params.dt as f64)?;
     let size = (hi - lo).max_element();
-    let leaf = inst
-        .scene
-        .instances()
-        .iter()
-        .filter(|i| i.is_active())
-        .map(|i| {
-            inst.scene.proxies()[i.proxy as usize]
-                .view()
-                .finest_leaf_size()
-                * i.start.scale.min(i.end.scale)
-        })
-        .fold(f32::INFINITY, f32::min);
     let particles = match particles_file {
         Some(path) => read_particles(path)?.particles,
         None => {
@@ -447,6 +481,16 @@ fn check_scene(
     cpu.upload_particles(&particles)?;
     cpu.upload_scene_sides(&sides)?;
     check.begin(inst.scene.instances(), &particles);
+    // A particle the step flags invalid counts as a failure when it started valid (finite,
+    // unflagged): the step made it so.
+    let started_valid: Vec<bool> = particles
+        .iter()
+        .map(|p| {
+            Vec3::from_array(p.position).is_finite()
+                && Vec3::from_array(p.velocity).is_finite()
+                && p.flags & octoproxy_core::FLAG_INVALID == 0
+        })
+        .collect();
     let mut before = particles;
     let mut tally = Tally::default();
     let mut differ = 0usize;
@@ -520,6 +564,12 @@ fn check_scene(
         "collisions: {}; particle-steps crushed between instances (counted, not checked after): {}",
         tally.collisions, tally.crushed
     );
+    if tally.swallowed > 0 {
+        println!(
+            "swallowed: {} particles were inside an instance when it appeared (shown after a step at scale 0; nothing can keep them out, and no side they take is right), and are not checked against it until it appears again",
+            tally.swallowed
+        );
+    }
     if near.is_some() {
         println!(
             "radius {}: the nearest centre to a mesh at a step's end {nearest:.4e}; {too_near} nearer than the radius less a leaf diagonal (too_near)",
@@ -528,9 +578,15 @@ fn check_scene(
     }
     let non_finite = before
         .iter()
-        .filter(|p| !Vec3::from_array(p.position).is_finite())
+        .zip(&started_valid)
+        .filter(|(p, &valid)| {
+            !Vec3::from_array(p.position).is_finite()
+                || (valid && p.flags & octoproxy_core::FLAG_INVALID != 0)
+        })
         .count();
-    println!("NaN or infinite: {non_finite}");
+    println!(
+        "NaN or infinite: {non_finite} (or flagged invalid by the step, having started valid)"
+    );
     for e in &tally.examples {
         println!("  e.g. {e}");
     }

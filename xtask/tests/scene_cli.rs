@@ -580,3 +580,48 @@ fn bad_scenes_get_one_readable_line() {
         "give one of --mesh, --proxy and --scene",
     );
 }
+
+#[test]
+fn an_instance_that_appears_is_checked_from_where_it_shows() {
+    // A tetrahedron hidden (scale 0) at the start and shown from 0.05 s: the check spreads
+    // its particles and speeds over where it shows (it had none to measure at the start,
+    // and emitted infinite speeds), and particles it swallows as it appears are counted
+    // apart, not as penetrations.
+    let dir = scratch("appear");
+    let appear = r#"{"asset": {"version": "2.0"}, "buffers": [{"uri": "data:application/octet-stream;base64,AAAAAAAAAAAAAAAAAACAPwAAAAAAAAAAAAAAAAAAgD8AAAAAAAAAAAAAAAAAAIA/AAACAAEAAAABAAMAAAADAAIAAQACAAMAAAAAAM3MTD0AAAAAAAAAAAAAAAAAAIA/AACAPwAAgD8=", "byteLength": 104}], "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 48}, {"buffer": 0, "byteOffset": 48, "byteLength": 24}, {"buffer": 0, "byteOffset": 72, "byteLength": 8}, {"buffer": 0, "byteOffset": 80, "byteLength": 24}], "accessors": [{"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 1]}, {"bufferView": 1, "componentType": 5123, "count": 12, "type": "SCALAR"}, {"bufferView": 2, "componentType": 5126, "count": 2, "type": "SCALAR", "min": [0], "max": [0.05]}, {"bufferView": 3, "componentType": 5126, "count": 2, "type": "VEC3"}], "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}], "nodes": [{"name": "pops", "mesh": 0}], "scenes": [{"nodes": [0]}], "scene": 0, "animations": [{"samplers": [{"input": 2, "output": 3, "interpolation": "STEP"}], "channels": [{"sampler": 0, "target": {"node": 0, "path": "scale"}}]}]}"#;
+    std::fs::write(dir.join("appear.gltf"), appear).unwrap();
+    let out = octoproxy(
+        &[
+            "check",
+            "--scene",
+            "appear.gltf",
+            "--emit",
+            "3000",
+            "--steps",
+            "20",
+            "--dmax",
+            "6",
+        ],
+        &dir,
+    );
+    let said = ok(&out);
+    assert!(said.contains("penetrations: 0 "), "{said}");
+    assert!(said.contains("NaN or infinite: 0 "), "{said}");
+    let swallowed: usize = said
+        .split("swallowed: ")
+        .nth(1)
+        .and_then(|r| r.split(' ').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no count of swallowed particles: {said}"));
+    assert!(swallowed > 20, "{said}");
+    // Hidden throughout: nothing to check, said so.
+    std::fs::write(
+        dir.join("never.gltf"),
+        appear
+            .replace(r#""path": "scale""#, r#""path": "translation""#)
+            .replace(r#""mesh": 0}"#, r#""mesh": 0, "scale": [0, 0, 0]}"#),
+    )
+    .unwrap();
+    let out = octoproxy(&["check", "--scene", "never.gltf", "--emit", "10"], &dir);
+    assert_one_line_error(&out, "no instance of the scene shows");
+}

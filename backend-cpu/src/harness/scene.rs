@@ -45,6 +45,10 @@ pub struct Tally {
     pub collisions: u64,
     /// Particle-steps checked.
     pub particle_steps: u64,
+    /// Particles inside a closed instance when it appeared (shown after a step hidden at
+    /// scale 0): nothing could keep them out, and no side they could have is right, so they
+    /// are not checked against it until it appears again.
+    pub swallowed: usize,
     /// The first few penetrations, for a failure message.
     pub examples: Vec<String>,
 }
@@ -56,6 +60,7 @@ impl Tally {
         self.crushed += other.crushed;
         self.collisions += other.collisions;
         self.particle_steps += other.particle_steps;
+        self.swallowed += other.swallowed;
         for e in &other.examples {
             if self.examples.len() < 4 {
                 self.examples.push(e.clone());
@@ -71,6 +76,10 @@ struct Track {
     crushed: bool,
     inside: Vec<u32>,
     crossings: HashMap<u32, u64>,
+    /// Inside an instance that appeared in the step being checked (counted once).
+    swallowed_now: bool,
+    /// The instances that swallowed it, not checked against until they appear again.
+    swallowed_by: Vec<u32>,
 }
 
 /// Ground truth for each proxy's mesh, and what each particle has done so far.
@@ -84,6 +93,8 @@ pub struct SceneCheck {
     /// Each proxy's root cube, local units.
     roots: Vec<Aabb>,
     tracks: Vec<Track>,
+    /// Whether each instance took part in the last step checked (or at the start).
+    active: Vec<bool>,
 }
 
 impl SceneCheck {
@@ -102,6 +113,7 @@ impl SceneCheck {
                 .collect(),
             roots: proxies.iter().map(|v| v.root_aabb()).collect(),
             tracks: Vec::new(),
+            active: Vec::new(),
         }
     }
 
@@ -118,6 +130,7 @@ impl SceneCheck {
     /// Starts the run: each particle's side of every closed instance it starts inside of
     /// (`instances` at their start poses), and no crossings yet.
     pub fn begin(&mut self, instances: &[Instance], particles: &[Particle]) {
+        self.active = instances.iter().map(|i| i.is_active()).collect();
         self.tracks = particles
             .par_iter()
             .map(|p| {
@@ -155,20 +168,54 @@ impl SceneCheck {
             self.tracks.resize(after.len(), Track::default());
         }
         let mut tracks = std::mem::take(&mut self.tracks);
+        // Instances shown in this step after one hidden (or not yet there): a particle's
+        // side of each is taken anew where the step starts.
+        let appeared: Vec<bool> = instances
+            .iter()
+            .enumerate()
+            .map(|(i, inst)| inst.is_active() && !self.active.get(i).copied().unwrap_or(false))
+            .collect();
         let this = &*self;
         let tally = tracks
             .par_iter_mut()
             .enumerate()
             .map(|(k, track)| {
                 let own = pieces.map(|p| p[k].as_slice());
-                this.check_particle(instances, &before[k], &after[k], own, track)
+                if !track.crushed {
+                    this.appear(instances, &appeared, &before[k], track);
+                }
+                let mut t = this.check_particle(instances, &before[k], &after[k], own, track);
+                t.swallowed += track.swallowed_now as usize;
+                track.swallowed_now = false;
+                t
             })
             .reduce(Tally::default, |mut a, b| {
                 a.add(&b);
                 a
             });
         self.tracks = tracks;
+        self.active = instances.iter().map(|i| i.is_active()).collect();
         tally
+    }
+
+    /// For each instance that `appeared` in this step: the particle's side of it where the
+    /// step starts (inside a closed one, or no crossings yet of an open one).
+    fn appear(&self, instances: &[Instance], appeared: &[bool], a: &Particle, track: &mut Track) {
+        let x = Vec3::from_array(a.position);
+        for (i, inst) in instances.iter().enumerate() {
+            if !appeared[i] {
+                continue;
+            }
+            let k = inst.proxy as usize;
+            let i = i as u32;
+            track.inside.retain(|&j| j != i);
+            track.swallowed_by.retain(|&j| j != i);
+            track.crossings.remove(&i);
+            if self.closed[k] && self.truths[k].is_inside(inst.start.to_local(x).to_array()) {
+                track.swallowed_by.push(i);
+                track.swallowed_now = true;
+            }
+        }
     }
 
     fn check_particle(
@@ -207,7 +254,7 @@ impl SceneCheck {
         }
         let reach = Aabb { min: lo, max: hi };
         for (i, inst) in instances.iter().enumerate() {
-            if !inst.is_active() {
+            if !inst.is_active() || track.swallowed_by.contains(&(i as u32)) {
                 continue;
             }
             let k = inst.proxy as usize;

@@ -794,19 +794,34 @@ fn sample(ch: &Channel, t: f64) -> DVec4 {
     let value_slot = if e == 3 { 1 } else { 0 };
     let last = ch.times.len() - 1;
     // Keys are found at the keys' own precision: a time that rounds to a key's f32 is at that
-    // key (a step at `13.0 / 24.0` seconds happens at the f32 key written for it).
+    // key (a step at `13.0 / 24.0` seconds happens at the f32 key written for it), and so is
+    // one within 4 f32 ulps of it: step times carry the rounding of an f32 `dt` (about 1e-7 of
+    // the time), and a step meant to land on a key gets its value exactly (a scale keyed to
+    // 0 hides its instance there, where 1e-6 of the next key's would be refused as too small
+    // to resolve).
+    let at_key = |key: f32| {
+        (t - key as f64).abs()
+            <= 4.0 * f32::EPSILON as f64 * key.abs().max(f32::MIN_POSITIVE) as f64
+    };
     let t32 = t as f32;
-    if t32 <= ch.times[0] {
+    if t32 <= ch.times[0] || at_key(ch.times[0]) {
         return entry(0, value_slot);
     }
-    if t32 >= ch.times[last] {
+    if t32 >= ch.times[last] || at_key(ch.times[last]) {
         return entry(last, value_slot);
     }
     // times[k] <= t32 < times[k + 1], with k < last.
     let k = ch.times.partition_point(|&x| x <= t32).saturating_sub(1);
+    if at_key(ch.times[k + 1]) {
+        return entry(k + 1, value_slot);
+    }
     let (t0, t1) = (ch.times[k] as f64, ch.times[k + 1] as f64);
     let td = t1 - t0;
-    let u = ((t - t0) / td).clamp(0.0, 1.0);
+    let u = if at_key(ch.times[k]) {
+        0.0
+    } else {
+        ((t - t0) / td).clamp(0.0, 1.0)
+    };
     let rotation = ch.path == ChannelPath::Rotation;
     match ch.interpolation {
         Interpolation::Step => entry(k, 0),

@@ -524,6 +524,38 @@ fn linear_translation_lerps_and_holds_before_and_after() {
 }
 
 #[test]
+fn a_step_time_that_lands_on_a_key_takes_its_value_exactly() {
+    // Keys on frames at 60 per second, a scale going 1, 0, 1 (LINEAR): sampled at the step
+    // ends a run with an f32 `dt` of 1/60 makes (`k * dt` in f64, a little off `k / 60`),
+    // every key's value comes back exactly, so the scale keyed to 0 is 0 (hidden), not a
+    // millionth (refused as too small to resolve).
+    let times: Vec<f32> = (0..=30).map(|k| k as f32 / 60.0).collect();
+    let values: Vec<f32> = (0..=30)
+        .flat_map(|k| {
+            let s = if (k / 5) % 2 == 1 && k % 5 != 0 {
+                0.0
+            } else {
+                (k % 5) as f32 * 0.25
+            };
+            [s, s, s]
+        })
+        .collect();
+    let s = animated(|d| d.channel(0, "scale", "LINEAR", &times, &values));
+    let dt = 1.0f32 / 60.0;
+    for k in 0..=30usize {
+        let t = k as f64 * dt as f64;
+        assert_eq!(
+            s.pose_at(0, t).unwrap().scale,
+            values[3 * k],
+            "key {k} at {t}"
+        );
+    }
+    // Between keys it still interpolates.
+    let half = s.pose_at(0, 1.5 / 60.0).unwrap().scale;
+    assert!((half - 0.375).abs() < 1e-6, "{half}");
+}
+
+#[test]
 fn step_holds_each_key_until_the_next() {
     let s = animated(|d| {
         d.channel(

@@ -53,7 +53,7 @@
 use glam::Vec3;
 use octoproxy_core::scene::{
     BroadNode, Instance, Pose, SceneError, SceneView, BROAD_INTERNAL, BROAD_LEAF, INSTANCE_LIVE,
-    MAX_INSTANCES, SIDE_SLOTS,
+    INSTANCE_SHOWN, MAX_INSTANCES, SIDE_SLOTS,
 };
 use octoproxy_core::{
     Aabb, Backend, FormatError, OwnedProxy, PairParams, ProxyView, SceneSubstep, StepParams,
@@ -380,7 +380,12 @@ impl Scene {
     pub fn move_to(&mut self, instance: u32, pose: Pose) -> Result<(), SceneBuildError> {
         check_pose(instance, &pose)?;
         let i = self.live(instance)?;
-        *i = Instance::new(i.proxy, i.end, pose);
+        // The flags carry whether the last step had it hidden (`INSTANCE_SHOWN`, set by
+        // `hold`).
+        *i = Instance {
+            flags: i.flags,
+            ..Instance::new(i.proxy, i.end, pose)
+        };
         self.dirty = true;
         Ok(())
     }
@@ -396,20 +401,31 @@ impl Scene {
         check_pose(instance, &start)?;
         check_pose(instance, &end)?;
         let i = self.live(instance)?;
-        *i = Instance::new(i.proxy, start, end);
+        *i = Instance {
+            flags: i.flags,
+            ..Instance::new(i.proxy, start, end)
+        };
         self.dirty = true;
         Ok(())
     }
 
     /// Every instance holds still where the last step left it: each end pose becomes the
-    /// start and the end of the next step.
+    /// start and the end of the next step. Call it after each step (`Scene::step` does):
+    /// an instance the step had hidden (scale 0) is marked [`INSTANCE_SHOWN`] for the next
+    /// steps until one has it shown, in which the particles' sides kept for it are taken anew
+    /// (they may have moved anywhere meanwhile); that step's `hold` clears the mark.
     pub fn hold(&mut self) {
         for i in &mut self.instances {
+            let hidden = i.flags & INSTANCE_LIVE != 0 && !i.is_active();
+            let flags = i.flags & INSTANCE_LIVE | if hidden { INSTANCE_SHOWN } else { 0 };
             if !i.is_static() {
                 *i = Instance {
-                    flags: i.flags,
+                    flags,
                     ..Instance::new(i.proxy, i.end, i.end)
                 };
+                self.dirty = true;
+            } else if i.flags != flags {
+                i.flags = flags;
                 self.dirty = true;
             }
         }

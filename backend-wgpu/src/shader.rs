@@ -166,6 +166,7 @@ pub fn shared_constants() -> Vec<(&'static str, SharedValue)> {
         ("WORKGROUP_SIZE", U32(WORKGROUP_SIZE)),
         ("NO_INSTANCE", U32(sc::NO_INSTANCE)),
         ("INSTANCE_LIVE", U32(sc::INSTANCE_LIVE)),
+        ("INSTANCE_SHOWN", U32(sc::INSTANCE_SHOWN)),
         (
             "INSTANCE_WORDS",
             U32((core::mem::size_of::<Instance>() / 4) as u32),

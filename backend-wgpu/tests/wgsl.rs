@@ -703,6 +703,7 @@ const TWINS: &[(&str, &str, Twin)] = &[
     ("scene.wgsl", "commit", Rust("scene.rs", "commit")),
     ("scene.wgsl", "optional_slots", Rust("scene.rs", "optional")),
     ("scene.wgsl", "slot_side", Rust("scene.rs", "slot_side")),
+    ("scene.wgsl", "kept_side", Rust("scene.rs", "kept_side")),
     ("scene.wgsl", "first_side", Rust("scene.rs", "first_side")),
     ("scene.wgsl", "broad_walk_new", Rust("scene.rs", "BroadWalk::new")),
     ("scene.wgsl", "broad_walk_next", Rust("scene.rs", "BroadWalk::next")),

@@ -88,7 +88,7 @@ use glam::Vec3;
 use crate::math;
 use crate::particle::{Particle, FLAG_BLOCKED, SIDE_BACK, SIDE_MASK};
 use crate::query::LeafKind;
-use crate::scene::{SceneHint, SceneSides, SceneSlots, SceneView};
+use crate::scene::{kept_side, SceneHint, SceneSides, SceneSlots, SceneView};
 use crate::step::{respond, LeafHint, StepParams};
 use crate::view::ProxyView;
 
@@ -745,7 +745,7 @@ pub fn pair_support_scene(
     let Some(view) = scene.proxies().get(inst.proxy as usize) else {
         return [0.0; 4];
     };
-    let Some(side) = SceneSides::join(hint, slots).side_of(c) else {
+    let Some(side) = kept_side(inst, &SceneSides::join(hint, slots).slots, c) else {
         return [0.0; 4];
     };
     let local = Particle {

@@ -298,6 +298,12 @@ fn chord_per_length(a: [f32; 4], b: [f32; 4]) -> f32 {
 /// this flag, so that indices stay stable).
 pub const INSTANCE_LIVE: u32 = 1 << 0;
 
+/// Flag of [`Instance::flags`]: the step is the first the instance takes part in after one it
+/// did not (hidden by a scale of 0, `Instance::is_active`). A particle may have moved anywhere
+/// while it was hidden, so the side it kept for it is stale: each takes its side anew from
+/// where it is ([`kept_side`]). The host's scene sets it.
+pub const INSTANCE_SHOWN: u32 = 1 << 1;
+
 /// An instance: a proxy placed in the world by the pose it had at the start of the step and
 /// the pose it has at its end. 80 bytes.
 #[repr(C)]
@@ -309,7 +315,7 @@ pub struct Instance {
     pub end: Pose,
     /// Index of its proxy in the scene's proxies.
     pub proxy: u32,
-    /// [`INSTANCE_LIVE`]; the other bits are zero.
+    /// [`INSTANCE_LIVE`] and [`INSTANCE_SHOWN`]; the other bits are zero.
     pub flags: u32,
     /// The broad phase's leaf that holds it ([`BroadNode`]), when it is active.
     pub leaf: u32,
@@ -738,7 +744,10 @@ impl<'a> SceneView<'a> {
         let mut active = 0usize;
         for (i, inst) in instances.iter().enumerate() {
             let instance = i as u32;
-            if inst.flags & !INSTANCE_LIVE != 0 || !inst.start.is_valid() || !inst.end.is_valid() {
+            if inst.flags & !(INSTANCE_LIVE | INSTANCE_SHOWN) != 0
+                || !inst.start.is_valid()
+                || !inst.end.is_valid()
+            {
                 return Err(SceneError::BadPose { instance });
             }
             if inst.half_turn.to_bits()
@@ -858,7 +867,8 @@ impl<'a> SceneView<'a> {
             let c = nodes[0].index;
             let inst = &instances[c as usize];
             let identity = pose_words(&inst.start) == pose_words(&Pose::IDENTITY);
-            (inst.is_static() && identity).then_some(c)
+            // A shown instance's kept sides are not read: the general path asks `kept_side`.
+            (inst.is_static() && identity && inst.flags & INSTANCE_SHOWN == 0).then_some(c)
         } else {
             None
         };
@@ -1440,6 +1450,16 @@ fn optional(mut slots: [u32; SIDE_SLOTS]) -> [u32; SIDE_SLOTS] {
         }
     }
     slots
+}
+
+/// The side a particle kept for instance `c` (`inst`), unless the instance was just shown
+/// ([`INSTANCE_SHOWN`]): then none, and the particle's side is taken anew where it is.
+#[inline]
+pub fn kept_side(inst: &Instance, slots: &[u32; SIDE_SLOTS], c: u32) -> Option<u32> {
+    if inst.flags & INSTANCE_SHOWN != 0 {
+        return None;
+    }
+    slot_side(slots, c)
 }
 
 fn slot_side(slots: &[u32; SIDE_SLOTS], instance: u32) -> Option<u32> {
@@ -2158,7 +2178,7 @@ fn step_near_one_static<T: PathTrace, E: HitEvents>(
     let identity = pose_words(&pose) == pose_words(&Pose::IDENTITY);
     let x0 = Vec3::from_array(p.position);
     let mut slots = optional(sides.slots);
-    let side = match slot_side(&slots, c) {
+    let side = match kept_side(inst, &slots, c) {
         Some(s) => s,
         None => initial_side(view, pose.to_local(x0).to_array()),
     };
@@ -2304,7 +2324,7 @@ fn step_in_rounds<T: PathTrace, E: HitEvents>(
     let mut last_static: Option<(Vec3, Vec3, bool)> = None;
     let side_for = |slots: &[u32; SIDE_SLOTS], c: u32, x: Vec3, u: f32| {
         let inst = &scene.instances[c as usize];
-        slot_side(slots, c)
+        kept_side(inst, slots, c)
             .unwrap_or_else(|| derived_side(inst, &scene.proxies[inst.proxy as usize], x, u))
     };
     let collided_in = |last: Option<(u32, u32)>, c: u32| match last {

@@ -586,3 +586,35 @@ fn particles_faster_than_their_squares_can_hold_step_the_same_on_both_backends()
         },
     );
 }
+
+#[test]
+fn a_box_hidden_and_shown_in_turn_steps_the_same_on_both_backends() {
+    // A box at the identity and a turned one, each hidden (scale 0) for three steps and shown
+    // for three, out of phase, over rain: the steps after each is hidden are marked shown
+    // (`INSTANCE_SHOWN`), where particles take their sides anew, and the first box is then
+    // no plain one-proxy scene.
+    let cube = scenes::cube([-0.5; 3], [0.5; 3]);
+    let turned = pose([0.2, -1.2, 0.0], Quat::from_rotation_z(0.4), 1.2);
+    let mut scene = scene_of(&[&cube], 6, &[(0, Pose::IDENTITY), (0, turned)]);
+    let particles = lattice(Vec3::new(-0.9, -2.0, -0.9), Vec3::new(0.9, 1.5, 0.9), 9, 3);
+    differential(
+        "boxes hidden and shown in turn",
+        &mut scene,
+        &particles,
+        &params([0.0, -9.81, 0.0]),
+        18,
+        1 << 14,
+        |step, i| {
+            let shown = (step / 3 + i) % 2 == 0;
+            let base = if i == 0 { Pose::IDENTITY } else { turned };
+            Some(Pose {
+                scale: if shown { base.scale } else { 0.0 },
+                ..base
+            })
+        },
+        Expect {
+            collisions: 50,
+            crushed: None,
+        },
+    );
+}

@@ -9,7 +9,7 @@ use octoproxy_core::scene::{
 };
 use octoproxy_core::{
     initial_side, step_particle_hinted, Backend, LeafHint, Particle, ProxyView, SceneSides,
-    StepParams,
+    StepParams, SIDE_BACK,
 };
 use octoproxy_cpu::scenes;
 use octoproxy_cpu::{CpuBackend, Scene, SceneBuildError};
@@ -658,4 +658,47 @@ fn a_hidden_or_removed_instance_lets_particles_pass_and_a_shown_one_stops_them()
         &out[50..52]
     );
     let _ = shown;
+}
+
+#[test]
+fn a_particle_that_moved_while_an_instance_was_hidden_takes_its_side_anew_when_it_shows() {
+    // A particle keeps the side it had of a slab from inside it (behind its faces) while the
+    // slab is hidden (scale 0), and is just above the slab's top face, falling, when the slab
+    // shows again. Kept, the stale side lets it through the top face (a face seen from behind
+    // lets a particle in); taken anew where it is, it lands on the top.
+    let slab = scenes::slab([0.0; 3], [2.0, 0.4, 2.0]);
+    let mut scene = Scene::new();
+    let words = bake_mesh(&slab, 6);
+    let leaf = ProxyView::new(&words).unwrap().finest_leaf_size();
+    scene.add_proxy(words).unwrap();
+    let c = scene.add_instance(0, Pose::IDENTITY).unwrap();
+    let mut cpu = CpuBackend::new();
+    cpu.upload_particles(&[Particle::new([0.1, 0.0, 0.05], [0.0; 3])])
+        .unwrap();
+    let params = params([0.0, -9.81, 0.0]);
+    let hidden = Pose {
+        scale: 0.0,
+        ..Pose::IDENTITY
+    };
+    scene.set_motion(c, hidden, hidden).unwrap();
+    for _ in 0..3 {
+        scene.step(&mut cpu, &params, false).unwrap();
+    }
+    // Where it is when the slab shows: a third of a leaf above the top face, falling, with
+    // the side it had inside.
+    let above = Particle::new([0.1, 0.2 + leaf / 3.0, 0.05], [0.0, -2.0, 0.0]);
+    cpu.upload_particles(&[above]).unwrap();
+    let mut sides = SceneSides::EMPTY;
+    assert!(sides.set_side(c, SIDE_BACK));
+    cpu.upload_scene_sides(&[sides]).unwrap();
+    scene.set_motion(c, Pose::IDENTITY, Pose::IDENTITY).unwrap();
+    for _ in 0..60 {
+        scene.step(&mut cpu, &params, false).unwrap();
+    }
+    let p = cpu.particles()[0];
+    assert!(
+        p.position[1] > 0.2 - leaf,
+        "it rests on the top face at 0.2, not inside or through: {p:?}"
+    );
+    assert!(p.collisions() > 0);
 }

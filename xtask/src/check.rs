@@ -521,6 +521,8 @@ fn check_scene(
                 let (pieces, bad) = inst
                     .scene
                     .with_view(|view| traced_pieces(view, &before, &sides, &after, params))?;
+                // As `Scene::step` does after a step (it marks instances the step had hidden).
+                inst.scene.hold();
                 differ += bad.len();
                 pieces
             }

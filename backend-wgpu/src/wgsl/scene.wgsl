@@ -100,6 +100,14 @@ fn slot_side(slots: array<u32, SIDE_SLOTS>, instance: u32) -> U32Option {
     return U32Option(0u, false);
 }
 
+// core's `kept_side`: the kept side, unless the instance was just shown (INSTANCE_SHOWN).
+fn kept_side(inst: Instance, slots: array<u32, SIDE_SLOTS>, c: u32) -> U32Option {
+    if (inst.flags & INSTANCE_SHOWN) != 0u {
+        return U32Option(0u, false);
+    }
+    return slot_side(slots, c);
+}
+
 fn first_side(slots: array<u32, SIDE_SLOTS>, otherwise: u32) -> u32 {
     for (var k = 0u; k < SIDE_SLOTS; k++) {
         if slots[k] != EMPTY_SLOT {
@@ -120,7 +128,7 @@ fn pair_support_scene(p: Particle, hint: SceneHint, slots: SceneSlots) -> vec4<f
     if !instance_is_active(inst) || !instance_is_static(inst) {
         return vec4<f32>(0.0);
     }
-    let side = slot_side(scene_sides_join(hint, slots).slots, c);
+    let side = kept_side(inst, scene_sides_join(hint, slots).slots, c);
     if !side.some {
         return vec4<f32>(0.0);
     }
@@ -443,9 +451,9 @@ fn step_near_one_static(c: u32, p: ptr<function, Particle>, sides: ptr<function,
     let identity = same_pose(pose, identity_pose());
     let x0 = (*p).position;
     var slots = optional_slots((*sides).slots);
-    let kept_side = slot_side(slots, c);
-    var side = kept_side.value;
-    if !kept_side.some {
+    let kept_now = kept_side(inst, slots, c);
+    var side = kept_now.value;
+    if !kept_now.some {
         side = initial_side(pose_to_local(pose, x0));
     }
     var hint = vec2<u32>(0u);
@@ -520,11 +528,12 @@ fn ride_is_clear(c: u32, x: vec3<f32>, u: f32) -> bool {
 
 // step_in_rounds' closure `side_for`: the kept side, else the derived one.
 fn side_for(slots: array<u32, SIDE_SLOTS>, c: u32, x: vec3<f32>, u: f32) -> u32 {
-    let kept = slot_side(slots, c);
+    let inst = load_instance(c);
+    let kept = kept_side(inst, slots, c);
     if kept.some {
         return kept.value;
     }
-    return derived_side(load_instance(c), x, u);
+    return derived_side(inst, x, u);
 }
 
 // step_in_rounds' closure `collided_in`: the surface leaf of the last collision when it was

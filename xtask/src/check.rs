@@ -188,7 +188,7 @@ pub fn run(args: Vec<OsString>) -> Result<()> {
         (false, None) => scene::load_meshes(&meshes)?,
     };
     let mesh = scenes::merge(&mesh_list);
-    let closed = mesh.is_closed();
+    let closed = checked_closed(&mesh, "the mesh");
     let baked = scene::bake_meshes(mesh_list, &build.params()?, radius)?;
     let view = baked.view()?;
     if let Some(offset) = &baked.offset {
@@ -363,6 +363,24 @@ fn run_extent(inst: &Instanced, seconds: f64) -> Result<(glam::Vec3, glam::Vec3,
     Ok((lo - grow, hi + grow, leaf))
 }
 
+/// Whether `mesh` is checked as closed (by winding numbers): closed, and wound consistently
+/// (every edge once in each direction). A closed mesh whose neighbours disagree about
+/// orientation has no meaningful winding number (a box with one face flipped reads 0.35 to
+/// 0.7 deep inside it): it is checked by the parity of crossings, as an open mesh, and a note
+/// says so.
+pub(crate) fn checked_closed(mesh: &octoproxy_cpu::io::Mesh, what: &str) -> bool {
+    if !mesh.is_closed() {
+        return false;
+    }
+    if mesh.is_consistently_oriented() {
+        return true;
+    }
+    eprintln!(
+        "note: {what} is closed but its triangles are not wound consistently (neighbours disagree about which way an edge runs): it is checked by crossing parity, as an open mesh"
+    );
+    false
+}
+
 /// `check --scene FILE`: particles stepped through a scene of moving instances on the CPU,
 /// every piece of every path checked against each instance's own mesh in its frame at the
 /// pose of each moment (`octoproxy_cpu::harness::scene`).
@@ -406,6 +424,11 @@ fn check_scene(
             )
         }
         None => {
+            for (k, m) in inst.meshes.iter().enumerate() {
+                if m[0].is_closed() && !inst.closed[k] {
+                    checked_closed(&m[0], &format!("the mesh of proxy {k}"));
+                }
+            }
             let refs: Vec<MeshRef<'_>> = inst.meshes.iter().map(|m| MeshRef::from(&m[0])).collect();
             (SceneCheck::new(&refs, &inst.closed, &views), None)
         }

@@ -144,7 +144,11 @@ impl Instanced {
             .iter()
             .map(|p| vec![baked.meshes()[p.mesh as usize].mesh.clone()])
             .collect();
-        let closed = meshes.iter().map(|m| m[0].is_closed()).collect();
+        // Closed and wound consistently: what `check` reads by winding numbers.
+        let closed = meshes
+            .iter()
+            .map(|m| m[0].is_closed() && m[0].is_consistently_oriented())
+            .collect();
         Ok(Instanced {
             scene,
             baked: Some(baked),
@@ -200,7 +204,9 @@ impl Instanced {
         let mut scene = Scene::new();
         let proxy = scene.add_proxy(words)?;
         scene.add_instance(proxy, Pose::IDENTITY)?;
-        let closed = vec![!meshes.is_empty() && octoproxy_cpu::scenes::merge(&meshes).is_closed()];
+        let merged = octoproxy_cpu::scenes::merge(&meshes);
+        let closed =
+            vec![!meshes.is_empty() && merged.is_closed() && merged.is_consistently_oriented()];
         Ok(Instanced {
             scene,
             baked: None,

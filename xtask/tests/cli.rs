@@ -202,6 +202,41 @@ fn bake_then_sim_keeps_every_particle_in_order() {
 }
 
 #[test]
+fn a_closed_mesh_wound_inconsistently_is_checked_by_crossings() {
+    // A box with one face flipped: closed, but with no meaningful winding number (0.35 to
+    // 0.7 deep inside it), which made every check fail where nothing crossed. It is checked
+    // by crossing parity, and a note says why.
+    let dir = scratch("flipped");
+    let flipped = BOX_OBJ.replace("f 1 3 4 2", "f 2 4 3 1");
+    assert_ne!(flipped, BOX_OBJ);
+    std::fs::write(dir.join("flipped.obj"), flipped).unwrap();
+    let out = octoproxy(
+        &[
+            "check",
+            "--mesh",
+            "flipped.obj",
+            "--dmax",
+            "5",
+            "--emit",
+            "1000",
+            "--steps",
+            "30",
+            "--restitution",
+            "0",
+            "--friction",
+            "0",
+        ],
+        &dir,
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    let said = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{err}{said}");
+    assert!(err.contains("not wound consistently"), "{err}");
+    assert!(err.contains("open mesh (crossing parity)"), "{err}");
+    assert!(said.contains("penetrations: 0 "), "{said}");
+}
+
+#[test]
 fn a_files_per_particle_radii_are_named_not_silently_dropped() {
     let dir = scratch("pscale");
     std::fs::write(dir.join("box.obj"), BOX_OBJ).unwrap();

@@ -3,8 +3,9 @@
 # carried (see prepare.sh beside this file): installs the carried Vulkan loader (and libglvnd,
 # which NVIDIA's Vulkan driver, inside libGLX_nvidia, needs), finds the
 # NVIDIA driver, and runs the wgpu bench on the bench scenes at 1M, 3M and 10M particles with
-# the GPU floor and the plain step's workgroup size swept from 32 to 256, and the
-# particle-particle pass at 1M. Everything lands in $OUT: results.json (what docs/bench/gpu/
+# the GPU floor and the plain step's workgroup size swept from 32 to 256, the split step at the
+# default size (timed by the bench beside the single dispatch), and the particle-particle pass
+# at 1M. Everything lands in $OUT: results.json (what docs/bench/gpu/
 # commits), results.md, the log and the driver's report. About 2.5 minutes on an H200.
 #
 # Not the scene cases: on NVIDIA's driver (580) the scene kernel took 154 s and 229 s to build

@@ -35,6 +35,10 @@ use rayon::prelude::*;
 use crate::flags;
 use crate::plot;
 
+/// The method name of the split GPU step's rows (`WgpuBackend::set_split_step`), timed at the
+/// default workgroup size beside `octoproxy-wgpu` in the mixed band.
+pub const SPLIT_METHOD: &str = "octoproxy-wgpu-split";
+
 mod instances;
 mod particles;
 mod profile;
@@ -1060,6 +1064,23 @@ pub fn run(args: Vec<std::ffi::OsString>) -> Result<()> {
                                 }));
                             }
                             g.set_workgroup_size(default)?;
+                            // The split step (`WgpuBackend::set_split_step`) at the default
+                            // size, timed beside the single dispatch in the same run.
+                            say(&bar, format!("{name}: {n} particles, the split step"));
+                            g.set_split_step(true);
+                            let split = time(g, false);
+                            g.set_split_step(false);
+                            let mut split = split?.on(row(
+                                SPLIT_METHOD,
+                                "wgpu",
+                                bake_ms,
+                                proxy_bytes,
+                                0.0,
+                                pen_octo,
+                            ));
+                            split.workgroup_size = default;
+                            split.sweep = true;
+                            sweep_rows.push(split);
                         }
                         if scene_api && gpu_scenes {
                             say(&bar, format!("{name}: {n} particles, the scene API"));
@@ -1846,7 +1867,7 @@ mod docs {
 
     use anyhow::{anyhow, bail, Context, Result};
 
-    use super::{human_bytes, instances, Report, Row, BANDS};
+    use super::{human_bytes, instances, Report, Row, BANDS, SPLIT_METHOD};
 
     /// Where the committed run lives, from the repository root.
     pub const COMMITTED_DIR: &str = "docs/bench";
@@ -2223,6 +2244,36 @@ mod docs {
                     .collect();
                 let _ = writeln!(s, "| {} | {} |", q.scene, cells.join(" | "));
             }
+        }
+        // The split step beside the single dispatch, where the run timed it.
+        let split: Vec<String> = steps
+            .iter()
+            .filter_map(|q| {
+                let t = r.rows.iter().find(|x| {
+                    x.method == SPLIT_METHOD
+                        && x.backend == "wgpu"
+                        && x.scene == q.scene
+                        && x.particles == q.particles
+                        && x.band == q.band
+                })?;
+                Some(format!(
+                    "{} at {}: {:.3} against {:.3} ms ({:.2}×)",
+                    q.scene,
+                    thousands(q.particles as u64),
+                    t.ms_per_step(),
+                    q.ms_per_step(),
+                    t.ns_per_particle_step / q.ns_per_particle_step
+                ))
+            })
+            .collect();
+        if !split.is_empty() {
+            let _ = writeln!(
+                s,
+                "\nThe split step (`WgpuBackend::set_split_step`: the particles that settle, then \
+                 the rest queued and dispatched indirectly), in the same run at the default \
+                 workgroup size, milliseconds per step against the single dispatch: {}.",
+                split.join("; ")
+            );
         }
         let aim: Vec<&&Row> = steps
             .iter()
@@ -3022,10 +3073,11 @@ mod docs {
                     row("octoproxy-wgpu", 32, 0.09),
                     row("floor", 256, 0.05),
                     row("octoproxy-wgpu", 256, 0.3),
+                    row(SPLIT_METHOD, 64, 0.1),
                 ]
                 .into_iter()
                 .map(|mut q| {
-                    q.sweep = q.workgroup_size != 64;
+                    q.sweep = q.workgroup_size != 64 || q.method == SPLIT_METHOD;
                     q
                 })
                 .collect(),
@@ -3042,6 +3094,12 @@ mod docs {
             assert!(text.contains("| beast | 0.900 | 2.000 | 3.000 |"), "{text}");
             // 2 ms a step at the default size misses the aim of 1 ms.
             assert!(text.contains("met on 0 of 1 scenes"), "{text}");
+            // The split step beside the single dispatch, and in no other table.
+            assert!(
+                text.contains("beast at 10,000,000: 1.000 against 2.000 ms (0.50×)"),
+                "{text}"
+            );
+            assert_eq!(text.matches("1.000").count(), 1, "{text}");
         }
 
         #[test]
